@@ -1,0 +1,55 @@
+"""Solver settings for the cable scenes, chosen by measurement (see docs/RESULTS.md, "Integrator choice")."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+_INTEGRATORS = ("discrete", "Euler", "RK4")
+_SOLVERS = ("Newton", "CG")
+
+
+@dataclass(frozen=True)
+class PhysicsOptions:
+    """MuJoCo ``<option>`` values used by every scene.
+
+    Default: ``discrete`` + Newton at 1 ms. Measured (benchmarks/integrator_choice.py, docs/RESULTS.md):
+    ``Euler`` at 1 ms is faster and closer to a fine reference on smooth whips, but diverged in 10 of 20
+    random-action tip-control episodes (the per-edge twist joints are stiff and light), while ``discrete``
+    diverged in none; an RL sandbox explores with random actions, so robustness wins.
+
+    Rod elasticity in MuJoCo 4 runs under ``discrete`` (implicit in the effective metric), ``Euler`` or
+    ``RK4`` (explicit); ``implicit``/``implicitfast`` are rejected by MuJoCo for rods.
+
+    Attributes:
+        timestep_s: Physics step.
+        integrator: ``"discrete"``, ``"Euler"`` or ``"RK4"``.
+        solver: ``"Newton"`` or ``"CG"`` (PGS does not support flexes).
+        iterations: Maximum constraint-solver iterations.
+        tolerance: Solver early-termination tolerance.
+    """
+
+    timestep_s: float = 0.001
+    integrator: str = "discrete"
+    solver: str = "Newton"
+    iterations: int = 50
+    tolerance: float = 1e-8
+
+    def __post_init__(self) -> None:
+        if self.integrator not in _INTEGRATORS:
+            raise ValueError(
+                f"integrator={self.integrator!r} is not supported for elastic rods; expected one of {_INTEGRATORS}"
+            )
+        if self.solver not in _SOLVERS:
+            raise ValueError(f"solver={self.solver!r}; expected one of {_SOLVERS}")
+        if not 1e-5 <= self.timestep_s <= 0.01:
+            raise ValueError(f"timestep_s={self.timestep_s} is outside [1e-5, 0.01] s")
+        if self.iterations < 1:
+            raise ValueError(f"iterations={self.iterations} must be >= 1")
+
+    def to_mjcf(self) -> str:
+        """Return the ``<option .../>`` attributes as an MJCF string."""
+        return (
+            f'timestep="{self.timestep_s}" integrator="{self.integrator}" solver="{self.solver}" '
+            f'iterations="{self.iterations}" ls_iterations="{max(5, self.iterations // 2)}" '
+            f'tolerance="{self.tolerance}"'
+        )

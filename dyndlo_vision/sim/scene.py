@@ -1,0 +1,386 @@
+"""The MuJoCo scene: grippers (TCPs) holding a discrete-elastic-rod cable, and task props.
+
+The model is generated as MJCF from frozen configuration dataclasses, so every body, joint, geom, site,
+camera and actuator has a name, and indices are looked up by name once.
+
+Gripper control is a cascaded position-velocity loop realised by one affine MuJoCo actuator per axis:
+
+    force = kv * (v_ref + kp * (p_ref - p) - v)  =  kv * u  - kv*kp * p  - kv * v,   u = v_ref + kp * p_ref
+
+so the outer loop (gain kp, 1/s) turns the position error into a velocity command and the inner loop
+(gain kv, N s/m) tracks it. Driving joints rather than mocap bodies matters: elastic flex attachments need
+the real velocity of the body that holds them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from dyndlo_vision.sim.cable import CableParams
+from dyndlo_vision.sim.physics import PhysicsOptions
+
+CABLE_NAME = "cable"
+FLOOR_NAME = "floor"
+
+
+@dataclass(frozen=True)
+class GripperGains:
+    """Gains of the cascaded position-velocity loop of each TCP axis (see module docstring)."""
+
+    kp_per_s: float = 60.0
+    kv_ns_per_m: float = 400.0
+    mass_kg: float = 1.0
+
+
+@dataclass(frozen=True)
+class BoxProp:
+    """A static box (e.g. the vaulting obstacle). ``size_m`` are full side lengths."""
+
+    name: str
+    center_m: tuple[float, float, float]
+    size_m: tuple[float, float, float]
+    rgba: tuple[float, float, float, float] = (0.3, 0.4, 0.8, 1.0)
+
+
+@dataclass(frozen=True)
+class CapsuleProp:
+    """A static capsule between two points (e.g. the bar of a hook)."""
+
+    name: str
+    from_m: tuple[float, float, float]
+    to_m: tuple[float, float, float]
+    radius_m: float
+    rgba: tuple[float, float, float, float] = (0.6, 0.6, 0.6, 1.0)
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """Everything needed to build one scene.
+
+    Attributes:
+        cable: Cable parameters.
+        grippers_m: Start position of each TCP (one for single arm, two for dual arm). The cable is clamped
+            to the first TCP (its first edge is rigid with the gripper).
+        far_end: What holds the cable's last node: ``"free"``, ``"gripper"`` (the second TCP) or
+            ``"support"`` (a fixed point at ``support_m``).
+        support_m: World position of the support for ``far_end="support"``.
+        cable_axis: Direction in which the straight cable leaves the first TCP in the compiled model (its
+            rest pose); the default hangs it straight down.
+        initial_path_m: Optional polyline, starting at the first TCP, along which the cable is laid before it
+            settles under gravity. ``None`` lays it straight down from the first TCP.
+        settle_s: Simulated time the cable settles (grippers still) before the initial state is recorded.
+        target_radius_m: Radius of the visual target marker (a mocap body, no collisions); 0 for none.
+        boxes, capsules: Static collision props.
+        physics: Solver settings.
+        gains: TCP loop gains.
+        image_size: Off-screen framebuffer (width, height) for rendering.
+    """
+
+    cable: CableParams = field(default_factory=CableParams)
+    grippers_m: tuple[tuple[float, float, float], ...] = ((0.5, 0.0, 0.6),)
+    far_end: str = "free"
+    support_m: tuple[float, float, float] | None = None
+    initial_path_m: tuple[tuple[float, float, float], ...] | None = None
+    cable_axis: tuple[float, float, float] = (0.0, 0.0, -1.0)
+    settle_s: float = 1.0
+    target_radius_m: float = 0.0
+    boxes: tuple[BoxProp, ...] = ()
+    capsules: tuple[CapsuleProp, ...] = ()
+    physics: PhysicsOptions = field(default_factory=PhysicsOptions)
+    gains: GripperGains = field(default_factory=GripperGains)
+    image_size: tuple[int, int] = (640, 480)
+
+    def __post_init__(self) -> None:
+        if len(self.grippers_m) not in (1, 2):
+            raise ValueError(f"expected 1 or 2 grippers, got {len(self.grippers_m)}")
+        if self.far_end not in ("free", "gripper", "support"):
+            raise ValueError(f"far_end={self.far_end!r}; expected 'free', 'gripper' or 'support'")
+        if self.far_end == "gripper" and len(self.grippers_m) != 2:
+            raise ValueError("far_end='gripper' needs two grippers")
+        if not np.isfinite(self.cable_axis).all() or np.linalg.norm(self.cable_axis) < 1e-9:
+            raise ValueError(f"cable_axis={self.cable_axis} must be a non-zero direction")
+        if self.far_end == "support" and self.support_m is None:
+            raise ValueError("far_end='support' needs support_m")
+
+    @property
+    def num_grippers(self) -> int:
+        """Number of TCPs."""
+        return len(self.grippers_m)
+
+
+def _fmt(values: Sequence[float]) -> str:
+    return " ".join(f"{float(v):.6g}" for v in values)
+
+
+def gripper_name(index: int) -> str:
+    """Name of the body of TCP ``index``; its joints are ``<name>_x|y|z``."""
+    return f"tcp_{index}"
+
+
+def build_mjcf(config: SceneConfig) -> str:
+    """Return the MJCF text of the scene described by ``config``."""
+    cable = config.cable
+    g = config.gains
+    width, height = config.image_size
+    seg = cable.segment_length_m
+    bodies = []
+    for i, pos in enumerate(config.grippers_m):
+        name = gripper_name(i)
+        flex = ""
+        if i == 0:
+            # The grid runs along its local x axis, centred on `pos`: rotate x onto cable_axis and shift the
+            # grid so node 0 sits at the TCP.
+            axis = np.asarray(config.cable_axis, dtype=float)
+            axis = axis / np.linalg.norm(axis)
+            quat = np.zeros(4)
+            mujoco.mju_quatZ2Vec(quat, axis)  # z -> axis
+            to_x = np.array([np.cos(-np.pi / 4), 0.0, np.sin(-np.pi / 4), 0.0])  # -90 deg about y: x -> z
+            q = np.zeros(4)
+            mujoco.mju_mulQuat(q, quat, to_x)
+            centre = axis * cable.length_m / 2
+            # Inextensibility: discrete integration takes any constraint time constant (it is implicit), and
+            # 0.5 ms keeps the stretch of a 1.8 m/s whip near 1%; explicit integrators need >= 2 timesteps.
+            implicit = config.physics.integrator == "discrete"
+            edge_timeconst = 0.0005 if implicit else 2 * config.physics.timestep_s
+            flex = f"""
+      <flexcomp name="{CABLE_NAME}" type="grid" dim="1" count="{cable.num_nodes} 1 1" spacing="{seg:.9g} 1 1"
+                mass="{cable.mass_kg:.9g}" radius="{cable.radius_m:.9g}" rgba="{_fmt(cable.rgba)}"
+                pos="{_fmt(centre)}" quat="{_fmt(q)}">
+        <pin id="0 1"/>
+        <edge equality="true" solref="{edge_timeconst:.6g} 1"
+              solimp="0.99 0.9999 0.001"/>
+        <elasticity young="{cable.young_pa:.9g}" poisson="{cable.poisson:.6g}" damping="{cable.damping_s:.6g}"/>
+        <contact selfcollide="none" condim="3" friction="0.6" solref="0.005 1"/>
+      </flexcomp>"""
+        bodies.append(f"""
+    <body name="{name}" pos="{_fmt(pos)}" gravcomp="1">
+      <joint name="{name}_x" type="slide" axis="1 0 0"/>
+      <joint name="{name}_y" type="slide" axis="0 1 0"/>
+      <joint name="{name}_z" type="slide" axis="0 0 1"/>
+      <geom name="{name}_geom" type="sphere" size="0.02" mass="{g.mass_kg}" rgba="0.2 0.2 0.2 1"
+            contype="0" conaffinity="0"/>
+      <site name="{name}_site" size="0.005"/>{flex}
+    </body>""")
+    props = []
+    if config.far_end == "support":
+        assert config.support_m is not None
+        props.append(f"""
+    <body name="support" pos="{_fmt(config.support_m)}">
+      <geom name="support_geom" type="sphere" size="0.012" rgba="0.2 0.2 0.2 1" contype="0" conaffinity="0"/>
+    </body>""")
+    if config.target_radius_m > 0:
+        props.append(f"""
+    <body name="target" mocap="true" pos="0.7 0 0.3">
+      <geom name="target_geom" type="sphere" size="{config.target_radius_m:.6g}" rgba="0.1 0.7 0.2 0.6"
+            contype="0" conaffinity="0"/>
+    </body>""")
+    for box in config.boxes:
+        half = [s / 2 for s in box.size_m]
+        props.append(
+            f'\n    <geom name="{box.name}" type="box" pos="{_fmt(box.center_m)}" size="{_fmt(half)}" '
+            f'rgba="{_fmt(box.rgba)}"/>'
+        )
+    for cap in config.capsules:
+        props.append(
+            f'\n    <geom name="{cap.name}" type="capsule" fromto="{_fmt(cap.from_m + cap.to_m)}" '
+            f'size="{cap.radius_m:.6g}" rgba="{_fmt(cap.rgba)}"/>'
+        )
+    actuators = []
+    for i in range(config.num_grippers):
+        for axis in "xyz":
+            jn = f"{gripper_name(i)}_{axis}"
+            actuators.append(
+                f'\n    <general name="{jn}_servo" joint="{jn}" gainprm="{g.kv_ns_per_m}" '
+                f'biastype="affine" biasprm="0 {-g.kv_ns_per_m * g.kp_per_s} {-g.kv_ns_per_m}"/>'
+            )
+    equality = ""
+    last = f"{CABLE_NAME}_{cable.num_segments}"
+    if config.far_end == "gripper":
+        equality = f'\n    <connect name="far_end" body1="{gripper_name(1)}" body2="{last}" anchor="0 0 0"/>'
+    elif config.far_end == "support":
+        equality = f'\n    <connect name="far_end" body1="support" body2="{last}" anchor="0 0 0"/>'
+    return f"""<mujoco model="dyndlo">
+  <compiler autolimits="true"/>
+  <option {config.physics.to_mjcf()}/>
+  <visual>
+    <global offwidth="{width}" offheight="{height}"/>
+    <headlight ambient="0.35 0.35 0.35" diffuse="0.5 0.5 0.5"/>
+    <quality shadowsize="0"/>
+  </visual>
+  <asset>
+    <texture name="grid" type="2d" builtin="checker" rgb1="0.82 0.82 0.82" rgb2="0.78 0.78 0.78"
+             width="256" height="256"/>
+    <material name="floor" texture="grid" texrepeat="8 8"/>
+  </asset>
+  <worldbody>
+    <light name="key" pos="0.5 -1 2.5" dir="0 0.4 -1" diffuse="0.6 0.6 0.6"/>
+    <geom name="{FLOOR_NAME}" type="plane" size="3 3 0.1" material="floor"/>
+    <camera name="front" pos="0.55 -1.7 0.45" xyaxes="1 0 0 0 0 1" fovy="45"/>
+    <camera name="oblique" pos="1.6 -1.4 1.1" xyaxes="0.7 0.71 0 -0.25 0.25 0.93" fovy="45"/>{"".join(bodies)}{"".join(props)}
+  </worldbody>
+  <equality>{equality}
+  </equality>
+  <actuator>{"".join(actuators)}
+  </actuator>
+</mujoco>
+"""
+
+
+class Scene:
+    """A compiled scene with named accessors and a recorded, settled initial state.
+
+    Attributes:
+        config: The configuration it was built from.
+        model: The ``mujoco.MjModel``.
+        data: The ``mujoco.MjData``.
+    """
+
+    def __init__(self, config: SceneConfig) -> None:
+        self.config = config
+        try:
+            self.model = mujoco.MjModel.from_xml_string(build_mjcf(config))
+        except ValueError as exc:  # MuJoCo reports compile errors as ValueError
+            raise ValueError(f"the scene does not compile: {exc}") from exc
+        self.data = mujoco.MjData(self.model)
+        m = self.model
+        self._tcp_qpos = np.array(
+            [[m.joint(f"{gripper_name(i)}_{a}").qposadr[0] for a in "xyz"] for i in range(config.num_grippers)]
+        )
+        self._tcp_dof = np.array(
+            [[m.joint(f"{gripper_name(i)}_{a}").dofadr[0] for a in "xyz"] for i in range(config.num_grippers)]
+        )
+        self._tcp_act = np.array(
+            [[m.actuator(f"{gripper_name(i)}_{a}_servo").id for a in "xyz"] for i in range(config.num_grippers)]
+        )
+        self._tcp_home = np.array(config.grippers_m, dtype=float)
+        self._kp = config.gains.kp_per_s
+        self._flex_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_FLEX, CABLE_NAME)
+        self._vert_adr = int(m.flex_vertadr[self._flex_id])
+        self._vert_num = int(m.flex_vertnum[self._flex_id])
+        self._target_mocap = int(m.body("target").mocapid[0]) if config.target_radius_m > 0 else -1
+        if config.far_end != "free":
+            # The connect constraint's second anchor is computed from qpos0, where the rod is straight; put it
+            # at the node itself so that the node, not a point offset from it, is held.
+            eq = m.equality("far_end").id
+            m.eq_data[eq, 3:6] = 0.0
+        self._state_spec = mujoco.mjtState.mjSTATE_INTEGRATION
+        self._initial_state = self._settle()
+
+    # ------------------------------------------------------------------ state
+    def _settle(self) -> NDArray[np.float64]:
+        """Lay the cable along the initial path, let it settle, and return the full integration state."""
+        m, d = self.model, self.data
+        mujoco.mj_resetData(m, d)
+        self.set_tcp_reference(self._tcp_home, np.zeros_like(self._tcp_home))
+        self._place_cable_along_path()
+        mujoco.mj_forward(m, d)
+        nsteps = int(round(self.config.settle_s / m.opt.timestep))
+        for _ in range(nsteps):
+            mujoco.mj_step(m, d)
+        if not self.is_finite():
+            raise ValueError(
+                f"the cable is unstable while settling with {self.config.cable} and {self.config.physics}"
+            )
+        d.qvel[:] = 0.0
+        d.time = 0.0
+        mujoco.mj_forward(m, d)
+        state = np.empty(mujoco.mj_stateSize(m, self._state_spec))
+        mujoco.mj_getState(m, d, state, self._state_spec)
+        return state
+
+    def _place_cable_along_path(self) -> None:
+        """Move the free nodes (via their slide joints) onto the initial path, resampled by arc length."""
+        path = self.config.initial_path_m
+        if path is None:
+            return
+        pts = np.asarray(path, dtype=float)
+        if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 2:
+            raise ValueError(f"initial_path_m must be a polyline of >= 2 points (M, 3), got shape {pts.shape}")
+        seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        arc = np.concatenate([[0.0], np.cumsum(seg)])
+        cable = self.config.cable
+        if arc[-1] < cable.length_m - 1e-9:
+            raise ValueError(f"initial_path_m is {arc[-1]:.3f} m long, shorter than the cable ({cable.length_m} m)")
+        s = np.linspace(0.0, cable.length_m, cable.num_nodes)
+        target = np.stack([np.interp(s, arc, pts[:, k]) for k in range(3)], axis=1)
+        m, d = self.model, self.data
+        mujoco.mj_kinematics(m, d)
+        for node in range(2, cable.num_nodes):  # nodes 0 and 1 are clamped to the gripper
+            body = m.body(f"{CABLE_NAME}_{node}")
+            jadr = body.jntadr[0]
+            for k in range(3):
+                qadr = m.jnt_qposadr[jadr + k]
+                axis = m.jnt_axis[jadr + k]
+                d.qpos[qadr] = float(np.dot(axis, target[node] - (d.xpos[body.id] - d.qpos[qadr] * axis)))
+        mujoco.mj_kinematics(m, d)
+
+    def reset(self) -> None:
+        """Restore the settled initial state (time 0, everything at rest)."""
+        mujoco.mj_setState(self.model, self.data, self._initial_state, self._state_spec)
+        self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number = 0
+        self.set_tcp_reference(self._tcp_home, np.zeros_like(self._tcp_home))
+        mujoco.mj_forward(self.model, self.data)
+
+    # ------------------------------------------------------------------ reads
+    @property
+    def time(self) -> float:
+        """Simulated time in seconds."""
+        return float(self.data.time)
+
+    @property
+    def timestep(self) -> float:
+        """Physics timestep in seconds."""
+        return float(self.model.opt.timestep)
+
+    @property
+    def num_grippers(self) -> int:
+        """Number of TCPs."""
+        return self.config.num_grippers
+
+    @property
+    def gripper_home(self) -> NDArray[np.float64]:
+        """Start positions of the TCPs, (n_g, 3)."""
+        return self._tcp_home.copy()
+
+    def tcp_positions(self) -> NDArray[np.float64]:
+        """World positions of the TCPs, (n_g, 3)."""
+        return self._tcp_home + self.data.qpos[self._tcp_qpos]
+
+    def tcp_velocities(self) -> NDArray[np.float64]:
+        """World linear velocities of the TCPs, (n_g, 3)."""
+        return self.data.qvel[self._tcp_dof].copy()
+
+    def cable_nodes(self) -> NDArray[np.float64]:
+        """World positions of the cable nodes from the held end to the far end, (N, 3)."""
+        return self.data.flexvert_xpos[self._vert_adr : self._vert_adr + self._vert_num].copy()
+
+    # ------------------------------------------------------------------ writes
+    def set_tcp_reference(self, position: ArrayLike, velocity: ArrayLike) -> None:
+        """Set the reference position and velocity of every TCP, each (n_g, 3)."""
+        p = np.asarray(position, dtype=float).reshape(self.num_grippers, 3)
+        v = np.asarray(velocity, dtype=float).reshape(self.num_grippers, 3)
+        self.data.ctrl[self._tcp_act] = v + self._kp * (p - self._tcp_home)
+
+    def set_target(self, position: ArrayLike) -> None:
+        """Move the visual target marker."""
+        if self._target_mocap < 0:
+            raise ValueError("this scene has no target marker (target_radius_m = 0)")
+        self.data.mocap_pos[self._target_mocap] = np.asarray(position, dtype=float)
+
+    def step(self, nsteps: int = 1) -> None:
+        """Advance the physics by ``nsteps`` steps with the current references."""
+        mujoco.mj_step(self.model, self.data, nsteps)
+
+    def is_finite(self) -> bool:
+        """Whether the simulation has stayed sane since the last reset (blow-up check).
+
+        MuJoCo resets the state by itself when accelerations become NaN or huge, and counts a warning; a
+        blow-up is therefore detected from that counter as well as from the state.
+        """
+        bad = self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number
+        return bool(bad == 0 and np.all(np.isfinite(self.data.qpos)) and np.abs(self.cable_nodes()).max() < 50.0)

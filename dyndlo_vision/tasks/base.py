@@ -1,0 +1,335 @@
+"""One Gymnasium environment for every DynDLO task: a :class:`Task` supplies the scene and the reward.
+
+An episode is a B-spline TCP trajectory (``dyndlo_vision.trajectory``) followed in MuJoCo:
+
+* single-step (``multi_step=False``): one action plans the whole trajectory; the environment runs it, lets
+  the cable move on for ``Task.settle_s``, and returns the episode's reward (``terminated=True``);
+* multi-step (``multi_step=True``): every ``control_period_s`` (0.04 s, 25 Hz) the agent re-plans from the
+  current reference position *and velocity* of the TCP, so the commanded motion stays C1 across re-plans.
+
+Observations (table II): gripper positions (3 n_g), gripper velocities (3 n_g), P_DLO (3), P* (3).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from numpy.typing import NDArray
+
+from dyndlo_vision.sim.scene import Scene, SceneConfig
+from dyndlo_vision.tasks.rewards import AvoidLimits, RewardCoefficients, avoid_flags
+from dyndlo_vision.trajectory import ActionSpec, BSplineTrajectory
+
+CONTROL_PERIOD_S = 0.04  # section IV-B: re-plan every 0.04 s
+MONITOR_PERIOD_S = 0.002  # how often constraints and the goal are checked while simulating
+
+
+@dataclass
+class EpisodeMonitor:
+    """What happened during an episode, accumulated at ``MONITOR_PERIOD_S``."""
+
+    avoid: dict[str, bool] = field(
+        default_factory=lambda: {"outreach": False, "velocity": False, "collision": False, "shoulder": False}
+    )
+    max_tcp_speed_m_s: float = 0.0
+    max_mean_height_m: float = -np.inf
+    min_goal_distance_m: float = np.inf
+    last_p_dlo: NDArray[np.float64] | None = None
+    samples: int = 0
+
+    @property
+    def any_avoid(self) -> bool:
+        """I_avoid over the episode so far."""
+        return any(self.avoid.values())
+
+
+class Task(ABC):
+    """What differs between DynDLO tasks: scene, goal, action ranges, reward.
+
+    Subclasses are small; the environment does the simulation, trajectory and bookkeeping.
+    """
+
+    #: Gymnasium id suffix, e.g. "TipControl".
+    name: str = ""
+    #: "implicit" (evaluate once at the end) or "explicit" (accumulate per step).
+    kind: str = "implicit"
+    #: Time the cable moves on after a single-step trajectory ends (and after the last re-plan).
+    settle_s: float = 0.6
+    #: Episode length in multi-step mode.
+    episode_s: float = 2.0
+    #: Whether cable-floor contact of P_DLO counts as a collision.
+    check_collision: bool = True
+    #: Whether the goal distance is the distance of P_DLO's path between monitor samples to P* (tip control).
+    swept_goal_check: bool = False
+
+    def __init__(self, planar: bool = True, multi_step: bool = False) -> None:
+        self.planar = planar
+        self.multi_step = multi_step
+        self.limits = AvoidLimits()
+
+    @abstractmethod
+    def scene_config(self) -> SceneConfig:
+        """Return the scene of this task."""
+
+    @abstractmethod
+    def action_spec(self) -> ActionSpec:
+        """Return the action ranges of this task."""
+
+    @abstractmethod
+    def coefficients(self) -> RewardCoefficients:
+        """Return the table V column of this task (and mode)."""
+
+    @abstractmethod
+    def p_dlo_node(self, scene: Scene) -> int:
+        """Index of the cable node whose position is P_DLO."""
+
+    @abstractmethod
+    def sample_goal(self, rng: np.random.Generator) -> NDArray[np.float64]:
+        """Return P* (target, obstacle or hook position) for a new episode."""
+
+    def begin_episode(self) -> None:
+        """Clear per-episode state (called by the environment's reset)."""
+
+    def on_sample(self, scene: Scene, goal: NDArray[np.float64], monitor: EpisodeMonitor) -> None:
+        """Called at every monitor sample (every ``MONITOR_PERIOD_S``) after the monitor is updated."""
+
+    def final_point(self, goal: NDArray[np.float64]) -> NDArray[np.float64] | None:
+        """The point appended to every plan (task IV), else None."""
+        return None
+
+    def goal_distance(self, scene: Scene, goal: NDArray[np.float64]) -> float:
+        """Distance used for the goal condition, checked at every monitor sample (min kept)."""
+        return float(np.linalg.norm(scene.cable_nodes()[self.p_dlo_node(scene)] - goal))
+
+    @abstractmethod
+    def evaluate(
+        self, scene: Scene, goal: NDArray[np.float64], monitor: EpisodeMonitor, final: bool
+    ) -> tuple[dict[str, float], bool, dict[str, Any]]:
+        """Return (reward terms, success, extra info) for the step that just ended.
+
+        ``final`` is True at the end of the episode. Implicit tasks return zero terms until then.
+        """
+
+    def is_done_early(self, scene: Scene, goal: NDArray[np.float64], monitor: EpisodeMonitor) -> bool:
+        """Whether a multi-step episode may end before ``episode_s`` (e.g. the target was hit)."""
+        return False
+
+
+class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
+    """A DynDLO task as a Gymnasium environment.
+
+    Args:
+        task: The task definition.
+        render_mode: None or "rgb_array".
+        render_camera: Name of the MuJoCo camera used by ``render``.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 25}
+
+    def __init__(self, task: Task, render_mode: str | None = None, render_camera: str = "front") -> None:
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode={render_mode!r}; expected None or 'rgb_array'")
+        self.task = task
+        self.multi_step = task.multi_step
+        self.render_mode = render_mode
+        self.render_camera = render_camera
+        self.scene = Scene(task.scene_config())
+        if render_camera not in [self.scene.model.camera(i).name for i in range(self.scene.model.ncam)]:
+            raise ValueError(f"render_camera={render_camera!r} is not a camera of the scene")
+        self.spec_actions = task.action_spec()
+        self.coeffs = task.coefficients()
+        n_g = self.scene.num_grippers
+        self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(self.spec_actions.size,), dtype=np.float32)
+        obs_dim = 6 * n_g + 6
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(obs_dim,), dtype=np.float32)
+        self._dt = self.scene.timestep
+        self._steps_per_monitor = max(1, int(round(MONITOR_PERIOD_S / self._dt)))
+        self._steps_per_control = int(round(CONTROL_PERIOD_S / self._dt))
+        self._renderer: Any = None
+        self._goal = np.zeros(3)
+        self._trajectory: BSplineTrajectory | None = None
+        self._monitor = EpisodeMonitor()
+        self._offsets = self.scene.gripper_home - self.scene.gripper_home[0]
+        self._mirror = np.array([1.0, -1.0, 1.0])  # dual arm: the second gripper mirrors lateral motion
+        self._decisions = 0
+
+    # ------------------------------------------------------------------ gym API
+    @property
+    def model(self) -> Any:
+        """The ``mujoco.MjModel``."""
+        return self.scene.model
+
+    @property
+    def data(self) -> Any:
+        """The ``mujoco.MjData``."""
+        return self.scene.data
+
+    def cable_nodes(self) -> NDArray[np.float64]:
+        """World positions of the cable nodes, held end first, (N, 3)."""
+        return self.scene.cable_nodes()
+
+    @property
+    def goal(self) -> NDArray[np.float64]:
+        """P* of the current episode."""
+        return self._goal.copy()
+
+    @property
+    def trajectory(self) -> BSplineTrajectory | None:
+        """The TCP trajectory being followed (of the first gripper), None before the first action."""
+        return self._trajectory
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[NDArray[np.float32], dict[str, Any]]:
+        """Start an episode; ``options={"goal": (x, y, z)}`` fixes P*."""
+        super().reset(seed=seed)
+        self.scene.reset()
+        self.task.begin_episode()
+        if options and "goal" in options:
+            goal = np.asarray(options["goal"], dtype=float)
+            if goal.shape != (3,) or not np.all(np.isfinite(goal)):
+                raise ValueError(f"options['goal'] must be 3 finite numbers, got {options['goal']!r}")
+            self._goal = goal
+        else:
+            self._goal = self.task.sample_goal(self.np_random)
+        if self.scene.config.target_radius_m > 0:
+            self.scene.set_target(self._goal)
+        self._trajectory = None
+        self._monitor = EpisodeMonitor()
+        self._decisions = 0
+        self._sample_monitor()
+        return self._observation(), {"goal": self._goal.copy()}
+
+    def step(
+        self, action: NDArray[np.float32]
+    ) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
+        """Plan from the action, simulate, observe and reward."""
+        self._plan(action)
+        if self.multi_step:
+            self._simulate(self._steps_per_control)
+            self._decisions += 1
+            elapsed = self.scene.time
+            early = self.task.is_done_early(self.scene, self._goal, self._monitor)
+            final = early or elapsed >= self.task.episode_s - 1e-9
+            if final and not early:
+                self._simulate(int(round(self.task.settle_s / self._dt)))
+        else:
+            assert self._trajectory is not None
+            remaining = self._trajectory.t_end - self.scene.time + self.task.settle_s
+            self._simulate(int(np.ceil(remaining / self._dt)))
+            final = True
+        diverged = not self.scene.is_finite()
+        terms, success, extra = self.task.evaluate(self.scene, self._goal, self._monitor, final or diverged)
+        reward = float(sum(terms.values()))
+        info: dict[str, Any] = {**terms, **extra, "is_success": bool(success), "avoid": dict(self._monitor.avoid),
+                                "sim_time_s": self.scene.time}
+        if diverged:
+            info["diverged"] = True
+        return self._observation(), reward, bool(final or diverged), False, info
+
+    def render(self) -> NDArray[np.uint8] | None:
+        """Return an RGB image from ``render_camera`` (rgb_array mode), else None."""
+        if self.render_mode != "rgb_array":
+            return None
+        if self._renderer is None:
+            from dyndlo_vision.sim.rendering import make_renderer
+
+            self._renderer = make_renderer(self.scene.model, *self.scene.config.image_size[::-1])
+        self._renderer.update_scene(self.scene.data, camera=self.render_camera)
+        return np.asarray(self._renderer.render(), dtype=np.uint8)
+
+    def close(self) -> None:
+        """Release the renderer."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        # MuJoCo objects pickle, but renderers and the settled state are cheaper to rebuild.
+        return {"task": self.task, "render_mode": self.render_mode, "render_camera": self.render_camera}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__init__(state["task"], state["render_mode"], state["render_camera"])  # type: ignore[misc]
+
+    # ------------------------------------------------------------------ internals
+    def _reference_state(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Commanded position and velocity of the first gripper now (its home before any plan)."""
+        if self._trajectory is None:
+            return self.scene.gripper_home[0], np.zeros(3)
+        t = self.scene.time
+        return self._trajectory.position(t), self._trajectory.velocity(t)
+
+    def _plan(self, action: NDArray[np.float32]) -> None:
+        a = np.asarray(action)
+        if a.shape != self.action_space.shape:
+            raise ValueError(f"action must have shape {self.action_space.shape}, got shape {a.shape}")
+        if not self.multi_step and self._trajectory is not None:
+            raise RuntimeError("single-step episode already ended: call reset()")
+        p0, v0 = self._reference_state()
+        points, times = self.spec_actions.decode(
+            a.astype(np.float64), p0, self.scene.time, self.task.final_point(self._goal)
+        )
+        self._trajectory = BSplineTrajectory(points, times, start_velocity=v0)
+
+    def _gripper_references(self, t: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        assert self._trajectory is not None
+        pos, vel = self._trajectory.position(t), self._trajectory.velocity(t)
+        home0 = self.scene.gripper_home[0]
+        p = [pos]
+        v = [vel]
+        for i in range(1, self.scene.num_grippers):
+            p.append(home0 + self._offsets[i] + (pos - home0) * self._mirror)
+            v.append(vel * self._mirror)
+        return np.stack(p, axis=1), np.stack(v, axis=1)  # (K, n_g, 3)
+
+    def _simulate(self, nsteps: int) -> None:
+        """Follow the trajectory for ``nsteps`` physics steps, checking constraints as we go."""
+        if nsteps <= 0:
+            return
+        t = self.scene.time + self._dt * np.arange(nsteps)
+        ref_p, ref_v = self._gripper_references(t)
+        scene = self.scene
+        for k in range(nsteps):
+            scene.set_tcp_reference(ref_p[k], ref_v[k])
+            scene.step()
+            if (k + 1) % self._steps_per_monitor == 0:
+                self._sample_monitor()
+                if not scene.is_finite():
+                    return
+
+    def _sample_monitor(self) -> None:
+        scene, mon = self.scene, self._monitor
+        p, v = scene.tcp_positions(), scene.tcp_velocities()
+        nodes = scene.cable_nodes()
+        p_dlo = nodes[self.task.p_dlo_node(scene)]
+        flags = avoid_flags(p, v, p_dlo, self.task.limits, self.task.check_collision)
+        for key, value in flags.items():
+            mon.avoid[key] = mon.avoid[key] or value
+        mon.max_tcp_speed_m_s = max(mon.max_tcp_speed_m_s, float(np.linalg.norm(v, axis=1).max()))
+        mon.max_mean_height_m = max(mon.max_mean_height_m, float(p[:, 2].mean()))
+        # Swept check: the distance to the goal of the segment P_DLO moved along since the last sample, so a
+        # fast tip cannot pass through the target between two samples unnoticed.
+        dist = self.task.goal_distance(scene, self._goal)
+        if mon.last_p_dlo is not None and self.task.swept_goal_check:
+            dist = min(dist, _segment_point_distance(mon.last_p_dlo, p_dlo, self._goal))
+        mon.min_goal_distance_m = min(mon.min_goal_distance_m, dist)
+        mon.last_p_dlo = p_dlo
+        mon.samples += 1
+        self.task.on_sample(scene, self._goal, mon)
+
+    def _observation(self) -> NDArray[np.float32]:
+        p = self.scene.tcp_positions().ravel()
+        v = self.scene.tcp_velocities().ravel()
+        p_dlo = self.scene.cable_nodes()[self.task.p_dlo_node(self.scene)]
+        return np.concatenate([p, v, p_dlo, self._goal]).astype(np.float32)
+
+
+def _segment_point_distance(a: NDArray[np.float64], b: NDArray[np.float64], c: NDArray[np.float64]) -> float:
+    ab = b - a
+    denom = float(ab @ ab)
+    s = 0.0 if denom == 0.0 else float(np.clip((c - a) @ ab / denom, 0.0, 1.0))
+    return float(np.linalg.norm(a + s * ab - c))

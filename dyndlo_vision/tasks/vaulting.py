@@ -1,0 +1,77 @@
+"""Task II, vaulting: throw the middle of a 90 cm cable, whose far end is fixed, over a box (implicit)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dyndlo_vision.sim import BoxProp, CableParams, PhysicsOptions, Scene, SceneConfig, paper_cable
+from dyndlo_vision.tasks.base import EpisodeMonitor, Task
+from dyndlo_vision.tasks.rewards import TABLE_V, RewardCoefficients, implicit_reward
+from dyndlo_vision.trajectory import ActionSpec
+
+OBSTACLE_SIZE_M = (0.04, 0.08, 0.14)  # section III-A: a 4 x 8 x 14 cm box (x thickness, y width, height)
+OBSTACLE_CENTRE_M = (0.65, 0.0, 0.07)
+TCP_HOME_M = (0.40, 0.0, 0.25)  # below M = 0.3 m (table V), so the cable must be thrown, not carried
+SUPPORT_M = (0.50, 0.0, 0.01)
+# The cable hangs from the TCP to the floor and lies there in a loop that ends at the support, all on the
+# robot's side of the obstacle.
+INITIAL_PATH_M = (
+    TCP_HOME_M, (0.40, 0.0, 0.01), (0.40, -0.28, 0.01), (0.50, -0.28, 0.01), (0.50, -0.02, 0.01), SUPPORT_M,
+)
+
+
+class Vaulting(Task):
+    """Make the cable's middle land beyond the obstacle (P_DLO is the middle node; P* the obstacle).
+
+    Success at the end of the episode: the middle node lies beyond the far face of the box. The cable rests
+    on the floor by design, so cable-floor contact is not an avoid condition here.
+    """
+
+    name = "Vaulting"
+    kind = "implicit"
+    settle_s = 1.0
+    episode_s = 2.0
+    check_collision = False
+
+    def __init__(self, planar: bool = True, multi_step: bool = False, cable: CableParams | None = None,
+                 physics: PhysicsOptions | None = None) -> None:
+        super().__init__(planar=planar, multi_step=multi_step)
+        self.cable = cable or paper_cable(0.9)
+        self.physics = physics or PhysicsOptions(integrator="discrete", timestep_s=0.001)
+
+    def scene_config(self) -> SceneConfig:
+        return SceneConfig(cable=self.cable, grippers_m=(TCP_HOME_M,), far_end="support", support_m=SUPPORT_M,
+                           initial_path_m=INITIAL_PATH_M, settle_s=1.5, physics=self.physics,
+                           boxes=(BoxProp("obstacle", OBSTACLE_CENTRE_M, OBSTACLE_SIZE_M),))
+
+    def action_spec(self) -> ActionSpec:
+        return ActionSpec(num_points=3, planar=self.planar, dx_m=(-0.25, 0.25), dy_m=(-0.25, 0.25),
+                          dz_m=(-0.2, 0.4), dt_s=(0.1, 0.5))
+
+    def coefficients(self) -> RewardCoefficients:
+        return TABLE_V["vaulting"]
+
+    def p_dlo_node(self, scene: Scene) -> int:
+        return scene.config.cable.num_segments // 2
+
+    def sample_goal(self, rng: np.random.Generator) -> NDArray[np.float64]:
+        return np.asarray(OBSTACLE_CENTRE_M, dtype=float)
+
+    def landed_beyond(self, scene: Scene) -> bool:
+        """Whether the middle node is past the far face of the obstacle."""
+        middle = scene.cable_nodes()[self.p_dlo_node(scene)]
+        return bool(middle[0] > OBSTACLE_CENTRE_M[0] + OBSTACLE_SIZE_M[0] / 2)
+
+    def evaluate(self, scene: Scene, goal: NDArray[np.float64], monitor: EpisodeMonitor,
+                 final: bool) -> tuple[dict[str, float], bool, dict[str, Any]]:
+        middle = scene.cable_nodes()[self.p_dlo_node(scene)]
+        info = {"middle_x_m": float(middle[0])}
+        if not final:
+            return {"r_avoid": 0.0, "r_distance": 0.0, "r_success": 0.0, "r_dyn": 0.0}, False, info
+        success = self.landed_beyond(scene)
+        terms = implicit_reward(self.coefficients(), monitor.any_avoid, success, not success,
+                                monitor.max_mean_height_m)
+        return terms, success, info

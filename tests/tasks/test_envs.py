@@ -1,0 +1,147 @@
+"""Every registered environment: API conformance, determinism, pickling, rendering, bad input."""
+
+from __future__ import annotations
+
+import pickle
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import dyndlo_vision  # noqa: F401  (registers the ids)
+from dyndlo_vision.tasks import ENV_IDS
+
+MODES = [False, True]
+CASES = [(env_id, ms) for env_id in ENV_IDS for ms in MODES]
+
+
+def _rollout(env: gym.Env, seed: int, max_steps: int = 6) -> tuple[list[np.ndarray], list[float]]:
+    obs, _ = env.reset(seed=seed)
+    env.action_space.seed(seed)
+    observations, rewards = [obs], []
+    for _ in range(max_steps):
+        obs, reward, terminated, truncated, _ = env.step(env.action_space.sample())
+        observations.append(obs)
+        rewards.append(reward)
+        if terminated or truncated:
+            break
+    return observations, rewards
+
+
+@pytest.mark.parametrize("env_id,multi_step", CASES)
+def test_gymnasium_env_checker(env_id: str, multi_step: bool) -> None:
+    from gymnasium.utils.env_checker import check_env
+
+    env = gym.make(env_id, multi_step=multi_step).unwrapped
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # unbounded observation boxes are intended (positions in metres)
+        check_env(env, skip_render_check=True)
+
+
+@pytest.mark.parametrize("env_id,multi_step", CASES)
+def test_sb3_env_checker(env_id: str, multi_step: bool) -> None:
+    from stable_baselines3.common.env_checker import check_env
+
+    env = gym.make(env_id, multi_step=multi_step).unwrapped
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        check_env(env, warn=False)
+
+
+@pytest.mark.parametrize("env_id,multi_step", CASES)
+def test_deterministic_under_seed(env_id: str, multi_step: bool) -> None:
+    a = _rollout(gym.make(env_id, multi_step=multi_step), seed=3)
+    b = _rollout(gym.make(env_id, multi_step=multi_step), seed=3)
+    for x, y in zip(a[0], b[0], strict=True):
+        np.testing.assert_array_equal(x, y)
+    assert a[1] == b[1]
+
+
+@pytest.mark.parametrize("env_id,multi_step", CASES)
+def test_pickle_round_trip(env_id: str, multi_step: bool) -> None:
+    env = gym.make(env_id, multi_step=multi_step).unwrapped
+    clone = pickle.loads(pickle.dumps(env))
+    a = _rollout(env, seed=1, max_steps=2)
+    b = _rollout(clone, seed=1, max_steps=2)
+    np.testing.assert_array_equal(a[0][-1], b[0][-1])
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_observation_layout(env_id: str) -> None:
+    env = gym.make(env_id).unwrapped
+    obs, info = env.reset(seed=0)
+    n_g = env.scene.num_grippers
+    assert obs.shape == (6 * n_g + 6,)
+    np.testing.assert_allclose(obs[: 3 * n_g], env.scene.tcp_positions().ravel(), atol=1e-6)
+    node = env.task.p_dlo_node(env.scene)
+    np.testing.assert_allclose(obs[6 * n_g : 6 * n_g + 3], env.cable_nodes()[node], atol=1e-6)
+    np.testing.assert_allclose(obs[-3:], info["goal"], atol=1e-6)
+    nodes = env.cable_nodes()
+    assert nodes.shape == (env.scene.config.cable.num_nodes, 3)
+    np.testing.assert_allclose(nodes[0], env.scene.tcp_positions()[0], atol=1e-3)  # held end first
+
+
+def test_render_rgb_array_headless() -> None:
+    env = gym.make("DynDLO/TipControl-v0", render_mode="rgb_array")
+    env.reset(seed=0)
+    frame = env.render()
+    env.close()
+    assert frame.shape == (480, 640, 3) and frame.dtype == np.uint8
+    # The red cable must be in the picture: count strongly red pixels.
+    red = (frame[..., 0] > 150) & (frame[..., 1] < 90) & (frame[..., 2] < 90)
+    assert red.sum() > 200
+
+
+def test_info_has_reward_terms_and_success() -> None:
+    env = gym.make("DynDLO/TipControl-v0")
+    env.reset(seed=0)
+    _, reward, terminated, _, info = env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+    assert terminated
+    terms = [info[k] for k in ("r_avoid", "r_distance", "r_success", "r_dyn")]
+    assert reward == pytest.approx(sum(terms))
+    assert isinstance(info["is_success"], bool)
+
+
+@pytest.mark.parametrize(
+    "action,match",
+    [(np.zeros(3, dtype=np.float32), "shape"), (np.full(12, np.nan, dtype=np.float32), "finite")],
+)
+def test_bad_actions_are_rejected(action: np.ndarray, match: str) -> None:
+    env = gym.make("DynDLO/TipControl-v0", planar=False).unwrapped
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=match):
+        env.step(action)
+
+
+def test_unknown_option_is_rejected() -> None:
+    with pytest.raises(ValueError, match="unknown option.*speed"):
+        gym.make("DynDLO/TipControl-v0", speed=3)
+    with pytest.raises(ValueError, match="target='sideways'"):
+        gym.make("DynDLO/TimeOscillation-v0", target="sideways")
+
+
+def test_goal_is_randomised_within_20cm() -> None:
+    env = gym.make("DynDLO/TipControl-v0").unwrapped
+    goals = np.array([env.reset(seed=s)[1]["goal"] for s in range(50)])
+    span = goals.max(axis=0) - goals.min(axis=0)
+    assert 0.15 < span[0] <= 0.2 and 0.15 < span[2] <= 0.2
+    assert np.all(goals[:, 1] == 0.0)  # planar by default
+
+
+def test_multi_step_replans_are_continuous() -> None:
+    """Successive plans start at the previous plan's position and velocity (C1 commanded motion)."""
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True).unwrapped
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    previous = None
+    for _ in range(5):
+        t = env.scene.time
+        if previous is not None:
+            p_old, v_old = previous.position(t), previous.velocity(t)
+        env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
+        plan = env.trajectory
+        if previous is not None:
+            np.testing.assert_allclose(plan.position(t), p_old, atol=1e-9)
+            np.testing.assert_allclose(plan.velocity(t), v_old, atol=1e-9)
+        previous = plan
