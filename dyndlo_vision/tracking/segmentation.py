@@ -1,0 +1,312 @@
+"""Cable segmentation: fixed HSV ranges, or an automatic background-contrast segmenter.
+
+All functions take RGB uint8 images (H, W, 3) and return boolean masks (H, W).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["segment_hsv", "clean_mask", "BackgroundSegmenter", "dice"]
+
+BoolMask = NDArray[np.bool_]
+
+
+def _check_rgb(rgb: NDArray[np.uint8], name: str = "rgb") -> None:
+    if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"{name} must be an (H, W, 3) uint8 RGB image, got {rgb.dtype} {rgb.shape}")
+
+
+def _u8_median(values: NDArray[np.uint8]) -> int:
+    """Median of uint8 values via a histogram (several times faster than np.median)."""
+    hist = np.bincount(values.reshape(-1), minlength=256)
+    return int(np.searchsorted(np.cumsum(hist), (values.size + 1) // 2))
+
+
+def _disk(radius: int) -> NDArray[np.uint8]:
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+
+
+def clean_mask(
+    mask: ArrayLike,
+    open_radius: int = 1,
+    close_radius: int = 2,
+    min_area: int = 30,
+    seeds: NDArray[np.uint8] | None = None,
+) -> BoolMask:
+    """Removes speckle, fills pin holes and drops small blobs from a binary mask.
+
+    Args:
+        mask: (H, W) bool or uint8 mask (non-zero = foreground).
+        open_radius: Radius of the opening that removes isolated noise pixels (0 = off).
+        close_radius: Radius of the closing that fills holes and thin cracks (0 = off).
+        min_area: Connected components (8-connected) smaller than this many pixels are dropped.
+        seeds: Optional uint8 mask; only components that contain a non-zero seed pixel are kept
+            (hysteresis thresholding).
+
+    Returns:
+        The cleaned (H, W) bool mask.
+    """
+    m = np.asarray(mask)
+    m = m.astype(np.uint8) if m.dtype != np.uint8 else (m > 0).astype(np.uint8)
+    if open_radius > 0:
+        m = cv2.morphologyEx(m, cv2.MORPH_OPEN, _disk(open_radius))
+    if close_radius > 0:
+        m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, _disk(close_radius))
+    if min_area <= 1 and seeds is None:
+        return m.astype(bool)
+    # BBDT is ~3x faster than OpenCV's default (Spaghetti) here on one thread, same labels.
+    n, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(m, 8, cv2.CV_32S, cv2.CCL_BBDT)
+    if n <= 1:
+        return m.astype(bool)
+    keep = stats[:, cv2.CC_STAT_AREA] >= min_area
+    keep[0] = False
+    if seeds is not None:
+        # Gather labels at the (few) seed pixels instead of boolean-indexing the whole image.
+        pts = cv2.findNonZero((seeds > 0).astype(np.uint8) & m)
+        seeded = np.zeros(n, dtype=bool)
+        if pts is not None:
+            pts = pts.reshape(-1, 2)
+            seeded[labels[pts[:, 1], pts[:, 0]]] = True
+        keep &= seeded
+    drop = np.flatnonzero(~keep[1:]) + 1
+    if drop.size == 0:
+        return m.astype(bool)
+    kept = np.flatnonzero(keep)
+    # Work inside bounding boxes of whichever set is smaller: a full-image keep[labels] lookup
+    # costs ~1 ms at 640x480, a few boxes cost far less.
+    if drop.size <= kept.size:
+        for i in drop:
+            x, y, w, h = stats[i, :4]
+            roi = m[y : y + h, x : x + w]
+            roi[labels[y : y + h, x : x + w] == i] = 0
+        return m.astype(bool)
+    out = np.zeros(m.shape, dtype=bool)
+    for i in kept:
+        x, y, w, h = stats[i, :4]
+        out[y : y + h, x : x + w] |= labels[y : y + h, x : x + w] == i
+    return out
+
+
+def segment_hsv(
+    rgb: NDArray[np.uint8],
+    lower: ArrayLike,
+    upper: ArrayLike,
+    clean: bool = False,
+    min_area: int = 30,
+) -> BoolMask:
+    """Segments pixels whose HSV value lies in ``[lower, upper]`` (OpenCV ranges).
+
+    OpenCV's 8-bit HSV has H in 0..179, S and V in 0..255. When ``lower[0] > upper[0]`` the hue
+    range wraps around 180 (e.g. red: ``lower=(170, 80, 80)``, ``upper=(10, 255, 255)`` accepts
+    hues 170..179 and 0..10).
+
+    Args:
+        rgb: (H, W, 3) uint8 RGB image.
+        lower: (3,) inclusive lower bound (H, S, V).
+        upper: (3,) inclusive upper bound (H, S, V).
+        clean: Apply :func:`clean_mask` (open, close, small blob removal).
+        min_area: Smallest blob kept when ``clean`` is True.
+
+    Returns:
+        (H, W) bool mask.
+    """
+    _check_rgb(rgb)
+    lo = np.asarray(lower, dtype=np.int64).reshape(3)
+    hi = np.asarray(upper, dtype=np.int64).reshape(3)
+    if (
+        np.any(lo < 0)
+        or np.any(hi < 0)
+        or lo[0] > 179
+        or hi[0] > 179
+        or np.any(lo[1:] > 255)
+        or np.any(hi[1:] > 255)
+    ):
+        raise ValueError(f"HSV bounds out of range (H 0..179, S/V 0..255): lower={lo}, upper={hi}")
+    hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
+    if lo[0] <= hi[0]:
+        m = cv2.inRange(hsv, lo.astype(np.uint8), hi.astype(np.uint8))
+    else:
+        m1 = cv2.inRange(hsv, lo.astype(np.uint8), np.array([179, hi[1], hi[2]], np.uint8))
+        m2 = cv2.inRange(hsv, np.array([0, lo[1], lo[2]], np.uint8), hi.astype(np.uint8))
+        m = cv2.bitwise_or(m1, m2)
+    if clean:
+        return clean_mask(m, min_area=min_area)
+    return m > 0
+
+
+class BackgroundSegmenter:
+    """Automatic, tuning-free segmentation of a cable that contrasts with a static background.
+
+    The per-pixel feature is the colour distance ``max_c |I_c - B_c|`` (largest absolute
+    difference over R, G, B) between the frame ``I`` and a background ``B``. The background is,
+    in order of preference:
+
+    1. an explicit background image (:meth:`set_background`, e.g. the scene rendered without
+       the cable),
+    2. the per-pixel median of several frames (:meth:`learn`), which removes a moving cable, or
+    3. (default) estimated from the frame itself: ``bg_mode="global"`` takes the median colour
+       of the frame (the cable covers a small part of it), ``bg_mode="local"`` a median-filtered
+       shrunken copy of the frame, which follows lighting gradients but confuses dense cable
+       regions (loops, crossings) with background. Neither copes with busy, textured
+       backgrounds: use 1 or 2 there.
+
+    Thresholds adapt per frame (hysteresis). Pixels above ``high = max(Otsu, floor)`` seed the
+    cable; connected pixels above ``low = max(edge_fraction * Otsu, floor)`` extend it. Otsu's
+    threshold lies near the midpoint between background and cable, so ``edge_fraction`` ~0.6
+    puts the boundary near the half-contrast level of the blurred cable edge (a lower level
+    makes the mask ~1 px too fat on each side, costing ~5% DICE on real photographs). ``floor``
+    is the noise floor: median + ``noise_k`` robust sigmas of the feature, at least
+    ``min_contrast``. The mask is cleaned with :func:`clean_mask`.
+    """
+
+    def __init__(
+        self,
+        background: NDArray[np.uint8] | None = None,
+        *,
+        bg_mode: str = "global",
+        edge_fraction: float = 0.6,
+        noise_k: float = 6.0,
+        min_contrast: int = 12,
+        open_radius: int = 1,
+        close_radius: int = 1,
+        min_area: int = 40,
+        bg_scale: int = 16,
+    ) -> None:
+        """Creates the segmenter.
+
+        Args:
+            background: Optional (H, W, 3) uint8 RGB background image.
+            bg_mode: Self-estimated background when none is set: "global" or "local".
+            edge_fraction: Low (extent) threshold as a fraction of Otsu's threshold.
+            noise_k: Noise floor in robust standard deviations of the feature.
+            min_contrast: Least threshold in grey levels, so that a noise-free (rendered)
+                background still gets a sane threshold.
+            open_radius: See :func:`clean_mask`.
+            close_radius: See :func:`clean_mask`.
+            min_area: See :func:`clean_mask`.
+            bg_scale: Shrink factor for ``bg_mode="local"``.
+        """
+        if bg_mode not in ("global", "local"):
+            raise ValueError(f"bg_mode must be 'global' or 'local', got {bg_mode!r}")
+        if not 0.0 < edge_fraction <= 1.0:
+            raise ValueError(f"edge_fraction must be in (0, 1], got {edge_fraction!r}")
+        self.bg_mode = bg_mode
+        self.edge_fraction = float(edge_fraction)
+        self.noise_k = float(noise_k)
+        self.min_contrast = int(min_contrast)
+        self.open_radius = int(open_radius)
+        self.close_radius = int(close_radius)
+        self.min_area = int(min_area)
+        self.bg_scale = int(bg_scale)
+        self._background: NDArray[np.uint8] | None = None
+        if background is not None:
+            self.set_background(background)
+        #: Thresholds (low, high) used on the last frame, for diagnostics.
+        self.last_thresholds: tuple[float, float] = (float("nan"), float("nan"))
+
+    @property
+    def background(self) -> NDArray[np.uint8] | None:
+        """The background image in use, or None in self-estimated mode."""
+        return self._background
+
+    def set_background(self, background: NDArray[np.uint8]) -> None:
+        """Uses ``background`` (RGB uint8) as the static background image."""
+        _check_rgb(background, "background")
+        self._background = np.ascontiguousarray(background)
+
+    def learn(self, frames: Iterable[NDArray[np.uint8]]) -> None:
+        """Learns the background as the per-pixel median of frames in which the cable moves.
+
+        Each pixel must show background in more than half of the frames.
+        """
+        stack = [np.asarray(f) for f in frames]
+        if not stack:
+            raise ValueError("learn() needs at least one frame")
+        for f in stack:
+            _check_rgb(f, "frame")
+        self._background = np.median(np.stack(stack), axis=0).astype(np.uint8)
+
+    def reset(self) -> None:
+        """Forgets the background and returns to self-estimated mode."""
+        self._background = None
+
+    def _estimate_background(self, rgb: NDArray[np.uint8]) -> NDArray[np.uint8]:
+        """Background image (H, W, 3), or one colour (3,) in global mode."""
+        h, w = rgb.shape[:2]
+        if self.bg_mode == "global":
+            sample = rgb[::4, ::4]
+            return np.array([_u8_median(sample[..., c]) for c in range(3)], dtype=np.uint8)
+        s = max(1, self.bg_scale)
+        small = cv2.resize(rgb, (max(1, w // s), max(1, h // s)), interpolation=cv2.INTER_AREA)
+        if min(small.shape[:2]) >= 5:
+            small = cv2.medianBlur(small, 5)
+        return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
+
+    def feature(self, rgb: NDArray[np.uint8]) -> NDArray[np.uint8]:
+        """The (H, W) uint8 colour-distance image that is thresholded."""
+        _check_rgb(rgb)
+        if self._background is not None:
+            if self._background.shape != rgb.shape:
+                raise ValueError(f"background shape {self._background.shape} != frame shape {rgb.shape}")
+            bg = self._background
+        else:
+            bg = self._estimate_background(rgb)
+        if bg.ndim == 1:
+            diff = cv2.absdiff(rgb, tuple(float(c) for c in bg) + (0.0,))
+        else:
+            diff = cv2.absdiff(rgb, bg)
+        r, g, b = cv2.split(diff)
+        return cv2.max(cv2.max(r, g), b)
+
+    def thresholds(self, feat: NDArray[np.uint8]) -> tuple[float, float]:
+        """The (low, high) hysteresis thresholds for a feature image."""
+        # The cable covers a few percent of the image, so median and MAD of a sparse sample
+        # describe the background noise.
+        sample = np.ascontiguousarray(feat[::4, ::4])
+        med = _u8_median(sample)
+        mad = float(_u8_median(cv2.absdiff(sample, med)))
+        floor = max(med + self.noise_k * 1.4826 * max(mad, 0.5), float(self.min_contrast))
+        otsu, _ = cv2.threshold(feat, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+        high = max(float(otsu), floor)
+        low = min(max(self.edge_fraction * float(otsu), floor), high)
+        return low, high
+
+    def __call__(self, rgb: NDArray[np.uint8]) -> BoolMask:
+        """Segments one RGB frame; returns the cleaned (H, W) bool mask."""
+        return self.segment(rgb)
+
+    def segment(self, rgb: NDArray[np.uint8]) -> BoolMask:
+        """Segments one RGB frame; returns the cleaned (H, W) bool mask."""
+        feat = self.feature(rgb)
+        low, high = self.thresholds(feat)
+        self.last_thresholds = (low, high)
+        # cv2.threshold is strict (>), matching the documented "above".
+        _, low_mask = cv2.threshold(feat, low, 1, cv2.THRESH_BINARY)
+        _, high_mask = cv2.threshold(feat, high, 1, cv2.THRESH_BINARY)
+        return clean_mask(
+            low_mask,
+            open_radius=self.open_radius,
+            close_radius=self.close_radius,
+            min_area=self.min_area,
+            seeds=high_mask,
+        )
+
+
+def dice(mask_pred: ArrayLike, mask_true: ArrayLike) -> float:
+    """Sørensen-Dice coefficient ``2 |A & B| / (|A| + |B|)`` of two binary masks.
+
+    Returns 1.0 when both masks are empty.
+    """
+    a = np.asarray(mask_pred).astype(bool)
+    b = np.asarray(mask_true).astype(bool)
+    if a.shape != b.shape:
+        raise ValueError(f"mask shapes differ: {a.shape} vs {b.shape}")
+    total = int(a.sum()) + int(b.sum())
+    if total == 0:
+        return 1.0
+    return 2.0 * int(np.logical_and(a, b).sum()) / total

@@ -1,0 +1,282 @@
+"""Per-frame cable tracker: segmentation + ordered centreline + 3D lifting, temporally consistent.
+
+Frames are RGB uint8. The tracker keeps the previous frame's nodes to keep the ordering stable:
+without an anchor, node 0 is the end nearest the previous node 0, and if the whole polyline
+matches the previous one better reversed, it is reversed. With ``anchor_uv`` (the held end's
+pixel, e.g. the projected gripper position) node 0 is always the end nearest the anchor.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .camera_model import PinholeCamera
+from .centerline import Centerline, CenterlineParams, extract_centerline, nodes_from_path
+from .segmentation import BackgroundSegmenter
+
+__all__ = ["Plane", "Measurement", "CableTracker", "lift_with_depth", "lift_with_plane"]
+
+
+@dataclass(frozen=True)
+class Plane:
+    """The world plane ``normal . x + d = 0``."""
+
+    normal: NDArray[np.float64]
+    d: float
+
+    @classmethod
+    def from_point_normal(cls, point: ArrayLike, normal: ArrayLike) -> Plane:
+        """The plane through ``point`` with the given normal."""
+        n = np.asarray(normal, dtype=np.float64).reshape(3)
+        return cls(n, -float(n @ np.asarray(point, dtype=np.float64).reshape(3)))
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One frame's cable measurement.
+
+    Attributes:
+        nodes_xyz: (N, 3) world positions (m), NaN where invisible or not liftable.
+        nodes_uv: (N, 2) pixel positions, NaN beyond the observed cable.
+        visible: (N,) bool per node.
+        t_capture: Capture time of the frame (s).
+        centerline: The 2D centreline the nodes came from (diagnostics, drawing).
+    """
+
+    nodes_xyz: NDArray[np.float64]
+    nodes_uv: NDArray[np.float64]
+    visible: NDArray[np.bool_]
+    t_capture: float
+    centerline: Centerline | None = field(default=None, repr=False)
+
+    def point(self, index: int = -1) -> NDArray[np.float64] | None:
+        """The 3D position of node ``index`` (default: the free tip), or None if not measured."""
+        p = self.nodes_xyz[index]
+        if not self.visible[index] or not np.all(np.isfinite(p)):
+            return None
+        return p.copy()
+
+
+def _finite_rows(uv: NDArray[np.float64], visible: ArrayLike | None) -> NDArray[np.bool_]:
+    ok = np.all(np.isfinite(uv), axis=1)
+    if visible is not None:
+        ok &= np.asarray(visible, dtype=bool).reshape(-1)
+    return ok
+
+
+def lift_with_depth(
+    nodes_uv: ArrayLike,
+    depth: NDArray[np.floating],
+    camera: PinholeCamera,
+    visible: ArrayLike | None = None,
+    window: int = 1,
+) -> NDArray[np.float64]:
+    """Lifts pixels to 3D world points with a depth image.
+
+    Args:
+        nodes_uv: (N, 2) pixel coordinates.
+        depth: (H, W) depth in metres along the camera z axis (MuJoCo's depth rendering);
+            non-finite or <= 0 values are invalid.
+        camera: The camera that took the depth image.
+        visible: Optional (N,) mask; other rows come back NaN.
+        window: Half size of the square window whose median valid depth is used (0 = the
+            nearest pixel only). The median rejects isolated background pixels at the edge
+            of a thin cable.
+
+    Returns:
+        (N, 3) world points, NaN where no valid depth or not visible.
+    """
+    uv = np.asarray(nodes_uv, dtype=np.float64).reshape(-1, 2)
+    out = np.full((uv.shape[0], 3), np.nan)
+    ok = _finite_rows(uv, visible)
+    if not np.any(ok):
+        return out
+    h, w = depth.shape[:2]
+    cols = np.rint(uv[ok, 0]).astype(np.int64)
+    rows = np.rint(uv[ok, 1]).astype(np.int64)
+    inside = (cols >= 0) & (cols < w) & (rows >= 0) & (rows < h)
+    z = np.full(cols.shape[0], np.nan)
+    r = int(window)
+    offs = np.arange(-r, r + 1)
+    rr = np.clip(rows[inside, None, None] + offs[None, :, None], 0, h - 1)
+    cc = np.clip(cols[inside, None, None] + offs[None, None, :], 0, w - 1)
+    patch = np.asarray(depth, dtype=np.float64)[rr, cc].reshape(rr.shape[0], -1)
+    patch[~(np.isfinite(patch) & (patch > 0))] = np.nan
+    with np.errstate(all="ignore"):
+        if patch.shape[0]:
+            valid_any = np.any(np.isfinite(patch), axis=1)
+            zz = np.full(patch.shape[0], np.nan)
+            if np.any(valid_any):
+                zz[valid_any] = np.nanmedian(patch[valid_any], axis=1)
+            z[inside] = zz
+    xn = camera.normalized_coords(uv[ok])
+    p_cam = np.column_stack((xn * z[:, None], z))
+    out[ok] = camera.camera_to_world(p_cam)
+    out[~np.all(np.isfinite(out), axis=1)] = np.nan
+    return out
+
+
+def lift_with_plane(
+    nodes_uv: ArrayLike,
+    camera: PinholeCamera,
+    plane: Plane | tuple[ArrayLike, float],
+    visible: ArrayLike | None = None,
+) -> NDArray[np.float64]:
+    """Lifts pixels to 3D by intersecting their rays with a known world plane.
+
+    Args:
+        nodes_uv: (N, 2) pixel coordinates.
+        camera: The camera.
+        plane: :class:`Plane` or ``(normal, d)`` for ``normal . x + d = 0``.
+        visible: Optional (N,) mask; other rows come back NaN.
+
+    Returns:
+        (N, 3) world points (NaN rows where not visible).
+
+    Raises:
+        ValueError: If the plane is parallel to a ray or behind the camera
+            (see :meth:`PinholeCamera.intersect_plane`).
+    """
+    uv = np.asarray(nodes_uv, dtype=np.float64).reshape(-1, 2)
+    normal, d = (plane.normal, plane.d) if isinstance(plane, Plane) else plane
+    out = np.full((uv.shape[0], 3), np.nan)
+    ok = _finite_rows(uv, visible)
+    if np.any(ok):
+        out[ok] = camera.intersect_plane(uv[ok], normal, float(d))
+    return out
+
+
+def _match_cost(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
+    """Mean distance between corresponding finite nodes of two (N, 2) polylines."""
+    ok = np.all(np.isfinite(a), axis=1) & np.all(np.isfinite(b), axis=1)
+    if np.count_nonzero(ok) < 2:
+        return float("nan")
+    return float(np.mean(np.hypot(*(a[ok] - b[ok]).T)))
+
+
+class CableTracker:
+    """Runs segmentation, centreline ordering and 3D lifting on each frame.
+
+    Example::
+
+        tracker = CableTracker(camera, anchor_uv=(320, 40), plane=Plane(np.array([0, 0, 1.0]), 0))
+        meas = tracker.process(rgb, t_capture)
+        tip = meas.point(-1)  # None when the tip is not observed
+    """
+
+    def __init__(
+        self,
+        camera: PinholeCamera | None = None,
+        segmenter: Callable[[NDArray[np.uint8]], NDArray[np.bool_]] | None = None,
+        n_nodes: int = 20,
+        anchor_uv: ArrayLike | None = None,
+        cable_length_px: float | None = None,
+        plane: Plane | tuple[ArrayLike, float] | None = None,
+        params: CenterlineParams | None = None,
+        flip_ratio: float = 0.6,
+    ) -> None:
+        """Creates the tracker.
+
+        Args:
+            camera: Needed for 3D lifting; without it ``nodes_xyz`` is NaN.
+            segmenter: Callable RGB -> bool mask; default :class:`BackgroundSegmenter`.
+            n_nodes: Number of centreline nodes N.
+            anchor_uv: Pixel of the held end, fixed; may also be given per frame to
+                :meth:`process` (e.g. the projected gripper position).
+            cable_length_px: Full cable length in pixels if known (planar scenes): nodes past
+                the observed length are then invisible instead of stretched.
+            plane: World plane the cable lies on, for lifting when no depth is given.
+            params: Centreline tuning.
+            flip_ratio: Without an anchor, the new polyline is reversed when its reversed
+                match cost to the previous one is below ``flip_ratio`` times the direct cost.
+        """
+        self.camera = camera
+        self.segmenter = segmenter if segmenter is not None else BackgroundSegmenter()
+        self.n_nodes = int(n_nodes)
+        self.anchor_uv = None if anchor_uv is None else np.asarray(anchor_uv, dtype=np.float64).reshape(2)
+        self.cable_length_px = cable_length_px
+        self.plane = plane
+        self.params = params or CenterlineParams()
+        self.flip_ratio = float(flip_ratio)
+        self.prev: Centerline | None = None
+        self.last_mask: NDArray[np.bool_] | None = None
+
+    def reset(self) -> None:
+        """Forgets the previous frame."""
+        self.prev = None
+        self.last_mask = None
+
+    def centerline_from_mask(self, mask: NDArray[np.bool_], anchor_uv: ArrayLike | None = None) -> Centerline:
+        """Ordered, temporally consistent centreline from a mask (updates the tracker's memory)."""
+        anchor = self.anchor_uv if anchor_uv is None else np.asarray(anchor_uv, dtype=np.float64).reshape(2)
+        prev_nodes = None
+        if self.prev is not None and self.prev.any_visible:
+            prev_nodes = np.where(self.prev.visible[:, None], self.prev.nodes_uv, np.nan)
+        cl = extract_centerline(
+            mask,
+            self.n_nodes,
+            anchor_uv=anchor,
+            expected_length_px=self.cable_length_px,
+            prev_nodes_uv=prev_nodes,
+            params=self.params,
+        )
+        if anchor is None and prev_nodes is not None and cl.any_visible:
+            rev = nodes_from_path(
+                cl.path_uv[::-1],
+                cl.path_visible[::-1],
+                self.n_nodes,
+                self.cable_length_px,
+                mask.shape,
+                cl.width_px,
+                self.params,
+            )
+            direct = _match_cost(np.where(cl.visible[:, None], cl.nodes_uv, np.nan), prev_nodes)
+            flipped = _match_cost(np.where(rev.visible[:, None], rev.nodes_uv, np.nan), prev_nodes)
+            if np.isfinite(flipped) and (not np.isfinite(direct) or flipped < self.flip_ratio * direct):
+                cl = rev
+        if cl.any_visible:
+            self.prev = cl
+        return cl
+
+    def lift(self, cl: Centerline, depth: NDArray[np.floating] | None = None) -> NDArray[np.float64]:
+        """3D world nodes of a centreline: with ``depth`` if given, else on ``self.plane``."""
+        if self.camera is None or not cl.any_visible:
+            return np.full((cl.n_nodes, 3), np.nan)
+        if depth is not None:
+            return lift_with_depth(cl.nodes_uv, depth, self.camera, cl.visible)
+        if self.plane is not None:
+            return lift_with_plane(cl.nodes_uv, self.camera, self.plane, cl.visible)
+        return np.full((cl.n_nodes, 3), np.nan)
+
+    def process(
+        self,
+        rgb: NDArray[np.uint8],
+        t_capture: float,
+        depth: NDArray[np.floating] | None = None,
+        anchor_uv: ArrayLike | None = None,
+    ) -> Measurement:
+        """Measures the cable in one RGB frame.
+
+        Args:
+            rgb: (H, W, 3) uint8 RGB frame.
+            t_capture: Capture time of the frame (s).
+            depth: Optional (H, W) depth image (m along camera z) aligned with ``rgb``.
+            anchor_uv: Held-end pixel for this frame (overrides the fixed anchor).
+
+        Returns:
+            The :class:`Measurement`; all nodes invisible (NaN) when no cable is found.
+        """
+        mask = self.segmenter(rgb)
+        self.last_mask = mask
+        cl = self.centerline_from_mask(mask, anchor_uv)
+        xyz = self.lift(cl, depth)
+        visible = (
+            cl.visible & np.all(np.isfinite(xyz), axis=1)
+            if self.camera is not None and (depth is not None or self.plane is not None)
+            else cl.visible.copy()
+        )
+        return Measurement(xyz, cl.nodes_uv, visible, float(t_capture), cl)

@@ -1,0 +1,44 @@
+"""Shared helpers for the tracking tests (geometry, drawing)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from dyndlo_vision.tracking.camera_model import PinholeCamera
+
+#: ../shared/data/external relative to the repository root.
+EXTERNAL_DIR = Path(__file__).resolve().parents[2].parent / "shared/data/external"
+
+
+def look_at_camera(
+    eye: tuple[float, float, float] = (0.2, -0.9, 1.1),
+    target: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    width: int = 640,
+    height: int = 480,
+    f: float = 520.0,
+    dist: tuple[float, ...] = (),
+) -> PinholeCamera:
+    """A camera at ``eye`` looking at ``target`` (world z up), OpenCV axes."""
+    eye_a = np.asarray(eye, float)
+    z = np.asarray(target, float) - eye_a
+    z /= np.linalg.norm(z)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.vstack((x, y, z))
+    K = np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1]])
+    return PinholeCamera(width, height, K, np.asarray(dist, float), R, -R @ eye_a, fps=25.0)
+
+
+def gt_params(points: np.ndarray, curve: np.ndarray) -> np.ndarray:
+    """Arc-length position along ``curve`` of the nearest curve vertex to each point."""
+    s = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(curve, axis=0).T))))
+    d = np.hypot(points[:, None, 0] - curve[None, :, 0], points[:, None, 1] - curve[None, :, 1])
+    return s[np.argmin(d, axis=1)]
+
+
+def curve_length(curve: np.ndarray) -> float:
+    """Arc length of a polyline."""
+    return float(np.sum(np.hypot(*np.diff(curve, axis=0).T)))

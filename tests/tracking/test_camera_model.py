@@ -1,0 +1,251 @@
+"""Tests of dyndlo_vision.tracking.camera_model."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from dyndlo_vision.tracking.camera_model import CalibrationError, PinholeCamera
+
+from .helpers import look_at_camera
+
+
+def _points_in_view(cam: PinholeCamera, n: int = 200, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    uv = rng.uniform([20, 20], [cam.width - 20, cam.height - 20], size=(n, 2))
+    depth = rng.uniform(0.5, 3.0, size=n)
+    xn = cam.normalized_coords(uv)
+    p_cam = np.column_stack((xn * depth[:, None], depth))
+    return cam.camera_to_world(p_cam)
+
+
+@pytest.mark.parametrize("fixture", ["camera", "distorted_camera"])
+def test_project_ray_round_trip(fixture: str, request: pytest.FixtureRequest) -> None:
+    cam: PinholeCamera = request.getfixturevalue(fixture)
+    pts = _points_in_view(cam)
+    uv = cam.project(pts)
+    origins, dirs = cam.pixel_rays(uv)
+    np.testing.assert_allclose(np.linalg.norm(dirs, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(origins, np.broadcast_to(cam.center, origins.shape), atol=1e-12)
+    # Each world point lies on the ray through its own projection.
+    v = pts - origins
+    s = np.einsum("ij,ij->i", v, dirs)
+    assert np.all(s > 0)
+    off_ray = np.linalg.norm(v - s[:, None] * dirs, axis=1)
+    assert off_ray.max() < 1e-9
+    # And projecting points along the ray gives the same pixel back.
+    np.testing.assert_allclose(cam.project(origins + 2.0 * dirs), uv, atol=1e-9)
+
+
+@pytest.mark.parametrize("fixture", ["camera", "distorted_camera"])
+def test_plane_round_trip(fixture: str, request: pytest.FixtureRequest) -> None:
+    cam: PinholeCamera = request.getfixturevalue(fixture)
+    rng = np.random.default_rng(1)
+    normal = np.array([0.1, -0.2, 1.0])
+    d = -0.05
+    # Points on the plane n.x + d = 0 around the origin (which the camera looks at).
+    xy = rng.uniform(-0.3, 0.3, size=(100, 2))
+    z = -(d + xy @ normal[:2]) / normal[2]
+    pts = np.column_stack((xy, z))
+    uv = cam.project(pts)
+    back = cam.intersect_plane(uv, normal, d)
+    assert np.abs(back - pts).max() < 1e-9
+
+
+def test_project_matches_explicit_pinhole(camera: PinholeCamera) -> None:
+    p = np.array([[0.05, -0.02, 0.01]])
+    pc = camera.R @ p[0] + camera.t
+    expected = [
+        camera.K[0, 0] * pc[0] / pc[2] + camera.K[0, 2],
+        camera.K[1, 1] * pc[1] / pc[2] + camera.K[1, 2],
+    ]
+    np.testing.assert_allclose(camera.project(p)[0], expected, atol=1e-12)
+
+
+def test_points_behind_camera_project_to_nan(camera: PinholeCamera) -> None:
+    behind = camera.center - 0.5 * camera.R[2]  # half a metre behind the optical centre
+    uv = camera.project(np.vstack((behind, [0.0, 0.0, 0.0])))
+    assert np.all(np.isnan(uv[0])) and np.all(np.isfinite(uv[1]))
+
+
+def test_intersect_plane_parallel_raises(camera: PinholeCamera) -> None:
+    uv = np.array([[319.5, 239.5]])
+    _, d = camera.pixel_rays(uv)
+    # A plane containing the ray direction: normal perpendicular to it.
+    normal = np.cross(d[0], [0.0, 0.0, 1.0])
+    with pytest.raises(ValueError, match=r"parallel to the camera ray through pixel \(319.5,239.5\)"):
+        camera.intersect_plane(uv, normal, 0.0)
+
+
+def test_intersect_plane_behind_raises(camera: PinholeCamera) -> None:
+    # The plane z = 2 is above the camera (at z = 1.1) while it looks down.
+    with pytest.raises(ValueError, match=r"behind the camera.*pixel \(320,240\)"):
+        camera.intersect_plane([[320.0, 240.0]], [0, 0, 1.0], -2.0)
+
+
+@pytest.mark.parametrize("fps", [None, 30.0])
+def test_json_round_trip(tmp_path, distorted_camera: PinholeCamera, fps: float | None) -> None:
+    cam = PinholeCamera(
+        **{
+            **{k: getattr(distorted_camera, k) for k in ("width", "height", "K", "dist", "R", "t")},
+            "fps": fps,
+        }
+    )
+    path = tmp_path / "cam.json"
+    cam.to_json(path)
+    data = json.loads(path.read_text())
+    expected_keys = {"width", "height", "K", "dist", "R", "t"} | ({"fps"} if fps else set())
+    assert set(data) == expected_keys
+    back = PinholeCamera.from_json(path)
+    for k in ("K", "dist", "R", "t"):
+        np.testing.assert_array_equal(getattr(back, k), getattr(cam, k))
+    assert (back.width, back.height, back.fps) == (cam.width, cam.height, cam.fps)
+    assert list(tmp_path.iterdir()) == [path]  # no temporary file left behind
+
+
+def _good() -> dict:
+    cam = look_at_camera(dist=(0.1, 0.01, 0.0, 0.0))
+    return cam.to_dict()
+
+
+@pytest.mark.parametrize(
+    ("mutate", "match"),
+    [
+        (lambda d: d.pop("K"), r"missing key\(s\) \['K'\]"),
+        (lambda d: d.update(distortion=[0, 0, 0, 0]), r"unknown key\(s\) \['distortion'\]"),
+        (
+            lambda d: d.update(K=[[500, 0, 320], [0, 500, 240]]),
+            r"K must have shape \(3, 3\), got shape \(2, 3\)",
+        ),
+        (lambda d: d.update(t=[0.0, 1.0]), r"t must have shape \(3,\)"),
+        (lambda d: d["R"][0].__setitem__(0, 1.01), r"R is not a rotation matrix: R @ R.T deviates"),
+        (lambda d: d.update(R=np.diag([1.0, 1.0, -1.0]).tolist()), r"det\(R\) = -1"),
+        (lambda d: d["K"][0].__setitem__(0, 0.0), r"positive focal lengths, got fx=0"),
+        (lambda d: d["K"][1].__setitem__(1, -5.0), r"positive focal lengths.*fy=-5"),
+        (lambda d: d.update(width=0), r"width must be a positive int, got 0"),
+        (lambda d: d.update(height=480.5), r"height must be a positive int, got 480.5"),
+        (lambda d: d.update(width="640"), r"width must be a positive int, got '640'"),
+        (lambda d: d["t"].__setitem__(1, float("nan")), r"t contains non-finite numbers"),
+        (lambda d: d["K"][0].__setitem__(2, float("inf")), r"K contains non-finite numbers"),
+        (lambda d: d.update(dist=[0.1, 0.2, 0.3]), r"dist must have one of the lengths"),
+        (lambda d: d.update(dist=[0.1, float("nan"), 0, 0]), r"dist contains non-finite"),
+        (lambda d: d.update(fps=-25), r"fps must be a positive finite number"),
+        (lambda d: d["K"][0].__setitem__(1, 3.0), r"no skew"),
+    ],
+)
+def test_bad_calibration_raises(tmp_path, mutate, match: str) -> None:
+    data = _good()
+    mutate(data)
+    path = tmp_path / "bad.json"
+    # allow_nan: JSON has no NaN/inf, but Python's json writes them and many tools read them.
+    path.write_text(json.dumps(data, allow_nan=True))
+    with pytest.raises(CalibrationError, match=match):
+        PinholeCamera.from_json(path)
+
+
+def test_invalid_json_names_file(tmp_path) -> None:
+    path = tmp_path / "broken.json"
+    path.write_text("{not json")
+    with pytest.raises(CalibrationError, match=r"broken.json: not valid JSON"):
+        PinholeCamera.from_json(path)
+
+
+def test_arrays_are_read_only(camera: PinholeCamera) -> None:
+    with pytest.raises(ValueError):
+        camera.K[0, 0] = 1.0
+
+
+# ----------------------------------------------------------------------------- MuJoCo
+
+
+def _mujoco_pixel(fovy_deg: float, width: int, height: int, pos, xmat, p) -> np.ndarray:
+    """Independent pixel computation in MuJoCo's own terms.
+
+    MuJoCo renders with an OpenGL frustum whose vertical extent is ``tan(fovy/2)`` at unit
+    distance, mapped onto the full image height edge to edge (square pixels). In pixel-edge
+    coordinates (0 at the left/top edge of the image) a point at normalised device
+    coordinates (x_ndc, y_ndc) lands at ((x_ndc + 1) W / 2, (1 - y_ndc) H / 2); OpenCV puts
+    pixel centres at integers, i.e. subtracts 0.5.
+    """
+    local = np.asarray(xmat).reshape(3, 3).T @ (np.asarray(p) - np.asarray(pos))
+    depth = -local[2]  # MuJoCo cameras look along -z
+    half_h = math.tan(math.radians(fovy_deg) / 2)
+    half_w = half_h * width / height
+    x_ndc = local[0] / depth / half_w
+    y_ndc = local[1] / depth / half_h  # y up
+    return np.array([(x_ndc + 1) * width / 2 - 0.5, (1 - y_ndc) * height / 2 - 0.5])
+
+
+def _euler_xmat(rx: float, ry: float, rz: float) -> np.ndarray:
+    cx, sx, cy, sy, cz, sz = (
+        math.cos(rx),
+        math.sin(rx),
+        math.cos(ry),
+        math.sin(ry),
+        math.cos(rz),
+        math.sin(rz),
+    )
+    Rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
+
+
+@pytest.mark.parametrize(("width", "height", "fovy"), [(640, 480, 45.0), (641, 360, 60.0), (96, 128, 30.0)])
+def test_from_mujoco_matches_independent_projection(width: int, height: int, fovy: float) -> None:
+    rng = np.random.default_rng(width)
+    xmat = _euler_xmat(0.9, 0.1, 0.4)
+    pos = np.array([0.3, -1.2, 1.0])
+    cam = PinholeCamera.from_mujoco(fovy, width, height, pos, xmat.reshape(-1))
+    forward = -xmat[:, 2]
+    for _ in range(20):
+        p = pos + forward * rng.uniform(0.5, 3) + xmat[:, :2] @ rng.uniform(-0.2, 0.2, 2)
+        np.testing.assert_allclose(
+            cam.project(p)[0], _mujoco_pixel(fovy, width, height, pos, xmat, p), atol=1e-9
+        )
+    # The optical axis hits the image centre, between pixels for even sizes.
+    np.testing.assert_allclose(cam.project(pos + forward)[0], [(width - 1) / 2, (height - 1) / 2], atol=1e-9)
+
+
+def test_from_mujoco_against_rendered_image() -> None:
+    """Renders a small bright sphere in MuJoCo and compares its centroid with project()."""
+    mujoco = pytest.importorskip("mujoco")
+    xml = """<mujoco><visual><global offwidth="700" offheight="500"/></visual>
+    <asset><material name="e" emission="1" rgba="1 1 1 1"/></asset>
+    <worldbody><camera name="c" pos="0.1 -0.8 0.6" xyaxes="1 0.1 0 -0.05 0.6 0.8" fovy="50"/>
+    <body name="b" mocap="true">
+      <geom type="sphere" size=".02" material="e" contype="0" conaffinity="0"/>
+    </body>
+    </worldbody></mujoco>"""
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    width, height = 641, 480  # odd width: the half-pixel convention matters on both axes
+    try:
+        renderer = mujoco.Renderer(model, height, width)
+    except Exception as exc:  # no OpenGL context on this machine
+        pytest.skip(f"MuJoCo cannot render here: {exc}")
+    try:
+        mujoco.mj_forward(model, data)
+        cam = PinholeCamera.from_mujoco(model.cam_fovy[0], width, height, data.cam_xpos[0], data.cam_xmat[0])
+        rng = np.random.default_rng(0)
+        errors = []
+        vv, uu = np.mgrid[0:height, 0:width]
+        for _ in range(6):
+            p = rng.uniform([-0.25, -0.1, -0.1], [0.25, 0.2, 0.15])
+            data.mocap_pos[0] = p
+            mujoco.mj_forward(model, data)
+            renderer.update_scene(data, "c")
+            img = renderer.render().astype(float).sum(axis=2)
+            w = img / img.max()
+            w[w < 0.05] = 0
+            centroid = np.array([(w * uu).sum() / w.sum(), (w * vv).sum() / w.sum()])
+            errors.append(centroid - cam.project(p)[0])
+    finally:
+        renderer.close()
+    errors = np.array(errors)
+    # A half-pixel convention error would show as a 0.5 px bias.
+    assert np.abs(errors.mean(axis=0)).max() < 0.1
+    assert np.abs(errors).max() < 0.25

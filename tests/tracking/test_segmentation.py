@@ -1,0 +1,101 @@
+"""Tests of dyndlo_vision.tracking.segmentation."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from dyndlo_vision.tracking.segmentation import BackgroundSegmenter, clean_mask, dice, segment_hsv
+from dyndlo_vision.tracking.synthetic import loop_curve, render_cable, s_curve
+
+
+def _hsv_patch_image() -> np.ndarray:
+    """Four 20x20 patches: red (hue ~0), dark red (hue ~175), green, blue."""
+    hsv = np.zeros((20, 80, 3), np.uint8)
+    for i, h in enumerate((2, 175, 60, 120)):
+        hsv[:, 20 * i : 20 * (i + 1)] = (h, 220, 200)
+    return cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)
+
+
+def test_segment_hsv_plain_range() -> None:
+    m = segment_hsv(_hsv_patch_image(), (50, 100, 100), (70, 255, 255))
+    assert m.dtype == bool
+    assert m[:, 40:60].all() and not m[:, :40].any() and not m[:, 60:].any()
+
+
+def test_segment_hsv_wraps_hue() -> None:
+    m = segment_hsv(_hsv_patch_image(), (170, 100, 100), (10, 255, 255))
+    assert m[:, :40].all() and not m[:, 40:].any()
+
+
+def test_segment_hsv_rejects_bad_bounds() -> None:
+    with pytest.raises(ValueError, match="H 0..179"):
+        segment_hsv(_hsv_patch_image(), (0, 0, 0), (200, 255, 255))
+
+
+def test_dice() -> None:
+    a = np.zeros((10, 10), bool)
+    b = np.zeros((10, 10), bool)
+    assert dice(a, b) == 1.0
+    a[:5] = True
+    assert dice(a, b) == 0.0
+    b[:5] = True
+    assert dice(a, b) == 1.0
+    b[:, :5] = False
+    assert dice(a, b) == pytest.approx(2 * 25 / (50 + 25))
+
+
+def test_clean_mask_drops_small_blobs_and_fills_holes() -> None:
+    m = np.zeros((100, 100), np.uint8)
+    m[20:30, 10:90] = 1
+    m[25, 50] = 0  # pin hole
+    m[70:72, 70:72] = 1  # small blob
+    out = clean_mask(m, min_area=30)
+    assert out[25, 50] and not out[70:72, 70:72].any()
+    assert out[20:30, 12:88].all()
+
+
+@pytest.mark.parametrize("curve", [s_curve(), loop_curve()], ids=["s", "loop"])
+@pytest.mark.parametrize("noise", [2.0, 8.0])
+def test_background_segmenter_auto(curve: np.ndarray, noise: float) -> None:
+    rgb, gt = render_cable(curve, noise_sigma=noise, seed=3)
+    seg = BackgroundSegmenter()
+    m = seg(rgb)
+    assert dice(m, gt) > 0.9
+
+
+def test_background_segmenter_gradient_background_with_explicit_image() -> None:
+    h, w = 480, 640
+    ramp = np.linspace(30, 200, w, dtype=np.float32)
+    bg = np.dstack([np.tile(ramp, (h, 1))] * 3).astype(np.uint8)
+    rgb, gt = render_cable(s_curve(), background=bg, color=(200, 40, 40), noise_sigma=3.0)
+    seg = BackgroundSegmenter(background=bg)
+    assert dice(seg(rgb), gt) > 0.9
+
+
+def test_background_segmenter_learns_from_moving_frames() -> None:
+    frames = []
+    for k in range(7):
+        rgb, _ = render_cable(s_curve(v0=120 + 40 * k), noise_sigma=3.0, seed=k)
+        frames.append(rgb)
+    seg = BackgroundSegmenter()
+    seg.learn(frames)
+    rgb, gt = render_cable(s_curve(v0=250, phase=1.0), noise_sigma=3.0, seed=99)
+    assert dice(seg(rgb), gt) > 0.9
+
+
+def test_background_segmenter_empty_frame_is_empty() -> None:
+    rng = np.random.default_rng(0)
+    rgb = np.clip(rng.normal(60, 5, (480, 640, 3)), 0, 255).astype(np.uint8)
+    assert not BackgroundSegmenter()(rgb).any()
+    flat = np.full((480, 640, 3), 90, np.uint8)
+    assert not BackgroundSegmenter()(flat).any()
+
+
+def test_background_segmenter_rejects_wrong_input() -> None:
+    with pytest.raises(ValueError, match="uint8 RGB"):
+        BackgroundSegmenter()(np.zeros((10, 10), np.uint8))
+    seg = BackgroundSegmenter(background=np.zeros((10, 10, 3), np.uint8))
+    with pytest.raises(ValueError, match="background shape"):
+        seg(np.zeros((20, 20, 3), np.uint8))
