@@ -165,6 +165,25 @@ class _ReplayMixin:
         return result
 
 
+
+def _set_noise_params(
+    obj: Any, sigma_accel: float, sigma_meas: float, gate_prob: float, max_coast_s: float,
+    init_speed_sigma: float, history_s: float, reinit_speed: float,
+) -> None:
+    """Validate the parameters shared by both filters and store them on ``obj``."""
+    if sigma_accel <= 0 or sigma_meas <= 0:
+        raise ValueError(f"sigma_accel and sigma_meas must be > 0, got {sigma_accel}, {sigma_meas}")
+    if not 0 < gate_prob < 1:
+        raise ValueError(f"gate_prob must be in (0, 1), got {gate_prob}")
+    obj.sigma_accel = float(sigma_accel)
+    obj.sigma_meas = float(sigma_meas)
+    obj.gate_prob = float(gate_prob)
+    obj.gate_threshold = float(chi2.ppf(gate_prob, 3))
+    obj.max_coast_s = float(max_coast_s)
+    obj.init_speed_sigma = float(init_speed_sigma)
+    obj.history_s = float(history_s)
+    obj.reinit_speed = float(reinit_speed)
+
 class PointFilter(_ReplayMixin):
     """Kalman filter of one 3D point (e.g. the cable tip P_DLO) on filterpy's KalmanFilter."""
 
@@ -192,18 +211,8 @@ class PointFilter(_ReplayMixin):
             reinit_speed: Two consecutive gated measurements closer than this speed (m/s)
                 re-initialise the filter.
         """
-        if sigma_accel <= 0 or sigma_meas <= 0:
-            raise ValueError(f"sigma_accel and sigma_meas must be > 0, got {sigma_accel}, {sigma_meas}")
-        if not 0 < gate_prob < 1:
-            raise ValueError(f"gate_prob must be in (0, 1), got {gate_prob}")
-        self.sigma_accel = float(sigma_accel)
-        self.sigma_meas = float(sigma_meas)
-        self.gate_prob = float(gate_prob)
-        self.gate_threshold = float(chi2.ppf(gate_prob, 3))
-        self.max_coast_s = float(max_coast_s)
-        self.init_speed_sigma = float(init_speed_sigma)
-        self.history_s = float(history_s)
-        self.reinit_speed = float(reinit_speed)
+        _set_noise_params(self, sigma_accel, sigma_meas, gate_prob, max_coast_s, init_speed_sigma, history_s,
+                          reinit_speed)
         self.reset()
 
     def reset(self) -> None:
@@ -405,19 +414,9 @@ class MultiPointFilter(_ReplayMixin):
         """Creates N uninitialised filters; arguments as in :class:`PointFilter`."""
         if n_points < 1:
             raise ValueError(f"n_points must be >= 1, got {n_points}")
-        if sigma_accel <= 0 or sigma_meas <= 0:
-            raise ValueError(f"sigma_accel and sigma_meas must be > 0, got {sigma_accel}, {sigma_meas}")
-        if not 0 < gate_prob < 1:
-            raise ValueError(f"gate_prob must be in (0, 1), got {gate_prob}")
         self.n = int(n_points)
-        self.sigma_accel = float(sigma_accel)
-        self.sigma_meas = float(sigma_meas)
-        self.gate_prob = float(gate_prob)
-        self.gate_threshold = float(chi2.ppf(gate_prob, 3))
-        self.max_coast_s = float(max_coast_s)
-        self.init_speed_sigma = float(init_speed_sigma)
-        self.history_s = float(history_s)
-        self.reinit_speed = float(reinit_speed)
+        _set_noise_params(self, sigma_accel, sigma_meas, gate_prob, max_coast_s, init_speed_sigma, history_s,
+                          reinit_speed)
         self.reset()
 
     def reset(self) -> None:
