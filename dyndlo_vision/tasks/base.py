@@ -101,9 +101,9 @@ class Task(ABC):
         """The point appended to every plan (task IV), else None."""
         return None
 
-    def goal_distance(self, scene: Scene, goal: NDArray[np.float64]) -> float:
+    def goal_distance(self, scene: Scene, goal: NDArray[np.float64], p_dlo: NDArray[np.float64]) -> float:
         """Distance used for the goal condition, checked at every monitor sample (min kept)."""
-        return float(np.linalg.norm(scene.cable_nodes()[self.p_dlo_node(scene)] - goal))
+        return float(np.linalg.norm(p_dlo - goal))
 
     @abstractmethod
     def evaluate(
@@ -313,7 +313,7 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         mon.max_mean_height_m = max(mon.max_mean_height_m, float(p[:, 2].mean()))
         # Swept check: the distance to the goal of the segment P_DLO moved along since the last sample, so a
         # fast tip cannot pass through the target between two samples unnoticed.
-        dist = self.task.goal_distance(scene, self._goal)
+        dist = self.task.goal_distance(scene, self._goal, p_dlo)
         if mon.last_p_dlo is not None and self.task.swept_goal_check:
             dist = min(dist, _segment_point_distance(mon.last_p_dlo, p_dlo, self._goal))
         mon.min_goal_distance_m = min(mon.min_goal_distance_m, dist)

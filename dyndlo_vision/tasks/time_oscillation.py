@@ -77,7 +77,7 @@ class TimeOscillation(Task):
     def final_point(self, goal: NDArray[np.float64]) -> NDArray[np.float64] | None:
         return goal
 
-    def goal_distance(self, scene: Scene, goal: NDArray[np.float64]) -> float:
+    def goal_distance(self, scene: Scene, goal: NDArray[np.float64], p_dlo: NDArray[np.float64]) -> float:
         return float(np.linalg.norm(scene.tcp_positions()[0] - goal))
 
     def oscillation(self, scene: Scene) -> float:

@@ -184,6 +184,7 @@ def _set_noise_params(
     obj.history_s = float(history_s)
     obj.reinit_speed = float(reinit_speed)
 
+
 class PointFilter(_ReplayMixin):
     """Kalman filter of one 3D point (e.g. the cable tip P_DLO) on filterpy's KalmanFilter."""
 
