@@ -1,106 +1,43 @@
 """Command-line entry point: ``dyndlo-vision <command>`` (also ``python -m dyndlo_vision``).
 
-Commands so far:
-    demo    one tip-control episode in simulation, rendered to MP4/PNG with a metrics.json.
+Each command lives in its own module under :mod:`dyndlo_vision.commands`; this file only dispatches.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import os
+import importlib
 import sys
-import tempfile
-from pathlib import Path
-from typing import Any
 
-import numpy as np
+from dyndlo_vision.commands import COMMANDS
 
 
-def _write_atomic(path: Path, write: Any) -> None:
-    """Write via a temporary file in the same folder, then rename: no partial outputs on failure."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=path.suffix)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def demo(args: argparse.Namespace) -> int:
-    """Run one tip-control episode and write demo.mp4, demo.png and metrics.json to ``--out``."""
-    import cv2
-    import gymnasium as gym
-
-    import dyndlo_vision  # noqa: F401
-
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    env = gym.make("DynDLO/TipControl-v0", render_mode="rgb_array").unwrapped
-    rng = np.random.default_rng(args.seed)
-    # Until trained policies ship (issue 3), the demo plans with a small random search over single-step
-    # actions, simulating each candidate without rendering, and replays the best one.
-    best, best_dist = None, np.inf
-    for _ in range(args.candidates):
-        action = rng.uniform(-1, 1, env.action_space.shape).astype(np.float32)
-        env.reset(seed=args.seed)
-        _, _, _, _, info = env.step(action)
-        score = info["min_distance_m"] + (1.0 if any(info["avoid"].values()) else 0.0)
-        if score < best_dist:
-            best, best_dist = action, score
-    env.reset(seed=args.seed)
-    env._plan(best)  # noqa: SLF001  (render while stepping the physics in 40 ms slices)
-    frames = [env.render()]
-    total = env.trajectory.t_end + env.task.settle_s
-    while env.scene.time < total - 1e-9:
-        env._simulate(env._steps_per_control)  # noqa: SLF001
-        frames.append(env.render())
-    terms, success, info = env.task.evaluate(env.scene, env.goal, env._monitor, True)  # noqa: SLF001
-    env.close()
-    h, w = frames[0].shape[:2]
-
-    def write_video(path: str) -> None:
-        writer = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (w, h))
-        if not writer.isOpened():
-            raise RuntimeError(f"OpenCV cannot write MP4 to {path}")
-        for frame in frames:
-            writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
-        writer.release()
-
-    _write_atomic(out / "demo.mp4", write_video)
-    strip = np.hstack([frames[i] for i in np.linspace(0, len(frames) - 1, 4).astype(int)])
-    _write_atomic(out / "demo.png", lambda p: cv2.imwrite(p, cv2.cvtColor(strip, cv2.COLOR_RGB2BGR)))
-    metrics = {
-        "success": bool(success),
-        "min_distance_to_target_m": float(info["min_distance_m"]),
-        "reward": float(sum(terms.values())),
-        "reward_terms": terms,
-        "avoid": env._monitor.avoid,  # noqa: SLF001
-        "goal_m": env.goal.tolist(),
-        "planner": f"random search over {args.candidates} single-step actions (no trained policy yet)",
-        "frames": len(frames),
-    }
-    _write_atomic(out / "metrics.json", lambda p: Path(p).write_text(json.dumps(metrics, indent=2)))
-    print(json.dumps({k: metrics[k] for k in ("success", "min_distance_to_target_m", "reward")}))
-    print(f"wrote {out / 'demo.mp4'}, {out / 'demo.png'}, {out / 'metrics.json'}")
-    return 0
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with one subparser per command."""
+    parser = argparse.ArgumentParser(
+        prog="dyndlo-vision", description="Dynamic cable manipulation in MuJoCo."
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name, module_name in COMMANDS.items():
+        module = importlib.import_module(f"dyndlo_vision.commands.{module_name}")
+        p = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        module.add_arguments(p)
+        p.set_defaults(run=module.run, parser=p)
+    return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Parse the command line and run the chosen command."""
-    parser = argparse.ArgumentParser(prog="dyndlo-vision", description="Dynamic cable manipulation in MuJoCo.")
-    sub = parser.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("demo", help="simulate and render one tip-control episode")
-    p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--candidates", type=int, default=32, help="random-search candidates (>= 1)")
-    p.set_defaults(func=demo)
+    """Parse the command line and run the chosen command.
+
+    A command signals bad input by raising ``ValueError``; it becomes a one-line error and exit status 2.
+    """
+    parser = build_parser()
     args = parser.parse_args(argv)
-    if getattr(args, "candidates", 1) < 1:
-        parser.error(f"--candidates must be >= 1, got {args.candidates}")
-    return int(args.func(args))
+    try:
+        return int(args.run(args))
+    except (ValueError, FileNotFoundError) as err:
+        args.parser.error(str(err))
+        return 2  # unreachable: error() exits
 
 
 if __name__ == "__main__":
