@@ -221,6 +221,7 @@ def build_mjcf(config: SceneConfig) -> str:
     <light name="key" pos="0.5 -1 2.5" dir="0 0.4 -1" diffuse="0.6 0.6 0.6"/>
     <geom name="{FLOOR_NAME}" type="plane" size="3 3 0.1" material="floor"/>
     <camera name="front" pos="0.55 -1.7 0.45" xyaxes="1 0 0 0 0 1" fovy="45"/>
+    <camera name="tracking" pos="0.65 -1.45 0.575" xyaxes="1 0 0 0 0 1" fovy="45"/>
     <camera name="oblique" pos="1.6 -1.4 1.1" xyaxes="0.7 0.71 0 -0.25 0.25 0.93" fovy="45"/>{"".join(bodies)}{"".join(props)}
   </worldbody>
   <equality>{equality}
