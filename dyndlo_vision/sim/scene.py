@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -270,7 +271,36 @@ class Scene:
             eq = m.equality("far_end").id
             m.eq_data[eq, 3:6] = 0.0
         self._state_spec = mujoco.mjtState.mjSTATE_INTEGRATION
+        self._node_offset, self._node_jacobian = self._linear_node_map()
+        self._rollout: Any = None
         self._initial_state = self._settle()
+
+    def _linear_node_map(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Cable node positions as an affine function of qpos: ``nodes = offset + qpos @ jacobian``.
+
+        Exact because every body the nodes hang from moves on slide joints only (TCP and node translations;
+        the twist hinges carry no node). Checked here against forward kinematics at a random configuration.
+        """
+        m = self.model
+        d = mujoco.MjData(m)
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_flex(m, d)
+        base = d.flexvert_xpos[self._vert_adr : self._vert_adr + self._vert_num].copy()
+        jac = np.zeros((m.nq, self._vert_num, 3))
+        for j in range(m.nq):
+            d.qpos[:] = 0.0
+            d.qpos[j] = 1.0
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_flex(m, d)
+            jac[j] = d.flexvert_xpos[self._vert_adr : self._vert_adr + self._vert_num] - base
+        d.qpos[:] = np.random.default_rng(0).normal(0.0, 0.3, m.nq)
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_flex(m, d)
+        predicted = base + np.einsum("q,qnk->nk", d.qpos, jac)
+        actual = d.flexvert_xpos[self._vert_adr : self._vert_adr + self._vert_num]
+        if np.abs(predicted - actual).max() > 1e-9 or not np.any(jac):
+            raise RuntimeError("cable nodes are not affine in qpos; batch rollouts are not supported")
+        return base, jac.reshape(m.nq, -1)
 
     # ------------------------------------------------------------------ state
     def _settle(self) -> NDArray[np.float64]:
@@ -357,8 +387,11 @@ class Scene:
         return self.data.qvel[self._tcp_dof].copy()
 
     def cable_nodes(self) -> NDArray[np.float64]:
-        """World positions of the cable nodes from the held end to the far end, (N, 3)."""
-        return self.data.flexvert_xpos[self._vert_adr : self._vert_adr + self._vert_num].copy()
+        """World positions of the cable nodes from the held end to the far end, (N, 3).
+
+        Computed from the current ``qpos`` (``mjData.flexvert_xpos`` lags one step behind after ``mj_step``).
+        """
+        return self.nodes_from_qpos(self.data.qpos[None])[0]
 
     # ------------------------------------------------------------------ writes
     def set_tcp_reference(self, position: ArrayLike, velocity: ArrayLike) -> None:
@@ -373,6 +406,61 @@ class Scene:
             raise ValueError("this scene has no target marker (target_radius_m = 0)")
         self.data.mocap_pos[self._target_mocap] = np.asarray(position, dtype=float)
 
+    def tcp_controls(self, positions: ArrayLike, velocities: ArrayLike) -> NDArray[np.float64]:
+        """Actuator controls that make the TCPs follow references, each (K, n_g, 3) -> (K, nu)."""
+        p = np.asarray(positions, dtype=float)
+        v = np.asarray(velocities, dtype=float)
+        ctrl = np.tile(self.data.ctrl, (p.shape[0], 1))
+        ctrl[:, self._tcp_act.ravel()] = (v + self._kp * (p - self._tcp_home)).reshape(p.shape[0], -1)
+        return ctrl
+
+    def rollout(self, controls: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
+        """Step once per row of ``controls`` (K, nu) in MuJoCo's C rollout, without Python per step.
+
+        The scene ends in the state after the last step, as if :meth:`step` had been called K times with
+        the same controls (the two agree to solver tolerance).
+
+        Returns:
+            qpos (K, nq) and qvel (K, nv) after each step, and the number of leading steps that stayed
+            finite (K unless the simulation blew up; MuJoCo then resets the state, detected from the time).
+        """
+        from mujoco import rollout
+
+        m, d = self.model, self.data
+        if self._rollout is None:
+            self._rollout = rollout.Rollout(nthread=0)
+        spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        state0 = np.empty(mujoco.mj_stateSize(m, spec))
+        mujoco.mj_getState(m, d, state0, spec)
+        k = controls.shape[0]
+        states, _ = self._rollout.rollout(
+            m, d, state0[None], controls[None], control_spec=mujoco.mjtState.mjSTATE_CTRL
+        )
+        states = states[0]
+        d.ctrl[:] = controls[-1]
+        qpos = states[:, 1 : 1 + m.nq]
+        qvel = states[:, 1 + m.nq : 1 + m.nq + m.nv]
+        expected_time = state0[0] + m.opt.timestep * np.arange(1, k + 1)
+        good = np.abs(states[:, 0] - expected_time) < 0.5 * m.opt.timestep
+        good &= np.all(np.isfinite(states), axis=1)
+        good &= np.abs(self.nodes_from_qpos(qpos)).max(axis=(1, 2)) < 50.0
+        finite = k if good.all() else int(np.argmin(good))
+        if finite < k:
+            self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number += 1
+        return qpos, qvel, finite
+
+    def nodes_from_qpos(self, qpos: ArrayLike) -> NDArray[np.float64]:
+        """Cable node positions for a batch of configurations, (K, nq) -> (K, N, 3)."""
+        q = np.asarray(qpos, dtype=float)
+        return (self._node_offset + (q @ self._node_jacobian).reshape(q.shape[0], self._vert_num, 3))
+
+    def tcp_from_state(
+        self, qpos: ArrayLike, qvel: ArrayLike
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """TCP positions and velocities for a batch of states, each (K, n_g, 3)."""
+        q, v = np.asarray(qpos), np.asarray(qvel)
+        return self._tcp_home + q[:, self._tcp_qpos], v[:, self._tcp_dof]
+
     def step(self, nsteps: int = 1) -> None:
         """Advance the physics by ``nsteps`` steps with the current references."""
         mujoco.mj_step(self.model, self.data, nsteps)
@@ -384,4 +472,5 @@ class Scene:
         blow-up is therefore detected from that counter as well as from the state.
         """
         bad = self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number
-        return bool(bad == 0 and np.all(np.isfinite(self.data.qpos)) and np.abs(self.cable_nodes()).max() < 50.0)
+        finite = bool(np.all(np.isfinite(self.data.qpos)))
+        return bool(bad == 0 and finite and np.abs(self.cable_nodes()).max() < 50.0)

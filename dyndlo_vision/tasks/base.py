@@ -156,6 +156,12 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self._offsets = self.scene.gripper_home - self.scene.gripper_home[0]
         self._mirror = np.array([1.0, -1.0, 1.0])  # dual arm: the second gripper mirrors lateral motion
         self._decisions = 0
+        # Tasks that read nothing but the TCPs and P_DLO at monitor samples run their open-loop stretches in
+        # MuJoCo's C rollout (no Python per step), about twice as fast; the others step in Python.
+        task_type = type(task)
+        self._batch_monitor = (
+            task_type.goal_distance is Task.goal_distance and task_type.on_sample is Task.on_sample
+        )
 
     # ------------------------------------------------------------------ gym API
     @property
@@ -293,6 +299,14 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         t = self.scene.time + self._dt * np.arange(nsteps)
         ref_p, ref_v = self._gripper_references(t)
         scene = self.scene
+        if self._batch_monitor:
+            # The plan is open loop over these steps: run them in MuJoCo's C rollout and check the constraints
+            # on the recorded states afterwards, at the same monitor instants as the loop below.
+            qpos, qvel, finite = scene.rollout(scene.tcp_controls(ref_p, ref_v))
+            samples = np.arange(self._steps_per_monitor - 1, finite, self._steps_per_monitor)
+            if samples.size:
+                self._sample_monitor_batch(qpos[samples], qvel[samples])
+            return
         for k in range(nsteps):
             scene.set_tcp_reference(ref_p[k], ref_v[k])
             scene.step()
@@ -300,6 +314,33 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
                 self._sample_monitor()
                 if not scene.is_finite():
                     return
+
+    def _sample_monitor_batch(self, qpos: NDArray[np.float64], qvel: NDArray[np.float64]) -> None:
+        """:meth:`_sample_monitor` for K recorded states at once (tasks without per-sample hooks)."""
+        scene, mon, limits = self.scene, self._monitor, self.task.limits
+        p, v = scene.tcp_from_state(qpos, qvel)
+        p_dlo = scene.nodes_from_qpos(qpos)[:, self.task.p_dlo_node(scene)]
+        speed = np.linalg.norm(v, axis=2)
+        shoulder = np.asarray(limits.shoulder_position_m)
+        flags = {
+            "outreach": bool(np.any(np.linalg.norm(p - shoulder, axis=2) > limits.outreach_m)),
+            "velocity": bool(np.any(speed > limits.v_max_m_s)),
+            "collision": bool(self.task.check_collision and np.any(p_dlo[:, 2] < limits.collision_height_m)),
+            "shoulder": bool(np.any(np.linalg.norm(p[:, :, :2], axis=2) < limits.shoulder_m)),
+        }
+        for key, value in flags.items():
+            mon.avoid[key] = mon.avoid[key] or value
+        mon.max_tcp_speed_m_s = max(mon.max_tcp_speed_m_s, float(speed.max()))
+        mon.max_mean_height_m = max(mon.max_mean_height_m, float(p[:, :, 2].mean(axis=1).max()))
+        dist = np.linalg.norm(p_dlo - self._goal, axis=1)
+        if self.task.swept_goal_check:
+            start = p_dlo[:-1] if mon.last_p_dlo is None else np.vstack([mon.last_p_dlo, p_dlo[:-1]])
+            end = p_dlo[1:] if mon.last_p_dlo is None else p_dlo
+            if len(start):
+                dist = np.minimum(dist.min(), _segment_point_distances(start, end, self._goal).min())
+        mon.min_goal_distance_m = min(mon.min_goal_distance_m, float(np.min(dist)))
+        mon.last_p_dlo = p_dlo[-1].copy()
+        mon.samples += len(qpos)
 
     def _sample_monitor(self) -> None:
         scene, mon = self.scene, self._monitor
@@ -326,6 +367,17 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         v = self.scene.tcp_velocities().ravel()
         p_dlo = self.scene.cable_nodes()[self.task.p_dlo_node(self.scene)]
         return np.concatenate([p, v, p_dlo, self._goal]).astype(np.float32)
+
+
+def _segment_point_distances(
+    a: NDArray[np.float64], b: NDArray[np.float64], c: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Distance of point ``c`` to each segment ``a[i]``-``b[i]``, (K, 3) -> (K,)."""
+    ab = b - a
+    denom = np.einsum("ij,ij->i", ab, ab)
+    s = np.where(denom > 0, np.einsum("ij,ij->i", c - a, ab) / np.where(denom > 0, denom, 1.0), 0.0)
+    s = np.clip(s, 0.0, 1.0)
+    return np.linalg.norm(a + s[:, None] * ab - c, axis=1)
 
 
 def _segment_point_distance(a: NDArray[np.float64], b: NDArray[np.float64], c: NDArray[np.float64]) -> float:

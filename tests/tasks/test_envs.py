@@ -150,3 +150,32 @@ def test_multi_step_replans_are_continuous() -> None:
             np.testing.assert_allclose(plan.position(t), p_old, atol=1e-9)
             np.testing.assert_allclose(plan.velocity(t), v_old, atol=1e-9)
         previous = plan
+
+
+@pytest.mark.parametrize("multi_step", [False, True])
+def test_c_rollout_matches_python_stepping(multi_step: bool) -> None:
+    """Tip control runs its open-loop stretches in MuJoCo's C rollout; the Python step loop is the reference."""
+    results = []
+    for batch in (True, False):
+        env = gym.make("DynDLO/TipControl-v0", multi_step=multi_step).unwrapped
+        assert env._batch_monitor  # noqa: SLF001
+        env._batch_monitor = batch  # noqa: SLF001
+        rng = np.random.default_rng(3)
+        run = []
+        for episode in range(4):
+            env.reset(seed=episode)
+            done = False
+            while not done:
+                _, reward, done, _, info = env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
+                run.append((reward, info["is_success"], dict(info["avoid"]), info["min_distance_m"],
+                            info["max_tcp_speed_m_s"], info["sim_time_s"], env.cable_nodes()[-1].copy()))
+        results.append(run)
+    assert len(results[0]) == len(results[1])
+    for fast, slow in zip(*results, strict=True):
+        assert fast[:3] == slow[:3]
+        np.testing.assert_allclose(fast[3:6], slow[3:6], atol=1e-4)  # 0.1 mm: solver tolerance
+        np.testing.assert_allclose(fast[6], slow[6], atol=1e-4)
+
+
+def test_batch_monitor_only_for_tasks_without_hooks() -> None:
+    assert not gym.make("DynDLO/TimeOscillation-v0").unwrapped._batch_monitor  # noqa: SLF001
