@@ -1,9 +1,12 @@
 """Subcommands of ``dyndlo-vision``: one module each, exposing ``HELP``, ``add_arguments(parser)`` and
-``run(args) -> int``. Modules are imported only when their command runs, so ``--help`` stays fast."""
+``run(args) -> int``. Modules import their heavy dependencies inside ``run``, so ``--help`` stays fast."""
 
 from __future__ import annotations
 
 #: Command name -> module under ``dyndlo_vision.commands``.
 COMMANDS: dict[str, str] = {
     "demo": "demo",
+    "evaluate": "evaluate",
+    "plot": "plot",
+    "train": "train",
 }

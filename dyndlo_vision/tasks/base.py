@@ -13,6 +13,7 @@ Observations (table II): gripper positions (3 n_g), gripper velocities (3 n_g), 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -156,6 +157,8 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self._offsets = self.scene.gripper_home - self.scene.gripper_home[0]
         self._mirror = np.array([1.0, -1.0, 1.0])  # dual arm: the second gripper mirrors lateral motion
         self._decisions = 0
+        #: Called with the environment every 40 ms of simulated time while it simulates (None: never).
+        self.frame_hook: Callable[[DynDLOEnv], None] | None = None
         # Tasks that read nothing but the TCPs and P_DLO at monitor samples run their open-loop stretches in
         # MuJoCo's C rollout (no Python per step), about twice as fast; the others step in Python.
         task_type = type(task)
@@ -231,8 +234,8 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         diverged = not self.scene.is_finite()
         terms, success, extra = self.task.evaluate(self.scene, self._goal, self._monitor, final or diverged)
         reward = float(sum(terms.values()))
-        info: dict[str, Any] = {**terms, **extra, "is_success": bool(success), "avoid": dict(self._monitor.avoid),
-                                "sim_time_s": self.scene.time}
+        info: dict[str, Any] = {**terms, **extra, "is_success": bool(success),
+                                "avoid": dict(self._monitor.avoid), "sim_time_s": self.scene.time}
         if diverged:
             info["diverged"] = True
         return self._observation(), reward, bool(final or diverged), False, info
@@ -293,7 +296,26 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         return np.stack(p, axis=1), np.stack(v, axis=1)  # (K, n_g, 3)
 
     def _simulate(self, nsteps: int) -> None:
-        """Follow the trajectory for ``nsteps`` physics steps, checking constraints as we go."""
+        """Follow the trajectory for ``nsteps`` physics steps, checking constraints as we go.
+
+        With a ``frame_hook`` set, the steps are cut at every multiple of the control period (40 ms of
+        simulated time) and the hook is called there, e.g. to render a 25 Hz video of a single-step episode.
+        """
+        if self.frame_hook is None:
+            self._simulate_span(nsteps)
+            return
+        k = self._steps_per_control
+        while nsteps > 0:
+            step_index = int(round(self.scene.time / self._dt))
+            chunk = min(nsteps, k - step_index % k)
+            self._simulate_span(chunk)
+            nsteps -= chunk
+            if int(round(self.scene.time / self._dt)) % k == 0:
+                self.frame_hook(self)
+            if not self.scene.is_finite():
+                return
+
+    def _simulate_span(self, nsteps: int) -> None:
         if nsteps <= 0:
             return
         t = self.scene.time + self._dt * np.arange(nsteps)

@@ -1,0 +1,103 @@
+"""``dyndlo-vision train``: train PPO or SAC on a DynDLO task, with checkpoints, evaluation and resume."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+HELP = "train a policy (PPO/SAC) on a task; resumable"
+
+
+def parse_assignments(items: list[str] | None, flag: str) -> dict[str, Any]:
+    """``["a=1", "b=[64, 64]"]`` -> ``{"a": 1, "b": [64, 64]}`` (values parsed as YAML)."""
+    result: dict[str, Any] = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"{flag} {item!r}: expected KEY=VALUE")
+        try:
+            result[key] = yaml.safe_load(value)
+        except yaml.YAMLError as err:
+            raise ValueError(f"{flag} {item!r}: the value is not valid YAML ({err})") from err
+    return result
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``train``."""
+    from dyndlo_vision.learning.config import TASK_NAMES
+
+    p.add_argument("--task", choices=sorted(TASK_NAMES), default="tip-control")
+    p.add_argument("--multi-step", action="store_true", help="re-plan every 0.04 s (default: plan once)")
+    p.add_argument(
+        "--algo",
+        choices=["ppo", "sac"],
+        default=None,
+        help="default: ppo for tip-control, vaulting, hooking; sac for time-oscillation (the paper's)",
+    )
+    p.add_argument(
+        "--timesteps", type=int, default=None, help="total decisions (default: the paper's budget)"
+    )
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--out", default=None, help="run folder (default: runs/<task>[-multi-step]-<algo>-s<seed>)"
+    )
+    p.add_argument("--n-envs", type=int, default=None, help="parallel environments (default: from the YAML)")
+    p.add_argument("--vec-env", choices=["subproc", "dummy"], default="subproc")
+    p.add_argument(
+        "--hp", action="append", metavar="KEY=VALUE", help="override a hyperparameter (repeatable)"
+    )
+    p.add_argument(
+        "--env-option",
+        action="append",
+        metavar="KEY=VALUE",
+        help="task option passed to gym.make, e.g. target=down (repeatable)",
+    )
+    p.add_argument("--obs-noise", default=None, help="observation-noise model file (JSON) to train with")
+    p.add_argument("--eval-freq", type=int, default=2000, help="evaluate every N steps (default 2000)")
+    p.add_argument("--eval-episodes", type=int, default=20)
+    p.add_argument(
+        "--checkpoint-freq", type=int, default=2000, help="checkpoint every N steps (default 2000)"
+    )
+    p.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Resolve the configuration, then train."""
+    from dyndlo_vision.learning.config import RunConfig, load_hyperparams
+    from dyndlo_vision.learning.train import train
+
+    algo = args.algo or ("sac" if args.task == "time-oscillation" else "ppo")
+    if args.obs_noise is not None and not Path(args.obs_noise).is_file():
+        raise FileNotFoundError(f"--obs-noise {args.obs_noise}: no such file")
+    entry = load_hyperparams(algo, args.task, args.multi_step)
+    hyperparams = {**entry["hyperparams"], **parse_assignments(args.hp, "--hp")}
+    config = RunConfig(
+        task=args.task,
+        multi_step=args.multi_step,
+        algo=algo,
+        timesteps=args.timesteps if args.timesteps is not None else int(entry["n_timesteps"]),
+        seed=args.seed,
+        n_envs=args.n_envs if args.n_envs is not None else int(entry["n_envs"]),
+        vec_env=args.vec_env,
+        policy=entry.get("policy", "MlpPolicy"),
+        hyperparams=hyperparams,
+        env_options=parse_assignments(args.env_option, "--env-option"),
+        obs_noise=str(Path(args.obs_noise).resolve()) if args.obs_noise else None,
+        eval_freq=args.eval_freq,
+        eval_episodes=args.eval_episodes,
+        checkpoint_freq=args.checkpoint_freq,
+    )
+    out = Path(args.out or f"runs/{config.key}-{algo}-s{args.seed}")
+    try:
+        summary = train(config, out, resume=args.resume, progress_bar=not args.quiet)
+    except KeyboardInterrupt:
+        print(f"interrupted; resume with: dyndlo-vision train --resume --out {out}")
+        return 130
+    print(json.dumps(summary, indent=2))
+    print(f"wrote {out / 'model.zip'}")
+    return 0

@@ -1,0 +1,134 @@
+"""What a training run is: task, mode, algorithm, budget and hyperparameters, stored with the run.
+
+Hyperparameters live in versioned YAML files beside this module (``hyperparams/ppo.yml``, ``sac.yml``),
+one entry per task and mode in the style of rl-baselines3-zoo; a run folder keeps the resolved
+:class:`RunConfig` in ``config.json`` so that it can be resumed and reproduced.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+#: Command-line task name -> Gymnasium id suffix.
+TASK_NAMES: dict[str, str] = {
+    "tip-control": "TipControl",
+    "vaulting": "Vaulting",
+    "hooking": "Hooking",
+    "time-oscillation": "TimeOscillation",
+}
+ALGOS = ("ppo", "sac")
+HYPERPARAMS_VERSION = 1
+
+
+def env_id(task: str) -> str:
+    """Gymnasium id of a command-line task name."""
+    if task not in TASK_NAMES:
+        raise ValueError(f"unknown task {task!r}; expected one of {sorted(TASK_NAMES)}")
+    return f"DynDLO/{TASK_NAMES[task]}-v0"
+
+
+def hyperparams_key(task: str, multi_step: bool) -> str:
+    """Key of a task and mode in the hyperparameter files, e.g. ``tip-control-multi-step``."""
+    return f"{task}-multi-step" if multi_step else task
+
+
+def load_hyperparams(algo: str, task: str, multi_step: bool) -> dict[str, Any]:
+    """The YAML entry of ``algo`` for a task and mode: n_envs, n_timesteps, policy, hyperparams.
+
+    Raises:
+        ValueError: For an unknown algorithm, a task and mode without an entry, or a file of another version.
+    """
+    if algo not in ALGOS:
+        raise ValueError(f"unknown algorithm {algo!r}; expected one of {list(ALGOS)}")
+    text = resources.files("dyndlo_vision.learning").joinpath(f"hyperparams/{algo}.yml").read_text()
+    table = yaml.safe_load(text)
+    if table.get("version") != HYPERPARAMS_VERSION:
+        raise ValueError(
+            f"hyperparams/{algo}.yml has version {table.get('version')}, expected {HYPERPARAMS_VERSION}"
+        )
+    key = hyperparams_key(task, multi_step)
+    if key not in table:
+        entries = sorted(k for k in table if k != "version")
+        raise ValueError(f"no {algo} hyperparameters for {key!r}; available: {entries}")
+    entry = dict(table[key])
+    entry.setdefault("hyperparams", {})
+    return entry
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything that defines a training run.
+
+    Attributes:
+        task: Command-line task name (a key of ``TASK_NAMES``).
+        multi_step: Re-plan every 0.04 s instead of planning once.
+        algo: "ppo" or "sac".
+        timesteps: Total environment steps (decisions) to train for.
+        seed: Seed of the algorithm and of the training environments (evaluation uses seed + 10_000).
+        n_envs: Environments stepped in parallel.
+        vec_env: "subproc" (one process per environment) or "dummy" (all in this process).
+        policy: stable-baselines3 policy name.
+        hyperparams: Keyword arguments of the algorithm (from the YAML file, then ``--hp`` overrides).
+        env_options: Task options passed to ``gym.make`` (e.g. ``{"target": "down"}``).
+        obs_noise: Path of an observation-noise model file (``dyndlo_vision.control.noise_model``), or None.
+        eval_freq: Evaluate every this many environment steps.
+        eval_episodes: Episodes per evaluation.
+        checkpoint_freq: Save a resumable checkpoint every this many environment steps.
+    """
+
+    task: str
+    multi_step: bool
+    algo: str
+    timesteps: int
+    seed: int = 0
+    n_envs: int = 2
+    vec_env: str = "subproc"
+    policy: str = "MlpPolicy"
+    hyperparams: dict[str, Any] = field(default_factory=dict)
+    env_options: dict[str, Any] = field(default_factory=dict)
+    obs_noise: str | None = None
+    eval_freq: int = 2000
+    eval_episodes: int = 20
+    checkpoint_freq: int = 2000
+
+    def __post_init__(self) -> None:
+        env_id(self.task)
+        if self.algo not in ALGOS:
+            raise ValueError(f"algo={self.algo!r}; expected one of {list(ALGOS)}")
+        for name in ("timesteps", "n_envs", "eval_freq", "eval_episodes", "checkpoint_freq"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name}={value!r}; expected a positive integer")
+        if self.vec_env not in ("subproc", "dummy"):
+            raise ValueError(f"vec_env={self.vec_env!r}; expected 'subproc' or 'dummy'")
+
+    @property
+    def env_id(self) -> str:
+        """Gymnasium id of the task."""
+        return env_id(self.task)
+
+    @property
+    def key(self) -> str:
+        """Task and mode, e.g. ``tip-control-multi-step``."""
+        return hyperparams_key(self.task, self.multi_step)
+
+    def to_json(self) -> str:
+        """JSON text of the configuration."""
+        return json.dumps(asdict(self), indent=2, sort_keys=True)
+
+    @classmethod
+    def from_json(cls, path: Path) -> RunConfig:
+        """Read ``config.json`` of a run folder, with a clear error for a missing or malformed file."""
+        if not path.is_file():
+            raise FileNotFoundError(f"{path} not found: not a run folder made by `dyndlo-vision train`")
+        try:
+            data = json.loads(path.read_text())
+            return cls(**data)
+        except (json.JSONDecodeError, TypeError) as err:
+            raise ValueError(f"{path} is not a valid run configuration: {err}") from err

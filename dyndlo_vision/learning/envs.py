@@ -1,0 +1,57 @@
+"""Environment factories shared by training and evaluation."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+
+from dyndlo_vision.learning.config import RunConfig
+
+#: Per-episode info keys recorded by the Monitor wrapper (monitor.csv) next to reward and length.
+MONITOR_KEYWORDS = ("is_success",)
+
+
+def make_env(
+    config: RunConfig, monitor_file: Path | None = None, render_mode: str | None = None
+) -> gym.Env[Any, Any]:
+    """One environment of the run: the task, the optional observation noise, and a Monitor."""
+    from stable_baselines3.common.monitor import Monitor
+
+    import dyndlo_vision  # noqa: F401  (registers the ids in subprocesses too)
+
+    env = gym.make(config.env_id, multi_step=config.multi_step, render_mode=render_mode, **config.env_options)
+    if config.obs_noise:
+        from dyndlo_vision.control.noise_model import ObservationNoiseModel
+        from dyndlo_vision.control.wrappers import NoisyObservation
+
+        env = NoisyObservation(env, ObservationNoiseModel.load(Path(config.obs_noise)))
+    return Monitor(env, str(monitor_file) if monitor_file else None, info_keywords=MONITOR_KEYWORDS)
+
+
+def env_factory(config: RunConfig, monitor_file: Path | None) -> Callable[[], gym.Env[Any, Any]]:
+    """A picklable thunk for SubprocVecEnv."""
+
+    def thunk() -> gym.Env[Any, Any]:
+        return make_env(config, monitor_file)
+
+    return thunk
+
+
+def make_vec_env(config: RunConfig, n_envs: int, seed: int, monitor_dir: Path | None, kind: str) -> Any:
+    """``n_envs`` environments in a DummyVecEnv or SubprocVecEnv, seeded ``seed, seed + 1, ...``."""
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    thunks = [
+        env_factory(config, monitor_dir / f"env{rank}" if monitor_dir is not None else None)
+        for rank in range(n_envs)
+    ]
+    vec = (
+        SubprocVecEnv(thunks, start_method="forkserver")
+        if kind == "subproc" and n_envs > 1
+        else DummyVecEnv(thunks)
+    )
+    vec.seed(seed)
+    return vec

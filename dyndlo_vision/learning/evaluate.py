@@ -1,0 +1,130 @@
+"""Evaluate a policy over many episodes: success rate with a 95% interval, reward and its terms.
+
+A policy here is anything with ``predict(obs, deterministic=True) -> (action, state)``
+(stable-baselines3 models) or a plain callable ``obs -> action`` (e.g. the geometric baseline of task IV).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+REWARD_TERMS = ("r_avoid", "r_distance", "r_success", "r_dyn")
+
+
+def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion (95% for the default z)."""
+    if n <= 0:
+        raise ValueError(f"n={n}; expected at least one episode")
+    if not 0 <= successes <= n:
+        raise ValueError(f"successes={successes} outside [0, {n}]")
+    p = successes / n
+    denom = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+@dataclass
+class EpisodeRecord:
+    """One evaluated episode."""
+
+    seed: int
+    reward: float
+    success: bool
+    length: int
+    terms: dict[str, float] = field(default_factory=dict)
+    avoid: dict[str, bool] = field(default_factory=dict)
+    extras: dict[str, float] = field(default_factory=dict)
+
+
+def as_action_fn(policy: Any) -> Callable[[np.ndarray], np.ndarray]:
+    """``obs -> action`` for an SB3 model (deterministic) or a callable."""
+    if hasattr(policy, "predict"):
+        return lambda obs: policy.predict(obs, deterministic=True)[0]
+    if callable(policy):
+        return policy  # type: ignore[no-any-return]
+    raise ValueError(f"policy {policy!r} has no predict() and is not callable")
+
+
+def run_episode(
+    env: Any, act: Callable[[np.ndarray], np.ndarray], seed: int, on_step: Callable[[Any], None] | None = None
+) -> EpisodeRecord:
+    """Run one episode from ``reset(seed=seed)``; reward terms are summed over the episode's steps."""
+    obs, _ = env.reset(seed=seed)
+    if hasattr(act, "reset"):
+        act.reset(env)
+    terms = dict.fromkeys(REWARD_TERMS, 0.0)
+    total, length, done, info = 0.0, 0, False, {}
+    while not done:
+        obs, reward, terminated, truncated, info = env.step(act(obs))
+        done = terminated or truncated
+        total += float(reward)
+        length += 1
+        for key in REWARD_TERMS:
+            terms[key] += float(info.get(key, 0.0))
+        if on_step is not None:
+            on_step(env)
+    extras = {
+        k: float(info[k])
+        for k in ("trajectory_time_s", "residual_oscillation_m", "min_distance_m", "sim_time_s")
+        if k in info
+    }
+    return EpisodeRecord(
+        seed=seed,
+        reward=total,
+        success=bool(info.get("is_success", False)),
+        length=length,
+        terms=terms,
+        avoid=dict(info.get("avoid", {})),
+        extras=extras,
+    )
+
+
+def summarize(records: list[EpisodeRecord]) -> dict[str, Any]:
+    """Success rate with its 95% Wilson interval, reward mean/std, term means, avoid rates, extras' means."""
+    n = len(records)
+    k = sum(r.success for r in records)
+    lo, hi = wilson_interval(k, n)
+    rewards = np.array([r.reward for r in records])
+    report: dict[str, Any] = {
+        "episodes": n,
+        "successes": k,
+        "success_rate": k / n,
+        "success_ci95": [lo, hi],
+        "reward_mean": float(rewards.mean()),
+        "reward_std": float(rewards.std()),
+        "reward_terms_mean": {t: float(np.mean([r.terms[t] for r in records])) for t in REWARD_TERMS},
+        "avoid_rate": {
+            a: float(np.mean([r.avoid.get(a, False) for r in records]))
+            for a in sorted({a for r in records for a in r.avoid})
+        },
+        "length_mean": float(np.mean([r.length for r in records])),
+    }
+    for key in sorted({key for r in records for key in r.extras}):
+        values = np.array([r.extras[key] for r in records if key in r.extras])
+        report[f"{key}_mean"] = float(values.mean())
+        report[f"{key}_median"] = float(np.median(values))
+    return report
+
+
+def evaluate(
+    policy: Any, env: Any, episodes: int, seed: int, on_step: Callable[[Any], None] | None = None
+) -> tuple[dict[str, Any], list[EpisodeRecord]]:
+    """Evaluate ``policy`` for ``episodes`` episodes seeded ``seed, seed + 1, ...``."""
+    if episodes < 1:
+        raise ValueError(f"episodes={episodes}; expected >= 1")
+    act = as_action_fn(policy)
+    records = [run_episode(env, act, seed + i, on_step) for i in range(episodes)]
+    report = summarize(records)
+    report["seed"] = seed
+    return report, records
+
+
+def records_as_dicts(records: list[EpisodeRecord]) -> list[dict[str, Any]]:
+    """JSON-ready episode records."""
+    return [asdict(r) for r in records]

@@ -1,0 +1,234 @@
+"""Train a policy on a DynDLO task with stable-baselines3, resumably.
+
+A run folder holds::
+
+    config.json              the resolved RunConfig (what to resume with)
+    checkpoint/model.zip     latest weights and optimiser state, written atomically
+    checkpoint/replay_buffer.pkl   (SAC) the replay buffer, so a resumed run keeps its experience
+    checkpoint/state.json    steps done, wall time so far
+    monitor/env*.monitor.csv per-episode reward, length, success of the training environments
+    eval/evaluations.npz     EvalCallback: timesteps, episode rewards, successes
+    tb/                      TensorBoard logs
+    model.zip, summary.json  the final policy and the run's figures (wall time, env steps/s, success)
+
+``python -m dyndlo_vision.learning.train`` is the same as ``dyndlo-vision train``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dyndlo_vision._atomic import write_atomic
+from dyndlo_vision.learning.config import RunConfig
+from dyndlo_vision.learning.envs import make_vec_env
+
+log = logging.getLogger(__name__)
+
+CHECKPOINT_DIR = "checkpoint"
+
+
+def algo_class(name: str) -> Any:
+    """The stable-baselines3 class of ``name`` ("ppo" or "sac")."""
+    from stable_baselines3 import PPO, SAC
+
+    return {"ppo": PPO, "sac": SAC}[name]
+
+
+class _RunCallbacks:
+    """Builds the callbacks: checkpoints, progress bar, and the wall-clock bookkeeping."""
+
+    @staticmethod
+    def build(config: RunConfig, out: Path, state: dict[str, Any], progress_bar: bool) -> list[Any]:
+        from stable_baselines3.common.callbacks import BaseCallback
+
+        class Checkpoint(BaseCallback):  # type: ignore[misc]
+            """Save weights (+ replay buffer) every ``checkpoint_freq`` steps, atomically."""
+
+            def __init__(self) -> None:
+                super().__init__()
+                self.last = 0
+                self.t0 = time.perf_counter()
+                self.wall0 = float(state.get("wall_s", 0.0))
+
+            def _on_step(self) -> bool:
+                if self.num_timesteps - self.last >= config.checkpoint_freq:
+                    self.save()
+                return True
+
+            def save(self) -> None:
+                save_checkpoint(self.model, out, self.wall0 + time.perf_counter() - self.t0)
+                self.last = self.num_timesteps
+
+        class Progress(BaseCallback):  # type: ignore[misc]
+            """A tqdm bar over environment steps (stderr)."""
+
+            def _on_training_start(self) -> None:
+                from tqdm import tqdm
+
+                self.bar = tqdm(
+                    total=config.timesteps, initial=self.num_timesteps, unit="step", dynamic_ncols=True
+                )
+
+            def _on_step(self) -> bool:
+                self.bar.update(self.num_timesteps - self.bar.n)
+                return True
+
+            def _on_training_end(self) -> None:
+                self.bar.close()
+
+        callbacks: list[Any] = [Checkpoint()]
+        if progress_bar:
+            callbacks.append(Progress())
+        return callbacks
+
+
+def save_checkpoint(model: Any, out: Path, wall_s: float) -> None:
+    """Write model, replay buffer (off-policy) and state atomically to ``out/checkpoint``."""
+    ckpt = out / CHECKPOINT_DIR
+    ckpt.mkdir(parents=True, exist_ok=True)
+    write_atomic(ckpt / "model.zip", lambda p: model.save(p))
+    if hasattr(model, "replay_buffer") and model.replay_buffer is not None:
+        write_atomic(ckpt / "replay_buffer.pkl", lambda p: model.save_replay_buffer(p))
+    state = {"num_timesteps": int(model.num_timesteps), "wall_s": wall_s, "time": time.time()}
+    write_atomic(ckpt / "state.json", lambda p: Path(p).write_text(json.dumps(state, indent=2)))
+
+
+def _eval_callback(config: RunConfig, out: Path) -> Any:
+    from stable_baselines3.common.callbacks import EvalCallback
+
+    eval_env = make_vec_env(config, 1, config.seed + 10_000, None, "dummy")
+    return EvalCallback(
+        eval_env,
+        n_eval_episodes=config.eval_episodes,
+        eval_freq=max(1, config.eval_freq // config.n_envs),
+        log_path=str(out / "eval"),
+        best_model_save_path=str(out / "eval"),
+        deterministic=True,
+        verbose=0,
+    )
+
+
+def train(config: RunConfig, out: Path, resume: bool = False, progress_bar: bool = True) -> dict[str, Any]:
+    """Train (or resume) a run in ``out`` and return its summary (also written to ``out/summary.json``).
+
+    Raises:
+        ValueError: If ``out`` holds another run and ``resume`` is False, or holds no checkpoint to resume.
+    """
+    import torch
+
+    out = Path(out)
+    config_file = out / "config.json"
+    ckpt = out / CHECKPOINT_DIR
+    if resume:
+        stored = RunConfig.from_json(config_file)
+        if stored.timesteps != config.timesteps and config.timesteps > stored.timesteps:
+            stored = RunConfig(**{**json.loads(stored.to_json()), "timesteps": config.timesteps})
+        config = stored
+        if not (ckpt / "model.zip").is_file():
+            raise ValueError(f"{out} has no checkpoint to resume from ({ckpt / 'model.zip'} is missing)")
+    elif config_file.exists():
+        raise ValueError(f"{out} already holds a run; pass --resume to continue it or choose another --out")
+    out.mkdir(parents=True, exist_ok=True)
+    write_atomic(config_file, lambda p: Path(p).write_text(config.to_json()))
+    torch.set_num_threads(1)  # one core per process: the environments take the others
+
+    state: dict[str, Any] = {}
+    vec = make_vec_env(
+        config,
+        config.n_envs,
+        config.seed + (_steps_done(ckpt) if resume else 0),
+        out / "monitor",
+        config.vec_env,
+    )
+    cls = algo_class(config.algo)
+    try:
+        if resume:
+            state = json.loads((ckpt / "state.json").read_text())
+            model = cls.load(ckpt / "model.zip", env=vec, tensorboard_log=str(out / "tb"))
+            if (ckpt / "replay_buffer.pkl").is_file():
+                model.load_replay_buffer(ckpt / "replay_buffer.pkl")
+            log.info("resuming %s at step %d", out, model.num_timesteps)
+        else:
+            model = cls(
+                config.policy,
+                vec,
+                seed=config.seed,
+                verbose=0,
+                tensorboard_log=str(out / "tb"),
+                **config.hyperparams,
+            )
+        callbacks = _RunCallbacks.build(config, out, state, progress_bar) + [_eval_callback(config, out)]
+        remaining = config.timesteps - int(model.num_timesteps)
+        t0 = time.perf_counter()
+        steps0 = int(model.num_timesteps)
+        interrupted = False
+        try:
+            if remaining > 0:
+                model.learn(remaining, callback=callbacks, reset_num_timesteps=not resume, tb_log_name="run")
+        except KeyboardInterrupt:
+            interrupted = True
+            log.warning("interrupted at step %d: checkpoint saved, resume with --resume", model.num_timesteps)
+        wall = float(state.get("wall_s", 0.0)) + time.perf_counter() - t0
+        save_checkpoint(model, out, wall)
+        if interrupted:
+            raise KeyboardInterrupt
+        write_atomic(out / "model.zip", lambda p: model.save(p))
+    finally:
+        vec.close()
+    summary = summarize(
+        out,
+        wall_s=wall,
+        steps_this_session=int(model.num_timesteps) - steps0,
+        session_s=time.perf_counter() - t0,
+    )
+    write_atomic(out / "summary.json", lambda p: Path(p).write_text(json.dumps(summary, indent=2)))
+    return summary
+
+
+def _steps_done(ckpt: Path) -> int:
+    try:
+        return int(json.loads((ckpt / "state.json").read_text())["num_timesteps"])
+    except (OSError, ValueError, KeyError):
+        return 0
+
+
+def summarize(out: Path, wall_s: float, steps_this_session: int, session_s: float) -> dict[str, Any]:
+    """Figures of a run: steps, wall time, env steps/s, last and best evaluated success rate."""
+    summary: dict[str, Any] = {
+        "wall_s": round(wall_s, 1),
+        "env_steps_per_s": round(steps_this_session / session_s, 2) if session_s > 0 else None,
+        "cpu_count": os.cpu_count(),
+    }
+    evals = out / "eval" / "evaluations.npz"
+    if evals.is_file():
+        data = np.load(evals)
+        steps = data["timesteps"]
+        summary["eval_timesteps"] = int(steps[-1]) if len(steps) else 0
+        if "successes" in data and len(data["successes"]):
+            rates = data["successes"].mean(axis=1)
+            summary["eval_success_last"] = float(rates[-1])
+            summary["eval_success_best"] = float(rates.max())
+            hit = np.nonzero(rates >= 0.9)[0]
+            summary["first_step_at_90pct"] = int(steps[hit[0]]) if len(hit) else None
+        summary["eval_reward_last"] = float(data["results"][-1].mean()) if len(steps) else None
+    return summary
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m dyndlo_vision.learning.train ...``: the ``train`` subcommand."""
+    import sys
+
+    from dyndlo_vision.cli import main as cli_main
+
+    return cli_main(["train", *(sys.argv[1:] if argv is None else argv)])
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

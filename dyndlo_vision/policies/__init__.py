@@ -1,0 +1,93 @@
+"""Trained policies shipped with the package, loaded by name, and a checked loader for policy files.
+
+    from dyndlo_vision import policies
+    model = policies.load("tip-control-single-step")      # a stable-baselines3 model
+    action, _ = model.predict(obs, deterministic=True)
+
+Each shipped policy is ``<name>.zip`` (stable-baselines3) with ``<name>.json`` beside it: the task, mode,
+algorithm, training budget and the success rate it was measured at. stable-baselines3 zip files contain
+pickled Python objects: load only files you trust.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+
+def available() -> list[str]:
+    """Names of the shipped policies."""
+    folder = resources.files(__name__)
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".json"))
+
+
+def metadata(name: str) -> dict[str, Any]:
+    """The metadata of a shipped policy (task, multi_step, algo, timesteps, measured success)."""
+    if name not in available():
+        raise ValueError(f"no shipped policy named {name!r}; available: {available()}")
+    return dict(json.loads(resources.files(__name__).joinpath(f"{name}.json").read_text()))
+
+
+def resolve(name_or_path: str | Path) -> tuple[Path, dict[str, Any]]:
+    """The zip file and metadata of a shipped name or a path (metadata from a JSON beside it, if any)."""
+    text = str(name_or_path)
+    if text in available():
+        with resources.as_file(resources.files(__name__).joinpath(f"{text}.zip")) as path:
+            return Path(path), metadata(text)
+    path = Path(text)
+    if not path.exists():
+        raise FileNotFoundError(f"policy {text!r} is neither a file nor a shipped policy ({available()})")
+    meta_file = path.with_suffix(".json")
+    meta: dict[str, Any] = {}
+    if meta_file.is_file():
+        meta = json.loads(meta_file.read_text())
+    elif (path.parent / "config.json").is_file():  # a model.zip inside a training run folder
+        config = json.loads((path.parent / "config.json").read_text())
+        meta = {
+            k: config[k] for k in ("task", "multi_step", "algo", "timesteps", "env_options") if k in config
+        }
+    return path, meta
+
+
+def load(name_or_path: str | Path, env: Any = None, algo: str | None = None) -> Any:
+    """Load a shipped policy by name, or a stable-baselines3 zip file by path.
+
+    Args:
+        name_or_path: A name from :func:`available` or a path to a ``.zip``.
+        env: Optional environment whose observation and action spaces the policy must match.
+        algo: "ppo" or "sac" when the file has no metadata (else tried in that order).
+
+    Raises:
+        FileNotFoundError: The file does not exist.
+        ValueError: The file is not a stable-baselines3 policy, or its spaces do not match ``env``.
+    """
+    from stable_baselines3 import PPO, SAC
+
+    path, meta = resolve(name_or_path)
+    if not zipfile.is_zipfile(path):
+        raise ValueError(f"{path} is not a stable-baselines3 policy file (not a zip archive)")
+    classes = {"ppo": PPO, "sac": SAC}
+    wanted = algo or meta.get("algo")
+    if wanted is not None and wanted not in classes:
+        raise ValueError(f"algo={wanted!r}; expected one of {sorted(classes)}")
+    order = [classes[wanted]] if wanted else [PPO, SAC]
+    errors = []
+    for cls in order:
+        try:
+            model = cls.load(path, device="cpu")
+            break
+        except Exception as err:  # noqa: BLE001  (SB3 raises many kinds for foreign or corrupt files)
+            errors.append(f"{cls.__name__}: {type(err).__name__}: {err}")
+    else:
+        raise ValueError(f"{path} could not be loaded as a stable-baselines3 policy: " + "; ".join(errors))
+    if env is not None:
+        for space in ("observation_space", "action_space"):
+            theirs, ours = getattr(model, space), getattr(env, space)
+            if theirs.shape != ours.shape:
+                raise ValueError(
+                    f"{path}: the policy's {space} has shape {theirs.shape}, the environment's {ours.shape}"
+                )
+    return model

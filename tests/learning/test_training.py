@@ -1,0 +1,180 @@
+"""Training end to end for a few hundred steps, checkpoints and resume, evaluation, policy files, plots."""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import dyndlo_vision  # noqa: F401
+from dyndlo_vision import policies
+from dyndlo_vision.cli import main
+from dyndlo_vision.learning import train as train_module
+from dyndlo_vision.learning.config import RunConfig, load_hyperparams
+from dyndlo_vision.learning.evaluate import evaluate, wilson_interval
+from dyndlo_vision.learning.train import train
+
+pytestmark = pytest.mark.slow
+
+
+def _config(algo: str, timesteps: int, **extra: object) -> RunConfig:
+    hp = {
+        "ppo": {"n_steps": 32, "batch_size": 16, "n_epochs": 2},
+        "sac": {"learning_starts": 16, "batch_size": 16},
+    }
+    return RunConfig(
+        task="tip-control",
+        multi_step=False,
+        algo=algo,
+        timesteps=timesteps,
+        seed=3,
+        n_envs=1,
+        vec_env="dummy",
+        hyperparams=hp[algo],
+        eval_freq=32,
+        eval_episodes=1,
+        checkpoint_freq=16,
+        **extra,
+    )  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_train_then_resume(tmp_path: Path, algo: str) -> None:
+    out = tmp_path / "run"
+    summary = train(_config(algo, 64), out, progress_bar=False)
+    assert (out / "model.zip").is_file() and (out / "config.json").is_file()
+    state = json.loads((out / "checkpoint" / "state.json").read_text())
+    assert state["num_timesteps"] >= 64
+    assert summary["eval_timesteps"] >= 32 and 0.0 <= summary["eval_success_last"] <= 1.0
+    if algo == "sac":
+        assert (out / "checkpoint" / "replay_buffer.pkl").is_file()
+    episodes = sum(len(f.read_text().splitlines()) - 2 for f in (out / "monitor").glob("*.csv"))
+    assert episodes >= 64  # single-step: one decision per episode
+
+    with pytest.raises(ValueError, match="already holds a run"):
+        train(_config(algo, 64), out, progress_bar=False)
+    train(_config(algo, 96), out, resume=True, progress_bar=False)
+    state = json.loads((out / "checkpoint" / "state.json").read_text())
+    assert state["num_timesteps"] >= 96
+    model = policies.load(out / "model.zip")
+    assert model.num_timesteps == state["num_timesteps"]
+    if algo == "sac":
+        from stable_baselines3 import SAC
+
+        resumed = SAC.load(out / "checkpoint" / "model.zip")
+        resumed.load_replay_buffer(out / "checkpoint" / "replay_buffer.pkl")
+        assert resumed.replay_buffer.size() >= 96
+
+
+def test_interrupted_run_keeps_a_checkpoint_and_resumes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class Interrupt(BaseCallback):  # stands in for Ctrl-C at step 40
+        def _on_step(self) -> bool:
+            if self.num_timesteps >= 40:
+                raise KeyboardInterrupt
+            return True
+
+    monkeypatch.setattr(train_module, "_eval_callback", lambda config, out: Interrupt())
+    out = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt):
+        train(_config("ppo", 400), out, progress_bar=False)
+    state = json.loads((out / "checkpoint" / "state.json").read_text())
+    assert state["num_timesteps"] == 40
+    assert not (out / "model.zip").exists()  # the final policy appears only when the run completes
+    monkeypatch.undo()
+    train(_config("ppo", 64), out, resume=True, progress_bar=False)
+    assert json.loads((out / "checkpoint" / "state.json").read_text())["num_timesteps"] >= 64
+
+
+def test_wilson_interval_matches_closed_form() -> None:
+    lo, hi = wilson_interval(90, 100)
+    # Wilson score interval for 90/100 at z = 1.96: 0.8256 .. 0.9448 (textbook value).
+    assert lo == pytest.approx(0.8256, abs=5e-4) and hi == pytest.approx(0.9448, abs=5e-4)
+    assert wilson_interval(0, 10)[0] == 0.0 and wilson_interval(10, 10)[1] == pytest.approx(1.0)
+    with pytest.raises(ValueError):
+        wilson_interval(3, 0)
+
+
+def test_evaluate_geometric_baseline_is_deterministic() -> None:
+    from dyndlo_vision.tasks.baselines import GeometricLift
+
+    env = gym.make("DynDLO/TimeOscillation-v0", target="down")
+    policy = GeometricLift(env, total_time_s=1.468)
+    report_a, _ = evaluate(policy, env, episodes=2, seed=5)
+    report_b, _ = evaluate(policy, env, episodes=2, seed=5)
+    assert report_a == report_b
+    assert report_a["episodes"] == 2 and "trajectory_time_s_mean" in report_a
+    with pytest.raises(ValueError, match="dt in"):
+        GeometricLift(env, total_time_s=5.0)
+
+
+def test_bad_policy_files_get_clear_errors(tmp_path: Path) -> None:
+    with pytest.raises(FileNotFoundError, match="neither a file nor a shipped policy"):
+        policies.load(tmp_path / "missing.zip")
+    text = tmp_path / "policy.zip"
+    text.write_text("not a zip")
+    with pytest.raises(ValueError, match="not a zip archive"):
+        policies.load(text)
+    corrupt = tmp_path / "corrupt.zip"
+    with zipfile.ZipFile(corrupt, "w") as zf:
+        zf.writestr("data", "{broken json")
+    with pytest.raises(ValueError, match="could not be loaded"):
+        policies.load(corrupt)
+
+
+def test_policy_with_other_spaces_is_refused(tmp_path: Path) -> None:
+    from stable_baselines3 import PPO
+
+    model = PPO("MlpPolicy", gym.make("DynDLO/TipControl-v0"), n_steps=64)
+    model.save(tmp_path / "tip.zip")
+    dual = gym.make("DynDLO/Hooking-v0")
+    with pytest.raises(ValueError, match="observation_space has shape"):
+        policies.load(tmp_path / "tip.zip", env=dual)
+
+
+def test_hyperparameter_files_have_the_paper_budgets() -> None:
+    assert load_hyperparams("ppo", "tip-control", False)["n_timesteps"] == 400_000
+    assert load_hyperparams("ppo", "tip-control", True)["n_timesteps"] == 5_000_000
+    assert load_hyperparams("sac", "time-oscillation", False)["n_timesteps"] == 1_500_000
+    with pytest.raises(ValueError, match="no ppo hyperparameters"):
+        load_hyperparams("ppo", "time-oscillation", True)
+
+
+def test_cli_rejects_bad_arguments(tmp_path: Path) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "--hp", "n_steps", "--out", str(tmp_path / "x")])
+    assert exc.value.code == 2
+    with pytest.raises(SystemExit) as exc:
+        main(["plot", str(tmp_path), "--out", str(tmp_path / "curves.png")])
+    assert exc.value.code == 2
+    assert not (tmp_path / "x").exists() and not (tmp_path / "curves.png").exists()
+
+
+def test_plot_draws_runs(tmp_path: Path) -> None:
+    for seed in (0, 1):
+        run = tmp_path / f"run{seed}"
+        (run / "eval").mkdir(parents=True)
+        steps = np.array([100, 200, 300])
+        successes = np.random.default_rng(seed).random((3, 5)) > 0.5
+        np.savez(
+            run / "eval" / "evaluations.npz",
+            timesteps=steps,
+            results=np.ones((3, 5)),
+            ep_lengths=np.ones((3, 5)),
+            successes=successes,
+        )
+        (run / "config.json").write_text(_config("ppo", 10).to_json())
+    assert (
+        main(["plot", str(tmp_path / "run0"), str(tmp_path / "run1"), "--out", str(tmp_path / "c.png")]) == 0
+    )
+    import cv2
+
+    image = cv2.imread(str(tmp_path / "c.png"))
+    assert image is not None and image.shape[0] > 200 and image.shape[1] > 400
