@@ -5,8 +5,9 @@
 the goal, with a total trajectory time chosen to equal the learned policy's. The paper does not say how the
 time is split between the two phases; the issue that asked for it reads "a fast upward move with the same
 duration". Half of the total for the upward move would not fit the action's interval range (dt <= 0.6 s)
-at the paper's 1.35 s, and would not be fast, so by default every interval of the plan (three along the line, one upward) takes the
-same time: the upward move covers 20 cm in a quarter of the total. The split is a parameter.
+at the paper's 1.35 s, and would not be fast, so by default every interval of the plan (three along the
+line, one upward) takes the same time: the upward move covers 20 cm in a quarter of the total. The split
+is a parameter.
 """
 
 from __future__ import annotations
