@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from dyndlo_vision.sim.scene import Scene, SceneConfig
 from dyndlo_vision.tasks.rewards import AvoidLimits, RewardCoefficients, avoid_flags
-from dyndlo_vision.trajectory import ActionSpec, BSplineTrajectory
+from dyndlo_vision.trajectory import ActionSpec, BSplineTrajectory, Replanner
 
 CONTROL_PERIOD_S = 0.04  # section IV-B: re-plan every 0.04 s
 MONITOR_PERIOD_S = 0.002  # how often constraints and the goal are checked while simulating
@@ -92,10 +92,12 @@ class Task(ABC):
     def sample_goal(self, rng: np.random.Generator) -> NDArray[np.float64]:
         """Return P* (target, obstacle or hook position) for a new episode."""
 
-    def begin_episode(self) -> None:
+    def begin_episode(self) -> None:  # noqa: B027  (optional hook)
         """Clear per-episode state (called by the environment's reset)."""
 
-    def on_sample(self, scene: Scene, goal: NDArray[np.float64], monitor: EpisodeMonitor) -> None:
+    def on_sample(  # noqa: B027  (optional hook)
+        self, scene: Scene, goal: NDArray[np.float64], monitor: EpisodeMonitor
+    ) -> None:
         """Called at every monitor sample (every ``MONITOR_PERIOD_S``) after the monitor is updated."""
 
     def final_point(self, goal: NDArray[np.float64]) -> NDArray[np.float64] | None:
@@ -152,10 +154,8 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self._steps_per_control = int(round(CONTROL_PERIOD_S / self._dt))
         self._renderer: Any = None
         self._goal = np.zeros(3)
-        self._trajectory: BSplineTrajectory | None = None
+        self._replanner = Replanner(self.spec_actions, self.scene.gripper_home)
         self._monitor = EpisodeMonitor()
-        self._offsets = self.scene.gripper_home - self.scene.gripper_home[0]
-        self._mirror = np.array([1.0, -1.0, 1.0])  # dual arm: the second gripper mirrors lateral motion
         self._decisions = 0
         #: Called with the environment every 40 ms of simulated time while it simulates (None: never).
         self.frame_hook: Callable[[DynDLOEnv], None] | None = None
@@ -189,7 +189,12 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     @property
     def trajectory(self) -> BSplineTrajectory | None:
         """The TCP trajectory being followed (of the first gripper), None before the first action."""
-        return self._trajectory
+        return self._replanner.trajectory
+
+    @property
+    def replanner(self) -> Replanner:
+        """The planner that turns actions into gripper trajectories (shared with the control loop)."""
+        return self._replanner
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -207,7 +212,7 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
             self._goal = self.task.sample_goal(self.np_random)
         if self.scene.config.target_radius_m > 0:
             self.scene.set_target(self._goal)
-        self._trajectory = None
+        self._replanner.reset(self.task.final_point(self._goal))
         self._monitor = EpisodeMonitor()
         self._decisions = 0
         self._sample_monitor()
@@ -227,8 +232,8 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
             if final and not early:
                 self._simulate(int(round(self.task.settle_s / self._dt)))
         else:
-            assert self._trajectory is not None
-            remaining = self._trajectory.t_end - self.scene.time + self.task.settle_s
+            assert self._replanner.trajectory is not None
+            remaining = self._replanner.trajectory.t_end - self.scene.time + self.task.settle_s
             self._simulate(int(np.ceil(remaining / self._dt)))
             final = True
         diverged = not self.scene.is_finite()
@@ -265,35 +270,13 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self.__init__(state["task"], state["render_mode"], state["render_camera"])  # type: ignore[misc]
 
     # ------------------------------------------------------------------ internals
-    def _reference_state(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Commanded position and velocity of the first gripper now (its home before any plan)."""
-        if self._trajectory is None:
-            return self.scene.gripper_home[0], np.zeros(3)
-        t = self.scene.time
-        return self._trajectory.position(t), self._trajectory.velocity(t)
-
     def _plan(self, action: NDArray[np.float32]) -> None:
         a = np.asarray(action)
         if a.shape != self.action_space.shape:
             raise ValueError(f"action must have shape {self.action_space.shape}, got shape {a.shape}")
-        if not self.multi_step and self._trajectory is not None:
+        if not self.multi_step and self._replanner.trajectory is not None:
             raise RuntimeError("single-step episode already ended: call reset()")
-        p0, v0 = self._reference_state()
-        points, times = self.spec_actions.decode(
-            a.astype(np.float64), p0, self.scene.time, self.task.final_point(self._goal)
-        )
-        self._trajectory = BSplineTrajectory(points, times, start_velocity=v0)
-
-    def _gripper_references(self, t: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        assert self._trajectory is not None
-        pos, vel = self._trajectory.position(t), self._trajectory.velocity(t)
-        home0 = self.scene.gripper_home[0]
-        p = [pos]
-        v = [vel]
-        for i in range(1, self.scene.num_grippers):
-            p.append(home0 + self._offsets[i] + (pos - home0) * self._mirror)
-            v.append(vel * self._mirror)
-        return np.stack(p, axis=1), np.stack(v, axis=1)  # (K, n_g, 3)
+        self._replanner.replan(a.astype(np.float64), self.scene.time)
 
     def _simulate(self, nsteps: int) -> None:
         """Follow the trajectory for ``nsteps`` physics steps, checking constraints as we go.
@@ -315,11 +298,14 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
             if not self.scene.is_finite():
                 return
 
-    def _simulate_span(self, nsteps: int) -> None:
+    def _simulate_span(
+        self, nsteps: int, refs: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+    ) -> None:
         if nsteps <= 0:
             return
-        t = self.scene.time + self._dt * np.arange(nsteps)
-        ref_p, ref_v = self._gripper_references(t)
+        if refs is None:
+            refs = self._replanner.references(self.scene.time + self._dt * np.arange(nsteps))
+        ref_p, ref_v = refs
         scene = self.scene
         if self._batch_monitor:
             # The plan is open loop over these steps: run them in MuJoCo's C rollout and check the constraints
@@ -385,10 +371,54 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self.task.on_sample(scene, self._goal, mon)
 
     def _observation(self) -> NDArray[np.float32]:
-        p = self.scene.tcp_positions().ravel()
-        v = self.scene.tcp_velocities().ravel()
-        p_dlo = self.scene.cable_nodes()[self.task.p_dlo_node(self.scene)]
-        return np.concatenate([p, v, p_dlo, self._goal]).astype(np.float32)
+        scene = self.scene
+        return observation_vector(scene.tcp_positions(), scene.tcp_velocities(), self.p_dlo(), self._goal)
+
+    # ------------------------------------------------------------------ for the control loop (SimRobot)
+    def p_dlo(self) -> NDArray[np.float64]:
+        """True position of the cable's section of interest (P_DLO) now."""
+        return self.scene.cable_nodes()[self.task.p_dlo_node(self.scene)]
+
+    def follow(self, times: NDArray[np.float64], positions: NDArray[np.float64],
+               velocities: NDArray[np.float64]) -> None:
+        """Simulate while the grippers follow externally planned setpoints, monitoring as :meth:`step` does.
+
+        The setpoints (K,), (K, n_g, 3), (K, n_g, 3) cover ``[times[0], times[-1] + period)``; each physics
+        step takes the latest setpoint at or before its start time (sample and hold, exact when the setpoint
+        period is the physics timestep).
+        """
+        times = np.asarray(times, dtype=float)
+        period = float(times[1] - times[0]) if times.size > 1 else self._dt
+        end = times[-1] + period
+        nsteps = int(round((end - self.scene.time) / self._dt))
+        if nsteps <= 0:
+            return
+        t = self.scene.time + self._dt * np.arange(nsteps)
+        index = np.clip(np.searchsorted(times, t + 1e-9, side="right") - 1, 0, times.size - 1)
+        self._simulate_span(nsteps, (np.asarray(positions)[index], np.asarray(velocities)[index]))
+
+    def outcome(self) -> tuple[float, bool, dict[str, Any]]:
+        """Reward, success and info of the episode as it stands, evaluated as its final step."""
+        terms, success, extra = self.task.evaluate(self.scene, self._goal, self._monitor, True)
+        info = {**terms, **extra, "is_success": bool(success), "avoid": dict(self._monitor.avoid),
+                "sim_time_s": self.scene.time}
+        return float(sum(terms.values())), bool(success), info
+
+    def is_done_early(self) -> bool:
+        """Whether the task says the episode may end now (e.g. the target was hit)."""
+        return bool(self.task.is_done_early(self.scene, self._goal, self._monitor))
+
+
+def observation_vector(
+    tcp_positions: NDArray[np.float64], tcp_velocities: NDArray[np.float64], p_dlo: NDArray[np.float64],
+    goal: NDArray[np.float64],
+) -> NDArray[np.float32]:
+    """Table II: gripper positions (3 n_g), gripper velocities (3 n_g), P_DLO (3), P* (3), as float32.
+
+    Shared by the environment (true state) and the control loop (estimated P_DLO).
+    """
+    return np.concatenate([np.ravel(tcp_positions), np.ravel(tcp_velocities), np.ravel(p_dlo),
+                           np.ravel(goal)]).astype(np.float32)
 
 
 def _segment_point_distances(

@@ -2,5 +2,6 @@
 
 from dyndlo_vision.trajectory.actions import ActionSpec
 from dyndlo_vision.trajectory.bspline import BSplineTrajectory
+from dyndlo_vision.trajectory.replanner import Replanner
 
-__all__ = ["ActionSpec", "BSplineTrajectory"]
+__all__ = ["ActionSpec", "BSplineTrajectory", "Replanner"]
