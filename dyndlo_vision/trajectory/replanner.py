@@ -2,8 +2,8 @@
 
 The environment and the control loop both use :class:`Replanner`, so a policy sees the same planning in
 training and on a robot. Each action plans a B-spline from the position *and velocity* the current plan
-commands at the re-plan time (the TCP's home, at rest, before the first plan), so commanded motion stays C1 across
-re-plans. With two grippers the second one mirrors the first's lateral (y) motion about its own home.
+commands at the re-plan time (the TCP's home, at rest, before the first plan), so commanded motion stays C1
+across re-plans. With two grippers the second one mirrors the first's lateral (y) motion about its own home.
 """
 
 from __future__ import annotations
