@@ -101,7 +101,7 @@ def _check_rotation(r: FloatArray, name: str) -> None:
         )
 
 
-def _check_pose(t: FloatArray, name: str) -> FloatArray:
+def _check_pose(t: ArrayLike, name: str) -> FloatArray:
     t = np.asarray(t, dtype=float)
     if t.shape != (4, 4) or not np.allclose(t[3], [0.0, 0.0, 0.0, 1.0]):
         raise ValueError(f"{name} must be a 4x4 homogeneous transform, got {t.tolist()}")

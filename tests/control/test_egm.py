@@ -1,0 +1,172 @@
+"""Tests for the ABB EGM driver against the fake EGM controller on loopback (protobuf messages over UDP)."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+pytest.importorskip("abb_robot_client")
+
+from dyndlo_vision.control.kinematics import (  # noqa: E402
+    ArmKinematics,
+    JointLimitError,
+    abb_gofa_crb15000,
+    check_joint_limits,
+)
+from dyndlo_vision.control.protocols import Robot, Setpoints  # noqa: E402
+from dyndlo_vision.control.robots import EgmRobot, FakeEgmController  # noqa: E402
+from dyndlo_vision.tasks.tip_control import TCP_HOME_M, TipControl  # noqa: E402
+from dyndlo_vision.trajectory import BSplineTrajectory  # noqa: E402
+
+# A gentle multi-point tip-control action (normalised): +5 cm in x per point, z down-flat-up, 0.45 s apart.
+GENTLE_ACTION = np.array([0.2, -0.2, 0.2, 0.0, 0.2, 0.2, 0.75, 0.75, 0.75])
+# The same action space at its extremes: 25 cm jumps 0.1 s apart, far beyond the GoFa's joint accelerations.
+VIOLENT_ACTION = np.array([1.0, -1.0, -1.0, 1.0, 1.0, -1.0, -1.0, -1.0, -1.0])
+TIMEOUT_S = 30.0  # generous: only reached when something is broken
+
+
+def tip_control_setpoints(
+    action: np.ndarray, t0: float, rate_hz: float = 100.0
+) -> tuple[Setpoints, np.ndarray]:
+    """Setpoints of the tip-control plan for ``action`` from the TCP home at time t0, and the plan's end."""
+    points, times = TipControl(planar=True).action_spec().decode(action, TCP_HOME_M, t0)
+    plan = BSplineTrajectory(points, times)
+    t = np.arange(times[0], times[-1] + 1e-9, 1.0 / rate_hz)
+    t[-1] = times[-1]
+    position, velocity = plan.position(t), plan.velocity(t)
+    return Setpoints(t=t, position=position[:, None, :], velocity=velocity[:, None, :]), points[-1]
+
+
+@pytest.fixture
+def setup() -> Iterator[tuple[EgmRobot, FakeEgmController, ArmKinematics, np.ndarray]]:
+    kin = ArmKinematics(abb_gofa_crb15000())
+    q_home = kin.ik(TCP_HOME_M).q
+    robot = EgmRobot(kin, port=0, answer_timeout_s=5.0, connect_timeout_s=TIMEOUT_S)
+    fake = FakeEgmController(kin.arm, q_home, ("127.0.0.1", robot.bind()), reply_timeout_s=2.0)
+    fake.start()
+    robot.connect()
+    yield robot, fake, kin, q_home
+    robot.close()
+    fake.close()
+    assert fake.error is None
+
+
+def _send_from_now(
+    robot: EgmRobot, fake: FakeEgmController, action: np.ndarray
+) -> tuple[Setpoints, np.ndarray]:
+    # Hold the controller's clock while planning and checking, so the plan cannot start in the past.
+    fake.hang()
+    try:
+        setpoints, end = tip_control_setpoints(action, robot.commanded_state().t + 0.02)
+        robot.send(setpoints)
+    finally:
+        fake.resume()
+    return setpoints, end
+
+
+def _received_trajectory(fake: FakeEgmController) -> tuple[np.ndarray, np.ndarray]:
+    received = fake.received
+    return np.array([r.t for r in received]), np.array([r.q for r in received])
+
+
+def test_driver_is_a_robot(setup) -> None:
+    robot, _, _, _ = setup
+    assert isinstance(robot, Robot)
+    np.testing.assert_allclose(robot.state().position[0], TCP_HOME_M, atol=1e-9)
+
+
+def test_moves_the_fake_robot_along_a_tip_control_plan(setup) -> None:
+    robot, fake, kin, _ = setup
+    setpoints, end = _send_from_now(robot, fake, GENTLE_ACTION)
+    assert fake.wait_until(setpoints.t[-1] + 0.3, TIMEOUT_S)
+    q_end = kin.ik(end, fake.q).q
+    np.testing.assert_allclose(fake.q, q_end, atol=1e-4)
+    np.testing.assert_allclose(kin.fk(fake.q)[0], end, atol=1e-4)
+    np.testing.assert_allclose(robot.state().position[0], end, atol=1e-4)
+    # Every target the controller received is within the joint limits, and the TCP kept its orientation.
+    t, q = _received_trajectory(fake)
+    assert check_joint_limits(kin.arm, t, q).ok
+    np.testing.assert_allclose(kin.fk(q)[1], np.broadcast_to(kin.tool_rotation, (t.size, 3, 3)), atol=1e-6)
+    # The targets follow the plan: TCP of the target sent for time t is the plan at t (one cycle ahead).
+    mid = (t > setpoints.t[0] + 0.1) & (t < setpoints.t[-1] - 0.1)
+    plan = np.array(
+        [np.interp(t[mid] + robot.lookahead_s, setpoints.t, setpoints.position[:, 0, i]) for i in range(3)]
+    )
+    assert np.max(np.abs(kin.fk(q[mid])[0] - plan.T)) < 1e-4
+
+
+def test_refuses_a_plan_that_breaks_a_joint_limit(setup, caplog: pytest.LogCaptureFixture) -> None:
+    robot, fake, _, q_home = setup
+    with (
+        caplog.at_level(logging.ERROR),
+        pytest.raises(JointLimitError, match=r"joint axis_\d \w+ [+-][\d.]+") as err,
+    ):
+        _send_from_now(robot, fake, VIOLENT_ACTION)
+    assert any(v.quantity == "acceleration" for v in err.value.report.violations)
+    assert "EGM: refusing setpoints, nothing of them sent" in caplog.text
+    assert robot.wait_cycles(50, TIMEOUT_S)
+    # Nothing of the plan reached the controller: every target is the position held since connect (EGM must be
+    # answered every cycle; the degrees on the wire round the radians at 1e-16).
+    _, q = _received_trajectory(fake)
+    assert len(q) >= 50 and np.max(np.abs(q - q_home)) < 1e-12
+    np.testing.assert_allclose(fake.q, q_home, atol=1e-12)
+    assert robot.fault is None  # refusing is not a fault: the driver keeps going
+
+
+def test_stop_brakes_within_the_joint_limits(setup) -> None:
+    robot, fake, kin, _ = setup
+    setpoints, _ = _send_from_now(robot, fake, GENTLE_ACTION)
+    assert fake.wait_until(setpoints.t[0] + 0.6, TIMEOUT_S)
+    robot.stop()
+    assert robot.wait_cycles(100, TIMEOUT_S)
+    t, q = _received_trajectory(fake)
+    assert check_joint_limits(kin.arm, t, q).ok
+    np.testing.assert_allclose(q[-1], q[-2], atol=1e-12)  # at rest, holding
+    assert np.linalg.norm(kin.fk(q[-1])[0] - setpoints.position[-1, 0]) > 0.01  # stopped short of the end
+
+
+def test_watchdog_stops_when_the_robot_stops_answering(caplog: pytest.LogCaptureFixture) -> None:
+    kin = ArmKinematics(abb_gofa_crb15000())
+    q_home = kin.ik(TCP_HOME_M).q
+    robot = EgmRobot(kin, port=0, answer_timeout_s=0.3, connect_timeout_s=TIMEOUT_S)
+    with FakeEgmController(kin.arm, q_home, ("127.0.0.1", robot.bind()), reply_timeout_s=2.0) as fake:
+        robot.connect()
+        with caplog.at_level(logging.ERROR):
+            fake.hang()
+            assert not robot.wait_cycles(10_000, TIMEOUT_S)  # returns False once the driver faulted
+        assert (
+            "EGM: watchdog: the robot stopped answering (no state for 0.300 s); streaming stopped"
+            in caplog.text
+        )
+        with pytest.raises(RuntimeError, match="stopped after a fault"):
+            robot.send(tip_control_setpoints(GENTLE_ACTION, robot.state().t + 0.1)[0])
+        robot.close()
+
+
+def test_an_exception_in_the_streaming_thread_stops_the_driver(
+    setup, caplog: pytest.LogCaptureFixture
+) -> None:
+    robot, fake, _, _ = setup
+    with caplog.at_level(logging.ERROR):
+        fake.send_garbage()
+        assert not robot.wait_cycles(10_000, TIMEOUT_S)
+    assert robot.fault is not None and robot.fault.startswith("exception in the streaming thread")
+    assert "EGM: exception in the streaming thread" in caplog.text
+
+
+def test_a_stopped_rapid_program_stops_the_driver(setup, caplog: pytest.LogCaptureFixture) -> None:
+    robot, fake, _, _ = setup
+    with caplog.at_level(logging.ERROR):
+        fake.rapid_running = False
+        assert not robot.wait_cycles(10_000, TIMEOUT_S)
+    assert robot.fault == "the controller reports the RAPID program stopped"
+
+
+def test_setpoints_for_two_grippers_are_rejected(setup) -> None:
+    robot, _, _, _ = setup
+    t = robot.state().t + np.array([0.1, 0.2])
+    with pytest.raises(ValueError, match="n_g = 1"):
+        robot.send(Setpoints(t=t, position=np.zeros((2, 2, 3)), velocity=np.zeros((2, 2, 3))))
