@@ -1,81 +1,298 @@
-"""``dyndlo-vision demo``: one tip-control episode in simulation, rendered to MP4/PNG with a metrics.json."""
+"""``dyndlo-vision demo``: closed-loop tip control in simulation, on P_DLO estimated from rendered images.
+
+The loop (``dyndlo_vision.control.loop``) reads the "tracking" camera at 25 Hz, tracks the cable, filters the
+tip, builds the observation from the *estimate*, queries the shipped policy, re-plans the B-spline from the
+commanded TCP state and sends the setpoints to the simulated robot. Outputs in ``--out``: ``demo.mp4`` (camera
+view with the tracked polyline, the true and estimated P_DLO and the target), ``p_dlo.png`` (true vs estimated
+P_DLO over time), ``metrics.json``.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
+import logging
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from dyndlo_vision._atomic import write_atomic
 
-HELP = "simulate and render one tip-control episode"
+HELP = "closed-loop tip control in simulation on tracked state: video, plot and metrics"
+DEFAULT_POLICIES = ("tip-control-multi-step", "tip-control-single-step")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``demo``."""
+    p.add_argument(
+        "--policy",
+        default=None,
+        help=f"shipped policy name or .zip (default: the first shipped of {list(DEFAULT_POLICIES)})",
+    )
+    p.add_argument(
+        "--observation",
+        choices=["tracked", "true", "noisy"],
+        default="tracked",
+        help="where P_DLO comes from: camera + tracker + filter (default), the simulator, or the "
+        "simulator through the fitted noise model",
+    )
+    p.add_argument("--episodes", type=int, default=1, help="episodes to run (video of the first; default 1)")
+    p.add_argument("--seed", type=int, default=100_000, help="seed of the first episode (default 100000)")
+    p.add_argument("--camera", default="tracking", help="MuJoCo camera to track from (default: tracking)")
     p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--candidates", type=int, default=32, help="random-search candidates (>= 1)")
+
+
+def _default_policy() -> str:
+    from dyndlo_vision import policies
+
+    shipped = policies.available()
+    for name in DEFAULT_POLICIES:
+        if name in shipped:
+            return name
+    raise ValueError(f"no shipped tip-control policy found (have {shipped}); pass --policy PATH.zip")
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run one tip-control episode and write demo.mp4, demo.png and metrics.json to ``--out``."""
-    import cv2
+    """Run the episodes and write the outputs."""
     import gymnasium as gym
 
     import dyndlo_vision  # noqa: F401
+    from dyndlo_vision import policies
+    from dyndlo_vision.learning.evaluate import wilson_interval
 
-    if args.candidates < 1:
-        raise ValueError(f"--candidates must be >= 1, got {args.candidates}")
+    if args.episodes < 1:
+        raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    name = args.policy or _default_policy()
+    _, meta = policies.resolve(name)
+    if meta.get("task", "tip-control") != "tip-control":
+        raise ValueError(f"the demo runs tip control; policy {name} is for {meta.get('task')}")
+    multi_step = bool(meta.get("multi_step", False))
+    env = gym.make("DynDLO/TipControl-v0", multi_step=multi_step, render_mode=None)
+    model = policies.load(name, env=env)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    env = gym.make("DynDLO/TipControl-v0", render_mode="rgb_array").unwrapped
-    rng = np.random.default_rng(args.seed)
-    # Until trained policies ship (issue 3), the demo plans with a small random search over single-step
-    # actions, simulating each candidate without rendering, and replays the best one.
-    best, best_dist = None, np.inf
-    for _ in range(args.candidates):
-        action = rng.uniform(-1, 1, env.action_space.shape).astype(np.float32)
-        env.reset(seed=args.seed)
-        _, _, _, _, info = env.step(action)
-        score = info["min_distance_m"] + (1.0 if any(info["avoid"].values()) else 0.0)
-        if score < best_dist:
-            best, best_dist = action, score
-    env.reset(seed=args.seed)
-    env._plan(best)  # noqa: SLF001  (render while stepping the physics in 40 ms slices)
-    frames = [env.render()]
-    total = env.trajectory.t_end + env.task.settle_s
-    while env.scene.time < total - 1e-9:
-        env._simulate(env._steps_per_control)  # noqa: SLF001
-        frames.append(env.render())
-    terms, success, info = env.task.evaluate(env.scene, env.goal, env._monitor, True)  # noqa: SLF001
-    env.close()
+
+    episodes = []
+    video: list[np.ndarray] = []
+    for i in range(args.episodes):
+        record = run_episode(
+            env, model, args.seed + i, args.observation, args.camera, video if i == 0 else None
+        )
+        episodes.append(record)
+        print(
+            f"episode {i}: success={record['success']} min_distance={record['min_distance_m']:.3f} m "
+            f"estimate_rmse={record['estimate_rmse_m']}"
+        )
+    first = episodes[0]
+    successes = sum(e["success"] for e in episodes)
+    metrics: dict[str, Any] = {
+        "policy": str(name),
+        "multi_step": multi_step,
+        "observation": args.observation,
+        "success": first["success"],
+        "final_distance_m": first["final_distance_m"],
+        "min_distance_m": first["min_distance_m"],
+        "estimate_rmse_m": first["estimate_rmse_m"],
+        "cycle_ms_p50": first["cycle_ms_p50"],
+        "cycle_ms_p95": first["cycle_ms_p95"],
+        "stage_ms_p50": first["stage_ms_p50"],
+        "stage_ms_p95": first["stage_ms_p95"],
+        "deadline_misses": first["deadline_misses"],
+        "cycles": first["cycles"],
+        "stop_reason": first["stop_reason"],
+        "cycle_ms_note": "controller time per 40 ms cycle: camera render + tracking + filter + policy + "
+        "planning (the simulated robot's physics is timed apart as send_ms)",
+    }
+    if args.episodes > 1:
+        lo, hi = wilson_interval(successes, args.episodes)
+        metrics.update(
+            {
+                "episodes": args.episodes,
+                "success_rate": successes / args.episodes,
+                "success_ci95": [lo, hi],
+                "per_episode": episodes,
+            }
+        )
+        print(f"success rate {successes}/{args.episodes} (95% CI {lo:.2f}-{hi:.2f})")
+    _write_video(out / "demo.mp4", video)
+    _write_plot(out / "p_dlo.png", first["trace"])
+    for e in episodes:
+        e.pop("trace", None)
+    write_atomic(out / "metrics.json", lambda p: Path(p).write_text(json.dumps(metrics, indent=2)))
+    print(
+        json.dumps(
+            {
+                k: metrics[k]
+                for k in ("success", "final_distance_m", "estimate_rmse_m", "cycle_ms_p50", "cycle_ms_p95")
+            }
+        )
+    )
+    print(f"wrote {out / 'demo.mp4'}, {out / 'p_dlo.png'}, {out / 'metrics.json'}")
+    return 0
+
+
+def run_episode(
+    env: Any, model: Any, seed: int, observation: str, camera_name: str, video: list[np.ndarray] | None
+) -> dict[str, Any]:
+    """One closed-loop episode; appends annotated frames to ``video`` when given."""
+    from dyndlo_vision.control.loop import ControlLoop
+    from dyndlo_vision.control.sim_robot import SimRobot
+    from dyndlo_vision.control.state_sources import TrueState
+
+    base = env.unwrapped
+    env.reset(seed=seed)
+    camera = None
+    if observation == "tracked":
+        from dyndlo_vision.control.sim_perception import tracked_state
+
+        source, camera = tracked_state(env, camera_name)
+    elif observation == "noisy":
+        from dyndlo_vision.control.state_sources import NoisyState
+
+        source = NoisyState(env, seed=seed)
+    else:
+        source = TrueState(env)
+    if video is not None and camera is None:
+        from dyndlo_vision.control.cameras import MujocoCamera
+
+        camera = MujocoCamera(base.model, base.data, camera_name)
+    robot = SimRobot(env)
+    robot.connect()
+    loop = ControlLoop(
+        source,
+        robot,
+        lambda obs: model.predict(obs, deterministic=True)[0],
+        base.replanner,
+        base.goal,
+        period_s=0.04,
+        setpoint_period_s=base.scene.timestep,
+        truth=base.p_dlo,
+    )
+    calib = camera.calibration if camera is not None else None
+
+    def on_cycle(record: Any, frame: Any) -> None:
+        if video is None or calib is None:
+            return
+        rgb = frame.rgb if frame is not None else camera.read().rgb
+        video.append(_annotate(rgb, record, calib, base.goal))
+
+    if base.multi_step:
+        report = loop.run(base.task.episode_s, done=base.is_done_early, on_cycle=on_cycle)
+        if report.stop_reason == "duration":
+            robot.hold(base.task.settle_s)
+    else:
+        report = loop.run(
+            10.0,
+            done=lambda: base.scene.time >= base.trajectory.t_end + base.task.settle_s - 1e-9,
+            on_cycle=on_cycle,
+            replan_every_cycle=False,
+        )
+    _, success, info = base.outcome()
+    if camera is not None:
+        camera.close()
+    errors = report.estimate_errors()
+    controller = report.controller_ms()
+    trace = {
+        "t": [c.t for c in report.cycles],
+        "true": [c.p_dlo_true.tolist() for c in report.cycles],
+        "estimate": [c.p_dlo_estimate.tolist() for c in report.cycles],
+        "measured": [c.measured for c in report.cycles],
+        "goal": base.goal.tolist(),
+    }
+    return {
+        "seed": seed,
+        "success": bool(success),
+        "final_distance_m": float(np.linalg.norm(base.p_dlo() - base.goal)),
+        "min_distance_m": float(info["min_distance_m"]),
+        "estimate_rmse_m": float(np.sqrt(np.mean(errors**2))) if errors.size else None,
+        "cycle_ms_p50": float(np.percentile(controller, 50)),
+        "cycle_ms_p95": float(np.percentile(controller, 95)),
+        "stage_ms_p50": report.stage_percentiles(50),
+        "stage_ms_p95": report.stage_percentiles(95),
+        "deadline_misses": int(sum(c.deadline_missed for c in report.cycles)),
+        "cycles": len(report.cycles),
+        "stop_reason": report.stop_reason,
+        "avoid": info["avoid"],
+        "trace": trace,
+    }
+
+
+def _annotate(rgb: np.ndarray, record: Any, calib: Any, goal: np.ndarray) -> np.ndarray:
+    """BGR frame with the tracked polyline (red), true P_DLO (green), estimate (blue), target (yellow)."""
+    import cv2
+
+    img = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+    if record.polyline_uv is not None:
+        pts = record.polyline_uv[np.all(np.isfinite(record.polyline_uv), axis=1)]
+        if len(pts) > 1:
+            cv2.polylines(
+                img, [np.rint(pts).astype(np.int32).reshape(-1, 1, 2)], False, (0, 0, 255), 1, cv2.LINE_AA
+            )
+
+    def mark(p: np.ndarray, color: tuple[int, int, int], radius: int) -> None:
+        if p is not None and np.all(np.isfinite(p)):
+            u, v = calib.project(np.asarray(p, dtype=float)[None])[0]
+            if np.isfinite(u) and np.isfinite(v):
+                cv2.circle(img, (int(round(u)), int(round(v))), radius, color, 2, cv2.LINE_AA)
+
+    mark(goal, (0, 220, 255), 14)
+    mark(record.p_dlo_true, (0, 200, 0), 5)
+    mark(record.p_dlo_estimate, (255, 80, 0), 9)
+    state = "measured" if record.measured else "predicted"
+    text = f"t={record.t:.2f}s  {state}  ctrl {record.controller_ms:.1f} ms"
+    cv2.putText(img, text, (10, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1, cv2.LINE_AA)
+    cv2.putText(
+        img,
+        "green: true P_DLO  blue: estimate  red: tracked cable  yellow: target",
+        (10, 468),
+        cv2.FONT_HERSHEY_SIMPLEX,
+        0.45,
+        (255, 255, 255),
+        1,
+        cv2.LINE_AA,
+    )
+    return img
+
+
+def _write_video(path: Path, frames: list[np.ndarray]) -> None:
+    import cv2
+
+    if not frames:
+        return
     h, w = frames[0].shape[:2]
 
-    def write_video(path: str) -> None:
-        writer = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (w, h))
+    def write(tmp: str) -> None:
+        writer = cv2.VideoWriter(tmp, cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (w, h))
         if not writer.isOpened():
-            raise RuntimeError(f"OpenCV cannot write MP4 to {path}")
+            raise RuntimeError(f"OpenCV cannot write MP4 to {tmp}")
         for frame in frames:
-            writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+            writer.write(frame)
         writer.release()
 
-    write_atomic(out / "demo.mp4", write_video)
-    strip = np.hstack([frames[i] for i in np.linspace(0, len(frames) - 1, 4).astype(int)])
-    write_atomic(out / "demo.png", lambda p: cv2.imwrite(p, cv2.cvtColor(strip, cv2.COLOR_RGB2BGR)))
-    metrics = {
-        "success": bool(success),
-        "min_distance_to_target_m": float(info["min_distance_m"]),
-        "reward": float(sum(terms.values())),
-        "reward_terms": terms,
-        "avoid": env._monitor.avoid,  # noqa: SLF001
-        "goal_m": env.goal.tolist(),
-        "planner": f"random search over {args.candidates} single-step actions (no trained policy yet)",
-        "frames": len(frames),
-    }
-    write_atomic(out / "metrics.json", lambda p: Path(p).write_text(json.dumps(metrics, indent=2)))
-    print(json.dumps({k: metrics[k] for k in ("success", "min_distance_to_target_m", "reward")}))
-    print(f"wrote {out / 'demo.mp4'}, {out / 'demo.png'}, {out / 'metrics.json'}")
-    return 0
+    write_atomic(path, write)
+
+
+def _write_plot(path: Path, trace: dict[str, Any]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = np.asarray(trace["t"])
+    true = np.asarray(trace["true"])
+    est = np.asarray(trace["estimate"])
+    fig, axes = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
+    for k, (ax, name) in enumerate(zip(axes, ("x", "y", "z"), strict=True)):
+        ax.plot(t, true[:, k], "g-", label="true P_DLO")
+        ax.plot(t, est[:, k], "b.--", ms=4, label="estimated (tracked + filtered)")
+        ax.axhline(trace["goal"][k], color="orange", lw=1, label="target")
+        ax.set_ylabel(f"{name} (m)")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    axes[-1].set_xlabel("simulated time (s)")
+    fig.suptitle("Tip position: simulator truth vs the controller's estimate")
+    fig.tight_layout()
+    write_atomic(path, lambda p: fig.savefig(p, dpi=100, format="png"))
+    plt.close(fig)

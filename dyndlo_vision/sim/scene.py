@@ -433,11 +433,13 @@ class Scene:
         state0 = np.empty(mujoco.mj_stateSize(m, spec))
         mujoco.mj_getState(m, d, state0, spec)
         k = controls.shape[0]
+        mocap = (d.mocap_pos.copy(), d.mocap_quat.copy())  # not part of the rolled-out state: keep them
         states, _ = self._rollout.rollout(
             m, d, state0[None], controls[None], control_spec=mujoco.mjtState.mjSTATE_CTRL
         )
         states = states[0]
         d.ctrl[:] = controls[-1]
+        d.mocap_pos[:], d.mocap_quat[:] = mocap
         qpos = states[:, 1 : 1 + m.nq]
         qvel = states[:, 1 + m.nq : 1 + m.nq + m.nv]
         expected_time = state0[0] + m.opt.timestep * np.arange(1, k + 1)

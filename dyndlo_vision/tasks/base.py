@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
@@ -396,6 +397,8 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         t = self.scene.time + self._dt * np.arange(nsteps)
         index = np.clip(np.searchsorted(times, t + 1e-9, side="right") - 1, 0, times.size - 1)
         self._simulate_span(nsteps, (np.asarray(positions)[index], np.asarray(velocities)[index]))
+        # Bring derived quantities (what a camera renders) up to the state; the state itself is unchanged.
+        mujoco.mj_forward(self.scene.model, self.scene.data)
 
     def outcome(self) -> tuple[float, bool, dict[str, Any]]:
         """Reward, success and info of the episode as it stands, evaluated as its final step."""

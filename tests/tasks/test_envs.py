@@ -179,3 +179,10 @@ def test_c_rollout_matches_python_stepping(multi_step: bool) -> None:
 
 def test_batch_monitor_only_for_tasks_without_hooks() -> None:
     assert not gym.make("DynDLO/TimeOscillation-v0").unwrapped._batch_monitor  # noqa: SLF001
+
+
+def test_target_marker_stays_at_the_goal_through_c_rollouts() -> None:
+    env = gym.make("DynDLO/TipControl-v0").unwrapped
+    env.reset(seed=2)
+    env.step(np.zeros(env.action_space.shape, np.float32))
+    np.testing.assert_allclose(env.data.mocap_pos[0], env.goal)

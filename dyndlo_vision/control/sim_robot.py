@@ -1,0 +1,80 @@
+"""The simulated robot: the TCP(s) of a DynDLO environment behind the :class:`Robot` protocol."""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import numpy as np
+
+from dyndlo_vision.control.protocols import Setpoints, TcpState
+
+log = logging.getLogger(__name__)
+
+
+class SimRobot:
+    """Drives the grippers of a :class:`~dyndlo_vision.tasks.DynDLOEnv` from setpoints.
+
+    ``send`` executes the setpoints at once, stepping the physics until the last one has been held for a
+    setpoint period: in simulation the robot's clock *is* the simulator's time. The environment keeps
+    monitoring the task (constraints, goal distance), so :meth:`DynDLOEnv.outcome` scores a loop-driven
+    episode exactly as an episode driven through ``env.step``.
+    """
+
+    def __init__(self, env: Any) -> None:
+        self.env = env.unwrapped
+        self.connected = False
+        self.stopped = False
+
+    def connect(self) -> None:
+        """Nothing to open in simulation."""
+        self.connected = True
+        self.stopped = False
+
+    def state(self) -> TcpState:
+        """Positions and velocities of the TCPs now, at the simulator's time."""
+        scene = self.env.scene
+        return TcpState(scene.tcp_positions(), scene.tcp_velocities(), scene.time)
+
+    def send(self, setpoints: Setpoints) -> None:
+        """Simulate until the setpoints have been followed.
+
+        Raises:
+            RuntimeError: After :meth:`stop`, until :meth:`connect` is called again.
+            ValueError: Setpoints for another number of grippers, or starting in the simulator's past.
+        """
+        if self.stopped:
+            raise RuntimeError("SimRobot is stopped; call connect() to resume")
+        n_g = self.env.scene.num_grippers
+        if setpoints.position.shape[1] != n_g:
+            raise ValueError(f"setpoints for {setpoints.position.shape[1]} grippers; this robot has {n_g}")
+        now = self.env.scene.time
+        if setpoints.t[0] < now - 0.5 * self.env.scene.timestep:
+            raise ValueError(
+                f"setpoints start at t={setpoints.t[0]:.4f} s, before the robot's time {now:.4f} s"
+            )
+        self.env.follow(setpoints.t, setpoints.position, setpoints.velocity)
+
+    def hold(self, duration_s: float) -> None:
+        """Keep the TCPs where they are commanded to be now, at rest, for ``duration_s`` of simulated time."""
+        scene = self.env.scene
+        dt = scene.timestep
+        n = int(round(duration_s / dt))
+        if n <= 0:
+            return
+        p, _ = self.env.replanner.references(np.array([scene.time]))
+        t = scene.time + dt * np.arange(n)
+        self.env.follow(t, np.repeat(p, n, axis=0), np.zeros((n, *p.shape[1:])))
+
+    def stop(self) -> None:
+        """Hold the measured position at rest from now on (references only; nothing is simulated)."""
+        scene = self.env.scene
+        scene.set_tcp_reference(scene.tcp_positions(), np.zeros((scene.num_grippers, 3)))
+        if not self.stopped:
+            log.info("SimRobot stopped at t=%.3f s", scene.time)
+        self.stopped = True
+
+    def close(self) -> None:
+        """Stop."""
+        self.stop()
+        self.connected = False

@@ -1,0 +1,127 @@
+"""Where the control loop gets P_DLO from: the simulator's truth, a noise model, or a camera and tracker.
+
+Each source answers ``read(t_now, tcp_state) -> PDloReading``: the estimate of P_DLO for the time the
+controller uses it, whether it rests on a fresh measurement, and how long each perception stage took.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dyndlo_vision.control.protocols import Camera, TcpState
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class PDloReading:
+    """One answer of a state source.
+
+    Attributes:
+        position: (3,) estimated P_DLO at ``t`` (NaN if there is no estimate at all).
+        t: Time the estimate holds for.
+        measured: A new measurement of P_DLO entered this reading (else it is a prediction).
+        lost: The source has no usable estimate (never seen, or coasted too long).
+        stage_ms: Wall time per perception stage, e.g. {"camera": 12.1, "track": 3.9, "filter": 0.2}.
+        pixel: (2,) pixel of the tracked point in the latest frame, when a camera was used.
+        polyline_uv: (N, 2) tracked centreline in the latest frame, when a camera was used.
+    """
+
+    position: NDArray[np.float64]
+    t: float
+    measured: bool
+    lost: bool = False
+    stage_ms: dict[str, float] = field(default_factory=dict)
+    pixel: NDArray[np.float64] | None = None
+    polyline_uv: NDArray[np.float64] | None = None
+    frame: Any = None
+
+
+class TrueState:
+    """The simulator's own P_DLO (what training sees without noise)."""
+
+    def __init__(self, env: Any) -> None:
+        self.env = env.unwrapped
+
+    def reset(self) -> None:
+        """Nothing to forget."""
+
+    def read(self, t_now: float, tcp: TcpState) -> PDloReading:
+        """P_DLO now."""
+        return PDloReading(self.env.p_dlo(), t_now, measured=True)
+
+
+class TrackedState:
+    """P_DLO from camera frames: track the cable, filter the chosen point, predict to the controller's time.
+
+    Args:
+        camera: The frame source.
+        tracker: The cable tracker (segmentation, ordered centreline, 3D lifting).
+        point_filter: Kalman filter of the tracked point.
+        point_index: Centreline node of P_DLO (-1: the free tip).
+        project: Optional ``world (3,) -> pixel (2,)`` map used to give the tracker the held end's pixel (the
+            gripper position projected into the image), which fixes the cable's orientation in every frame.
+        max_missing_frames: Consecutive frames the camera may fail to deliver before the source reports lost.
+    """
+
+    def __init__(
+        self,
+        camera: Camera,
+        tracker: Any,
+        point_filter: Any,
+        point_index: int = -1,
+        project: Any = None,
+        max_missing_frames: int = 3,
+    ) -> None:
+        self.camera = camera
+        self.tracker = tracker
+        self.filter = point_filter
+        self.point_index = point_index
+        self.project = project
+        self.max_missing_frames = max_missing_frames
+        self.missing_frames = 0
+        self.last_frame: Any = None
+
+    def reset(self) -> None:
+        """Forget the cable and the filter state."""
+        self.tracker.reset()
+        self.filter.reset()
+        self.missing_frames = 0
+
+    def read(self, t_now: float, tcp: TcpState) -> PDloReading:
+        """Grab a frame, track, update the filter at the capture time, and predict to ``t_now``."""
+        stage: dict[str, float] = {}
+        t0 = time.perf_counter()
+        frame = self.camera.read()
+        stage["camera"] = 1e3 * (time.perf_counter() - t0)
+        pixel = polyline = None
+        measured = False
+        if frame is None:
+            self.missing_frames += 1
+            log.warning("camera delivered no frame (%d in a row): predicting P_DLO", self.missing_frames)
+            stage["track"] = stage["filter"] = 0.0
+        else:
+            self.missing_frames = 0
+            self.last_frame = frame
+            t1 = time.perf_counter()
+            anchor = None if self.project is None else self.project(np.asarray(tcp.position)[0])
+            meas = self.tracker.process(frame.rgb, frame.t_capture, depth=frame.depth, anchor_uv=anchor)
+            point = meas.point(self.point_index)
+            polyline = np.where(meas.visible[:, None], meas.nodes_uv, np.nan)
+            if point is not None:
+                pixel = meas.nodes_uv[self.point_index]
+            t2 = time.perf_counter()
+            stage["track"] = 1e3 * (t2 - t1)
+            measured = self.filter.update(point, frame.t_capture)
+            stage["filter"] = 1e3 * (time.perf_counter() - t2)
+        t3 = time.perf_counter()
+        est = self.filter.estimate(t_now)
+        stage["filter"] += 1e3 * (time.perf_counter() - t3)
+        lost = bool(est.lost or self.missing_frames > self.max_missing_frames)
+        return PDloReading(est.position, t_now, measured, lost, stage, pixel, polyline, frame)
