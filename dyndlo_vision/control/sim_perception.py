@@ -82,10 +82,9 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
     scale = pixels_per_metre(calib, home)
     segmenter = GripperMaskedSegmenter(BackgroundSegmenter(background, open_radius=0),
                                        GRIPPER_MASK_RADIUS_M * scale)
-    cable = base.scene.config.cable
-    # Nodes are spread over the observed centreline (from the gripper mask's edge to the far end): the last one
-    # is the tip whenever the tip is in view. (With ``cable_length_px`` the tracker would mark nodes past the
-    # observed length invisible, but the rendered 2 mm cable measures a few pixels short, which hides the tip.)
+    # Nodes are spread over the observed centreline (from the gripper mask's edge to the far end): the last
+    # one is the tip whenever the tip is in view. (With ``cable_length_px`` the tracker would mark nodes past
+    # the observed length invisible, but the rendered 2 mm cable measures a few pixels short: no tip.)
     tracker = CableTracker(calib, segmenter=segmenter, n_nodes=base.scene.config.cable.num_nodes,
                            plane=MOTION_PLANE)
 

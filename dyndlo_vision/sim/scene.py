@@ -155,7 +155,8 @@ def build_mjcf(config: SceneConfig) -> str:
         <pin id="0 1"/>
         <edge equality="true" solref="{edge_timeconst:.6g} 1"
               solimp="0.99 0.9999 0.001"/>
-        <elasticity young="{cable.young_pa:.9g}" poisson="{cable.poisson:.6g}" damping="{cable.damping_s:.6g}"/>
+        <elasticity young="{cable.young_pa:.9g}" poisson="{cable.poisson:.6g}"
+                    damping="{cable.damping_s:.6g}"/>
         <contact selfcollide="none" condim="3" friction="0.6" solref="0.005 1"/>
       </flexcomp>"""
         bodies.append(f"""
@@ -205,6 +206,7 @@ def build_mjcf(config: SceneConfig) -> str:
         equality = f'\n    <connect name="far_end" body1="{gripper_name(1)}" body2="{last}" anchor="0 0 0"/>'
     elif config.far_end == "support":
         equality = f'\n    <connect name="far_end" body1="support" body2="{last}" anchor="0 0 0"/>'
+    world_bodies = "".join(bodies) + "".join(props)
     return f"""<mujoco model="dyndlo">
   <compiler autolimits="true"/>
   <option {config.physics.to_mjcf()}/>
@@ -223,7 +225,7 @@ def build_mjcf(config: SceneConfig) -> str:
     <geom name="{FLOOR_NAME}" type="plane" size="3 3 0.1" material="floor"/>
     <camera name="front" pos="0.55 -1.7 0.45" xyaxes="1 0 0 0 0 1" fovy="45"/>
     <camera name="tracking" pos="0.65 -1.45 0.575" xyaxes="1 0 0 0 0 1" fovy="45"/>
-    <camera name="oblique" pos="1.6 -1.4 1.1" xyaxes="0.7 0.71 0 -0.25 0.25 0.93" fovy="45"/>{"".join(bodies)}{"".join(props)}
+    <camera name="oblique" pos="1.6 -1.4 1.1" xyaxes="0.7 0.71 0 -0.25 0.25 0.93" fovy="45"/>{world_bodies}
   </worldbody>
   <equality>{equality}
   </equality>
@@ -251,13 +253,13 @@ class Scene:
         self.data = mujoco.MjData(self.model)
         m = self.model
         self._tcp_qpos = np.array(
-            [[m.joint(f"{gripper_name(i)}_{a}").qposadr[0] for a in "xyz"] for i in range(config.num_grippers)]
+            [[m.joint(f"{gripper_name(i)}_{a}").qposadr[0] for a in "xyz"] for i in range(self.num_grippers)]
         )
         self._tcp_dof = np.array(
             [[m.joint(f"{gripper_name(i)}_{a}").dofadr[0] for a in "xyz"] for i in range(config.num_grippers)]
         )
         self._tcp_act = np.array(
-            [[m.actuator(f"{gripper_name(i)}_{a}_servo").id for a in "xyz"] for i in range(config.num_grippers)]
+            [[m.actuator(f"{gripper_name(i)}_{a}_servo").id for a in "xyz"] for i in range(self.num_grippers)]
         )
         self._tcp_home = np.array(config.grippers_m, dtype=float)
         self._kp = config.gains.kp_per_s
@@ -331,12 +333,14 @@ class Scene:
             return
         pts = np.asarray(path, dtype=float)
         if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 2:
-            raise ValueError(f"initial_path_m must be a polyline of >= 2 points (M, 3), got shape {pts.shape}")
+            raise ValueError(f"initial_path_m must be a polyline of >= 2 points (M, 3), got {pts.shape}")
         seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
         arc = np.concatenate([[0.0], np.cumsum(seg)])
         cable = self.config.cable
         if arc[-1] < cable.length_m - 1e-9:
-            raise ValueError(f"initial_path_m is {arc[-1]:.3f} m long, shorter than the cable ({cable.length_m} m)")
+            raise ValueError(
+                f"initial_path_m is {arc[-1]:.3f} m long, shorter than the cable ({cable.length_m} m)"
+            )
         s = np.linspace(0.0, cable.length_m, cable.num_nodes)
         target = np.stack([np.interp(s, arc, pts[:, k]) for k in range(3)], axis=1)
         m, d = self.model, self.data
