@@ -61,7 +61,8 @@ class CableParams:
         if self.segment_length_m < 2.5 * self.radius_m:
             # Neighbouring capsules would overlap along most of their length: contacts and bending go wrong.
             raise ValueError(
-                f"cable segments of {self.segment_length_m:.4f} m are too short for radius {self.radius_m} m: "
+                f"cable segments of {self.segment_length_m:.4f} m are too short "
+                f"for radius {self.radius_m} m: "
                 f"use fewer segments or a thinner cable (segment length >= 2.5 * radius)"
             )
         if len(self.rgba) != 4:

@@ -37,7 +37,8 @@ class PhysicsOptions:
     def __post_init__(self) -> None:
         if self.integrator not in _INTEGRATORS:
             raise ValueError(
-                f"integrator={self.integrator!r} is not supported for elastic rods; expected one of {_INTEGRATORS}"
+                f"integrator={self.integrator!r} is not supported for elastic rods; "
+                f"expected one of {_INTEGRATORS}"
             )
         if self.solver not in _SOLVERS:
             raise ValueError(f"solver={self.solver!r}; expected one of {_SOLVERS}")
