@@ -119,7 +119,8 @@ def run(args: argparse.Namespace) -> int:
     _write_video(out / "demo.mp4", video)
     _write_plot(out / "p_dlo.png", first["trace"])
     for e in episodes:
-        e.pop("trace", None)
+        for key in ("trace", "_cycle_ms", "_stage_ms"):
+            e.pop(key, None)
     write_atomic(out / "metrics.json", lambda p: Path(p).write_text(json.dumps(metrics, indent=2)))
     print(
         json.dumps(
@@ -216,6 +217,11 @@ def run_episode(
         "stop_reason": report.stop_reason,
         "avoid": info["avoid"],
         "trace": trace,
+        "_cycle_ms": controller.tolist(),
+        "_stage_ms": {
+            k: [c.stage_ms.get(k, 0.0) for c in report.cycles]
+            for k in sorted({k for c in report.cycles for k in c.stage_ms})
+        },
     }
 
 

@@ -213,7 +213,7 @@ def build_mjcf(config: SceneConfig) -> str:
   <visual>
     <global offwidth="{width}" offheight="{height}"/>
     <headlight ambient="0.35 0.35 0.35" diffuse="0.5 0.5 0.5"/>
-    <quality shadowsize="0"/>
+    <quality shadowsize="0" offsamples="0"/>
   </visual>
   <asset>
     <texture name="grid" type="2d" builtin="checker" rgb1="0.82 0.82 0.82" rgb2="0.78 0.78 0.78"

@@ -1,0 +1,89 @@
+"""Latency of the perception-in-the-loop controller in simulation, per stage, on one core.
+
+Runs closed-loop tip-control episodes on tracked state (render the "tracking" camera at 640x480, segment,
+order, lift, filter, query the policy, re-plan) and prints the median and p95 of each stage and of the
+controller's whole cycle (everything but the simulated robot's physics, which a real robot runs by itself), plus the share
+of cycles that missed the 40 ms deadline and the estimate's error against the simulator's truth.
+
+    python benchmarks/loop_latency.py [--episodes 10] [--policy NAME|PATH] [--out results.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import platform
+import sys
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import gymnasium as gym  # noqa: E402
+import numpy as np  # noqa: E402
+
+import dyndlo_vision  # noqa: E402,F401
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--episodes", type=int, default=10)
+    parser.add_argument("--seed", type=int, default=200_000)
+    parser.add_argument("--policy", default=None, help="policy (default: the demo's)")
+    parser.add_argument("--out", default=None)
+    args = parser.parse_args()
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+    import torch
+
+    torch.set_num_threads(1)
+    logging.disable(logging.WARNING)
+    from dyndlo_vision import policies
+    from dyndlo_vision.commands.demo import _default_policy, run_episode
+
+    name = args.policy or _default_policy()
+    _, meta = policies.resolve(name)
+    env = gym.make("DynDLO/TipControl-v0", multi_step=bool(meta.get("multi_step", False)))
+    model = policies.load(name, env=env)
+    stages: dict[str, list[float]] = {}
+    cycle: list[float] = []
+    misses = cycles = 0
+    rmse = []
+    for i in range(args.episodes):
+        r = run_episode(env, model, args.seed + i, "tracked", "tracking", None)
+        rmse.append(r["estimate_rmse_m"])
+        misses += r["deadline_misses"]
+        cycles += r["cycles"]
+        cycle.extend(r["_cycle_ms"])
+        for k, v in r["_stage_ms"].items():
+            stages.setdefault(k, []).extend(v)
+    result = {
+        "machine": f"{platform.machine()}, {os.cpu_count()} cpus, pinned to one core",
+        "policy": str(name),
+        "episodes": args.episodes,
+        "cycles": cycles,
+        "controller_ms_p50": float(np.percentile(cycle, 50)),
+        "controller_ms_p95": float(np.percentile(cycle, 95)),
+        "deadline_miss_share": misses / max(cycles, 1),
+        "stage_ms_p50": {k: float(np.percentile(v, 50)) for k, v in stages.items()},
+        "stage_ms_p95": {k: float(np.percentile(v, 95)) for k, v in stages.items()},
+        "estimate_rmse_m_median": float(np.median([x for x in rmse if x is not None])),
+    }
+    print(f"# {result['machine']}; {cycles} cycles over {args.episodes} episodes; policy {name}")
+    print("| stage | p50 ms | p95 ms |")
+    print("|---|---|---|")
+    for k in sorted(stages):
+        print(f"| {k} | {result['stage_ms_p50'][k]:.2f} | {result['stage_ms_p95'][k]:.2f} |")
+    print(f"| controller cycle | {result['controller_ms_p50']:.2f} | {result['controller_ms_p95']:.2f} |")
+    print(
+        f"deadline misses: {100 * result['deadline_miss_share']:.1f} % of cycles; "
+        f"estimate RMSE median {1e3 * result['estimate_rmse_m_median']:.1f} mm"
+    )
+    if args.out:
+        with open(args.out, "w") as f:
+            json.dump(result, f, indent=2)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
