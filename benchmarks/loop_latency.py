@@ -2,8 +2,8 @@
 
 Runs closed-loop tip-control episodes on tracked state (render the "tracking" camera at 640x480, segment,
 order, lift, filter, query the policy, re-plan) and prints the median and p95 of each stage and of the
-controller's whole cycle (everything but the simulated robot's physics, which a real robot runs by itself), plus the share
-of cycles that missed the 40 ms deadline and the estimate's error against the simulator's truth.
+controller's whole cycle (everything but the simulated robot's physics, which a real robot runs by itself),
+plus the share of cycles that missed the 40 ms deadline and the estimate's error against the truth.
 
     python benchmarks/loop_latency.py [--episodes 10] [--policy NAME|PATH] [--out results.json]
 """
