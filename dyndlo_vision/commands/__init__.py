@@ -6,6 +6,7 @@ from __future__ import annotations
 #: Command name -> module under ``dyndlo_vision.commands``.
 COMMANDS: dict[str, str] = {
     "demo": "demo",
+    "track": "track",
     "evaluate": "evaluate",
     "plot": "plot",
     "train": "train",

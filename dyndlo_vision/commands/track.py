@@ -1,0 +1,529 @@
+"""``dyndlo-vision track``: track a cable through a video file or an image folder, one CSV row per frame.
+
+Per frame: segment the cable (automatic background model, or an HSV range), extract its ordered centreline
+(node 0 at the held end), take the tracked point (the free tip, or a fraction of the cable from the held end),
+and filter it with a constant-velocity Kalman filter: in world coordinates when a calibration and the motion
+plane are given (rays through the pixels are intersected with the plane), else in pixels.
+
+CSV columns ``frame,time_s,visible,u,v,x,y,z``: ``visible`` is 1 when the tracked point was measured in that
+frame; ``u,v`` is the measured pixel (raw, unfiltered; empty when not measured); ``x,y,z`` is the filtered
+world position (m) at the frame's time, empty without ``--calib``, before the first measurement and while the
+filter is lost (no measurement for longer than its coasting limit). The tracked point is not measured where
+the centreline cannot place it: the point's nodes are invisible, or the cable runs out of the image at the
+end the point is measured from. Without a calibration the filter runs in pixels and only draws the annotated
+video's point and uncertainty ellipse.
+
+Outputs are written to temporary files beside their destinations and renamed at the end, so after any error
+neither the CSV nor the video exists.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import os
+import sys
+import tempfile
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, TypeVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    from dyndlo_vision.control.protocols import Frame
+    from dyndlo_vision.tracking.camera_model import PinholeCamera
+
+T = TypeVar("T")
+
+HELP = "track a cable in a video or image folder and write the tracked point per frame to CSV"
+
+#: Pixel-mode filter settings are the world ones times this scale (a cable filling a 640 px wide image from
+#: about a metre away spans roughly 500 px per metre).
+_PX_PER_M_NOMINAL = 500.0
+_WORLD_SIGMA_ACCEL = 20.0  # m/s^2, PointFilter's default; the fastest whips exceed it and get gated
+_WORLD_SIGMA_MEAS = 0.003  # m, PointFilter's default
+#: Frames sampled across the video for ``--background median``.
+_MEDIAN_FRAMES = 64
+CSV_COLUMNS = ("frame", "time_s", "visible", "u", "v", "x", "y", "z")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``track``."""
+    p.add_argument("video", metavar="VIDEO", help="video file OpenCV can read, or a folder of images")
+    p.add_argument("--out", required=True, metavar="TRACK.csv", help="CSV to write (folder must exist)")
+    p.add_argument(
+        "--calib", metavar="CALIB.json", help="camera calibration (PinholeCamera JSON); needs --plane"
+    )
+    p.add_argument(
+        "--plane",
+        metavar="NX,NY,NZ,D",
+        help="world plane n.x + d = 0 the cable moves in, e.g. 0,1,0,0 for y = 0; needs --calib",
+    )
+    p.add_argument("--hsv-lower", metavar="H,S,V", help="lower HSV bound (OpenCV: H 0-179, S, V 0-255)")
+    p.add_argument("--hsv-upper", metavar="H,S,V", help="upper HSV bound; H lower > upper wraps through red")
+    p.add_argument(
+        "--point",
+        default="tip",
+        metavar="tip|FRACTION",
+        help="tracked point: the free tip (default) or a fraction of the length from the held end, in [0, 1]",
+    )
+    p.add_argument(
+        "--anchor",
+        metavar="U,V",
+        help="pixel near the held end in the first frame with a cable: the end nearest it is the held end, "
+        "followed from frame to frame after that. Without it the tracker picks an end (printed) there",
+    )
+    p.add_argument(
+        "--background",
+        choices=("frame", "median"),
+        default="frame",
+        help="automatic segmentation's background: 'frame' estimates one colour from each frame (uniform "
+        "backgrounds); 'median' learns a per-pixel median from frames sampled across the whole video (any "
+        "static background, e.g. MuJoCo renders; reads the video twice)",
+    )
+    p.add_argument(
+        "--open-radius",
+        type=int,
+        default=1,
+        help="radius of the mask opening that removes speckle (default 1; 0 keeps cables only 1-2 px wide)",
+    )
+    p.add_argument("--nodes", type=int, default=20, help="centreline nodes (default 20)")
+    p.add_argument("--annotated", metavar="OUT.mp4", help="also write an annotated MP4")
+    p.add_argument("--fps", type=float, help="frame rate; overrides the video's time stamps (folders: 25)")
+    p.add_argument(
+        "--sigma-accel",
+        type=float,
+        help=f"filter acceleration noise, m/s^2 (default {_WORLD_SIGMA_ACCEL:g}; in pixel mode "
+        f"{_WORLD_SIGMA_ACCEL * _PX_PER_M_NOMINAL:g} px/s^2)",
+    )
+    p.add_argument(
+        "--sigma-meas",
+        type=float,
+        help=f"filter measurement noise, m (default {_WORLD_SIGMA_MEAS:g}; in pixel mode "
+        f"{_WORLD_SIGMA_MEAS * _PX_PER_M_NOMINAL:g} px)",
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+# ------------------------------------------------------------------------------------------- parsing
+
+
+def parse_floats(text: str, count: int, option: str) -> NDArray[np.float64]:
+    """``count`` finite comma-separated numbers, e.g. ``"0,1,0,0"``.
+
+    Raises:
+        ValueError: Naming the option and the text when it is not ``count`` finite numbers.
+    """
+    parts = [s.strip() for s in str(text).split(",")]
+    try:
+        values = np.array([float(s) for s in parts], dtype=np.float64)
+    except ValueError:
+        values = np.zeros(0)
+    if values.size != count or len(parts) != count or not np.all(np.isfinite(values)):
+        raise ValueError(f"{option} must be {count} comma-separated finite numbers, got {text!r}")
+    return values
+
+
+def parse_hsv(text: str, option: str) -> NDArray[np.int64]:
+    """An OpenCV HSV triple ``H,S,V`` with H in 0..179 and S, V in 0..255.
+
+    Raises:
+        ValueError: On anything else, naming the option and the text.
+    """
+    values = parse_floats(text, 3, option)
+    if np.any(values != np.round(values)):
+        raise ValueError(f"{option} must be three integers H,S,V, got {text!r}")
+    hsv = values.astype(np.int64)
+    if not (0 <= hsv[0] <= 179 and 0 <= hsv[1] <= 255 and 0 <= hsv[2] <= 255):
+        raise ValueError(f"{option} must have H in 0..179 and S, V in 0..255 (OpenCV's HSV), got {text!r}")
+    return hsv
+
+
+def parse_point(text: str) -> float:
+    """``"tip"`` -> 1.0, else a fraction of the cable length from the held end in [0, 1].
+
+    Raises:
+        ValueError: If it is neither ``tip`` nor a number in [0, 1].
+    """
+    if str(text).strip().lower() == "tip":
+        return 1.0
+    try:
+        fraction = float(text)
+    except ValueError:
+        fraction = math.nan
+    if not 0.0 <= fraction <= 1.0:  # also rejects NaN
+        raise ValueError(f"--point must be 'tip' or a fraction of the cable length in [0, 1], got {text!r}")
+    return fraction
+
+
+def point_on_nodes(
+    nodes: NDArray[np.float64], visible: NDArray[np.bool_], fraction: float
+) -> NDArray[np.float64] | None:
+    """The point at ``fraction`` of the node chain (linear between the two nearest nodes), or None.
+
+    Nodes are equally spaced along the cable, so node ``i`` of ``N`` is at fraction ``i / (N - 1)``.
+    The point is measured only where the nodes it is interpolated from are visible and finite.
+    """
+    n = nodes.shape[0]
+    s = fraction * (n - 1)
+    i0 = min(int(math.floor(s)), n - 2)
+    w = s - i0
+    used = [i0] if w == 0 else ([i0 + 1] if w == 1 else [i0, i0 + 1])
+    if not all(visible[i] and np.all(np.isfinite(nodes[i])) for i in used):
+        return None
+    return (1.0 - w) * nodes[i0] + w * nodes[i0 + 1]
+
+
+# ------------------------------------------------------------------------------------------- settings
+
+
+@dataclass(frozen=True)
+class _Settings:
+    video: Path
+    out: Path
+    annotated: Path | None
+    fraction: float
+    plane: tuple[NDArray[np.float64], float] | None
+    hsv: tuple[NDArray[np.int64], NDArray[np.int64]] | None
+    background: str
+    open_radius: int
+    anchor: NDArray[np.float64] | None
+    nodes: int
+    fps: float | None
+    sigma_accel: float
+    sigma_meas: float
+    quiet: bool
+
+
+def _positive(value: float | None, option: str) -> float | None:
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{option} must be a positive finite number, got {value!r}")
+    return value
+
+
+def _settings(args: argparse.Namespace) -> _Settings:
+    """Validates every argument that needs no file (raises ValueError naming the bad one)."""
+    if (args.calib is None) != (args.plane is None):
+        raise ValueError(
+            "--calib and --plane go together: world positions come from intersecting the camera rays with "
+            "the motion plane (a video has no depth); give both, or neither to track in pixels"
+        )
+    plane = None
+    if args.plane is not None:
+        values = parse_floats(args.plane, 4, "--plane")
+        if np.linalg.norm(values[:3]) == 0:
+            raise ValueError(f"--plane normal must be non-zero, got {args.plane!r}")
+        plane = (values[:3], float(values[3]))
+    if (args.hsv_lower is None) != (args.hsv_upper is None):
+        raise ValueError("--hsv-lower and --hsv-upper go together; give both or neither")
+    hsv = None
+    if args.hsv_lower is not None:
+        hsv = (parse_hsv(args.hsv_lower, "--hsv-lower"), parse_hsv(args.hsv_upper, "--hsv-upper"))
+        lo, hi = hsv
+        if np.any(lo[1:] > hi[1:]):
+            raise ValueError(
+                f"--hsv-lower S,V must not exceed --hsv-upper S,V: {args.hsv_lower} vs {args.hsv_upper}"
+            )
+    if hsv is not None and args.background != "frame":
+        raise ValueError(
+            "--background applies to automatic segmentation; it cannot be used with an HSV range"
+        )
+    if args.open_radius < 0:
+        raise ValueError(f"--open-radius must be >= 0, got {args.open_radius}")
+    if args.nodes < 2:
+        raise ValueError(f"--nodes must be at least 2, got {args.nodes}")
+    world = plane is not None
+    scale = 1.0 if world else _PX_PER_M_NOMINAL
+    sigma_accel = _positive(args.sigma_accel, "--sigma-accel") or _WORLD_SIGMA_ACCEL * scale
+    sigma_meas = _positive(args.sigma_meas, "--sigma-meas") or _WORLD_SIGMA_MEAS * scale
+    out = Path(args.out)
+    annotated = None if args.annotated is None else Path(args.annotated)
+    video = Path(args.video)
+    for path, option in ((out, "--out"), (annotated, "--annotated")):
+        if path is None:
+            continue
+        if not path.parent.is_dir():
+            raise ValueError(f"{option}: folder {path.parent} does not exist")
+        if path.is_dir():
+            raise ValueError(f"{option}: {path} is a folder, expected a file name")
+        if video.exists() and path.resolve() == video.resolve():
+            raise ValueError(f"{option} {path} is the input video; refusing to overwrite it")
+    if annotated is not None:
+        if annotated.suffix.lower() != ".mp4":
+            raise ValueError(f"--annotated must be an .mp4 file name, got {annotated}")
+        if annotated.resolve() == out.resolve():
+            raise ValueError(f"--out and --annotated are the same file: {out}")
+    return _Settings(
+        video=video,
+        out=out,
+        annotated=annotated,
+        fraction=parse_point(args.point),
+        plane=plane,
+        hsv=hsv,
+        background=str(args.background),
+        open_radius=int(args.open_radius),
+        anchor=None if args.anchor is None else parse_floats(args.anchor, 2, "--anchor"),
+        nodes=int(args.nodes),
+        fps=_positive(args.fps, "--fps"),
+        sigma_accel=float(sigma_accel),
+        sigma_meas=float(sigma_meas),
+        quiet=bool(args.quiet),
+    )
+
+
+def _check_plane_visible(camera: PinholeCamera, plane: tuple[NDArray[np.float64], float], text: str) -> None:
+    """Every image corner and the centre must see the plane in front of the camera (else ValueError).
+
+    The tracking core raises the same error for a single pixel mid-video; checking before the first frame
+    gives the clear message at once, before any output file is opened.
+    """
+    w, h = camera.width, camera.height
+    probes = np.array([[0, 0], [w - 1, 0], [0, h - 1], [w - 1, h - 1], [(w - 1) / 2, (h - 1) / 2]], float)
+    try:
+        camera.intersect_plane(probes, plane[0], plane[1])
+    except ValueError as exc:
+        raise ValueError(
+            f"--plane {text} cannot be used with this camera: {exc}; the cable's "
+            "motion plane must be seen in front of the camera across the whole image"
+        ) from exc
+
+
+# ------------------------------------------------------------------------------------------- the run
+
+
+def sample_evenly(items: Iterable[T], max_items: int) -> list[T]:
+    """At most ``max_items`` items spread evenly over an iterable of unknown length (bounded memory).
+
+    Keeps every ``stride``-th item; whenever more than ``max_items`` are kept, every second one is dropped
+    and the stride doubles.
+    """
+    if max_items < 1:
+        raise ValueError(f"max_items must be >= 1, got {max_items}")
+    kept: list[T] = []
+    stride = 1
+    for i, item in enumerate(items):
+        if i % stride == 0:
+            kept.append(item)
+            if len(kept) > max_items:
+                kept = kept[::2]
+                stride *= 2
+    return kept
+
+
+def _segmenter(cfg: _Settings) -> Callable[[NDArray[np.uint8]], NDArray[np.bool_]]:
+    """The frame -> mask function the settings ask for (learns the median background when asked)."""
+    from dyndlo_vision.control.cameras import VideoFileCamera
+    from dyndlo_vision.tracking.segmentation import BackgroundSegmenter, segment_hsv
+
+    if cfg.hsv is not None:
+        lo, hi = cfg.hsv
+        return lambda rgb: segment_hsv(rgb, lo, hi, clean=True)
+    segmenter = BackgroundSegmenter(open_radius=cfg.open_radius)
+    if cfg.background == "median":
+        with VideoFileCamera(cfg.video, fps=cfg.fps) as first_pass:
+            segmenter.learn(sample_evenly((f.rgb for f in first_pass), _MEDIAN_FRAMES))
+    return segmenter
+
+
+class _AtomicOutputs:
+    """Temporary files beside their destinations, renamed over them only by :meth:`commit`.
+
+    On an exception inside the ``with`` block (or in :meth:`commit`) every temporary file is removed, and so
+    is any destination already renamed: after a failure none of the outputs exists.
+    """
+
+    def __init__(self, destinations: list[Path]) -> None:
+        self.destinations = destinations
+        self.temps: list[Path] = []
+
+    def __enter__(self) -> list[Path]:
+        for path in self.destinations:
+            fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
+            os.close(fd)
+            self.temps.append(Path(tmp))
+        return self.temps
+
+    def commit(self) -> None:
+        """Renames every temporary file onto its destination."""
+        done: list[Path] = []
+        try:
+            for tmp, final in zip(self.temps, self.destinations, strict=True):
+                os.replace(tmp, final)
+                done.append(final)
+        except BaseException:
+            for final in done:
+                final.unlink(missing_ok=True)
+            raise
+
+    def __exit__(self, exc_type: type[BaseException] | None, *_: object) -> None:
+        for tmp in self.temps:
+            tmp.unlink(missing_ok=True)  # no-op after a commit
+
+
+def _fmt(value: float, digits: int) -> str:
+    """Fixed-point text, empty for NaN; ``+ 0.0`` turns a rounded ``-0.0`` into ``0.0``."""
+    return f"{round(value, digits) + 0.0:.{digits}f}" if math.isfinite(value) else ""
+
+
+class _PointTracker:
+    """One frame at a time: cable tracker -> tracked point -> Kalman filter -> CSV row and overlay."""
+
+    def __init__(self, cfg: _Settings, calib: PinholeCamera | None) -> None:
+        from dyndlo_vision.tracking.filter import PointFilter
+        from dyndlo_vision.tracking.tracker import CableTracker, Plane
+
+        self.cfg = cfg
+        self.calib = calib
+        self.world = calib is not None
+        self.tracker = CableTracker(
+            camera=calib,
+            segmenter=_segmenter(cfg),
+            n_nodes=cfg.nodes,
+            plane=None if cfg.plane is None else Plane(cfg.plane[0], cfg.plane[1]),
+        )
+        scale = 1.0 if self.world else _PX_PER_M_NOMINAL
+        self.filter = PointFilter(
+            sigma_accel=cfg.sigma_accel,
+            sigma_meas=cfg.sigma_meas,
+            init_speed_sigma=2.0 * scale,
+            reinit_speed=10.0 * scale,
+        )
+        self.held_end_found = False
+        self.n_frames = 0
+        self.n_measured = 0
+
+    def step(self, frame: Frame, video: Path, draw: bool) -> tuple[list[object], NDArray[np.uint8] | None]:
+        """Tracks one frame; returns its CSV row and, when ``draw``, the annotated RGB image."""
+        from dyndlo_vision.tracking.annotate import annotate_frame, project_point_covariance
+
+        cfg = self.cfg
+        # The anchor picks the held end until the cable is first seen; from then on the tracker follows node 0
+        # from frame to frame, because a held end that moves (a robot's gripper) can come closer to a fixed
+        # anchor pixel than the swinging tip does.
+        anchor = None if self.held_end_found else cfg.anchor
+        try:
+            meas = self.tracker.process(frame.rgb, frame.t_capture, anchor_uv=anchor)
+        except ValueError as exc:
+            raise ValueError(f"{video} frame {frame.index}: {exc}") from exc
+        cl = meas.centerline
+        if not self.held_end_found and cl is not None and cl.any_visible:
+            self.held_end_found = True
+            if cfg.anchor is None:
+                u0, v0 = meas.nodes_uv[0]
+                print(
+                    f"note: no --anchor; took the cable end at pixel ({u0:.0f}, {v0:.0f}) in frame "
+                    f"{frame.index} as the held end",
+                    file=sys.stderr,
+                )
+        # Arc-length fractions mean nothing where the cable runs out of the image at the end they are counted
+        # from: the last pixel before the border is not the tip.
+        cut = cl is not None and (
+            (cl.end_at_border and cfg.fraction > 0) or (cl.start_at_border and cfg.fraction < 1)
+        )
+        uv = None if cut else point_on_nodes(meas.nodes_uv, meas.visible, cfg.fraction)
+        z = None  # what the filter measures: world metres, or (u, v, 0) pixels without a calibration
+        if uv is not None:
+            z = (
+                point_on_nodes(meas.nodes_xyz, meas.visible, cfg.fraction)
+                if self.world
+                else np.append(uv, 0.0)
+            )
+        measured = z is not None
+        self.filter.update(z, frame.t_capture)
+        est = self.filter.estimate(frame.t_capture)
+        uv_out = uv if (measured and uv is not None) else np.full(2, np.nan)
+        xyz_out = est.position if (self.world and not est.lost) else np.full(3, np.nan)
+        row: list[object] = [frame.index, f"{frame.t_capture:.6f}", int(measured)]
+        row += [_fmt(float(c), 3) for c in uv_out] + [_fmt(float(c), 6) for c in xyz_out]
+        self.n_frames += 1
+        self.n_measured += int(measured)
+        if not draw:
+            return row, None
+        point_uv = cov_uv = None
+        if not est.lost:
+            if self.calib is not None:
+                point_uv, cov_uv = project_point_covariance(self.calib, est.position, est.covariance[:3, :3])
+            else:
+                point_uv, cov_uv = est.position[:2], est.covariance[:2, :2]
+        state = "measured" if measured else ("lost" if est.lost else "predicted")
+        image = annotate_frame(
+            frame.rgb,
+            meas.nodes_uv,
+            meas.visible,
+            point_uv=point_uv,
+            point_cov_uv=cov_uv,
+            point_measured=measured,
+            t=frame.t_capture,
+            status=f"frame {frame.index}  point {state}  nodes {int(meas.visible.sum())}/{cfg.nodes}",
+        )
+        return row, image
+
+
+def run(args: argparse.Namespace) -> int:
+    """Track every frame of ``VIDEO`` and write the CSV (and the annotated MP4)."""
+    import cv2
+    from tqdm import tqdm
+
+    from dyndlo_vision.control.cameras import VideoFileCamera
+    from dyndlo_vision.tracking.camera_model import PinholeCamera
+
+    cfg = _settings(args)
+    calib = None if args.calib is None else PinholeCamera.from_json(args.calib)
+    with VideoFileCamera(cfg.video, fps=cfg.fps) as source:
+        if calib is not None:
+            if (calib.width, calib.height) != (source.width, source.height):
+                raise ValueError(
+                    f"calibration {args.calib} is for {calib.width}x{calib.height} images, but {cfg.video} "
+                    f"has {source.width}x{source.height} frames"
+                )
+            assert cfg.plane is not None
+            _check_plane_visible(calib, cfg.plane, args.plane)
+        if cfg.anchor is not None and not (
+            -0.5 <= cfg.anchor[0] <= source.width - 0.5 and -0.5 <= cfg.anchor[1] <= source.height - 0.5
+        ):
+            raise ValueError(f"--anchor {args.anchor} is outside the {source.width}x{source.height} image")
+        pipeline = _PointTracker(cfg, calib)
+        destinations = [cfg.out] + ([cfg.annotated] if cfg.annotated is not None else [])
+        outputs = _AtomicOutputs(destinations)
+        with outputs as temps:
+            writer = None
+            if cfg.annotated is not None:
+                size = (source.width, source.height)
+                writer = cv2.VideoWriter(str(temps[1]), cv2.VideoWriter_fourcc(*"mp4v"), source.fps, size)
+                if not writer.isOpened():
+                    raise ValueError(f"OpenCV cannot write an MP4 video to {cfg.annotated}")
+            try:
+                with (
+                    open(temps[0], "w", newline="", encoding="utf-8") as f,
+                    tqdm(
+                        total=source.frame_count,
+                        unit="frame",
+                        desc="track",
+                        file=sys.stderr,
+                        disable=cfg.quiet or not sys.stderr.isatty(),
+                    ) as progress,
+                ):
+                    rows = csv.writer(f)
+                    rows.writerow(CSV_COLUMNS)
+                    for frame in source:
+                        row, image = pipeline.step(frame, cfg.video, draw=writer is not None)
+                        rows.writerow(row)
+                        if writer is not None and image is not None:
+                            writer.write(cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+                        progress.update(1)
+            finally:
+                if writer is not None:
+                    writer.release()
+            if pipeline.n_frames == 0:
+                raise ValueError(f"{cfg.video} has no frames that OpenCV can decode")
+            outputs.commit()
+    share = 100.0 * pipeline.n_measured / pipeline.n_frames
+    print(
+        f"tracked {pipeline.n_frames} frames ({'world, m' if calib is not None else 'pixels'}); point "
+        f"measured in {pipeline.n_measured} ({share:.1f}%); wrote {', '.join(str(p) for p in destinations)}"
+    )
+    return 0
