@@ -170,3 +170,41 @@ def test_setpoints_for_two_grippers_are_rejected(setup) -> None:
     t = robot.state().t + np.array([0.1, 0.2])
     with pytest.raises(ValueError, match="n_g = 1"):
         robot.send(Setpoints(t=t, position=np.zeros((2, 2, 3)), velocity=np.zeros((2, 2, 3))))
+
+
+def test_replanning_mid_motion_from_the_commanded_state(setup) -> None:
+    """The closed loop's use: replace a running plan by one that starts from the commanded state."""
+    robot, fake, kin, _ = setup
+    first, _ = _send_from_now(robot, fake, GENTLE_ACTION)
+    assert fake.wait_until(first.t[0] + 0.5, TIMEOUT_S)
+    fake.hang()
+    try:
+        now = robot.commanded_state()
+        p0, v0 = now.position[0], now.velocity[0]
+        goal = p0 + np.array([0.05, 0.0, 0.08])
+        plan = BSplineTrajectory(
+            [p0, 0.5 * (p0 + goal), goal], [now.t, now.t + 0.4, now.t + 0.8], start_velocity=v0
+        )
+        t = np.arange(now.t, now.t + 0.8 + 1e-9, 0.01)
+        robot.send(Setpoints(t=t, position=plan.position(t)[:, None], velocity=plan.velocity(t)[:, None]))
+    finally:
+        fake.resume()
+    assert fake.wait_until(t[-1] + 0.3, TIMEOUT_S)
+    np.testing.assert_allclose(kin.fk(fake.q)[0], goal, atol=1e-4)
+    received = fake.received
+    assert check_joint_limits(
+        kin.arm, np.array([r.t for r in received]), np.array([r.q for r in received])
+    ).ok
+
+
+def test_a_plan_that_does_not_start_where_the_robot_is_commanded_is_refused(setup) -> None:
+    robot, fake, _, _ = setup
+    fake.hang()
+    try:
+        now = robot.commanded_state()
+        t = now.t + np.arange(1, 51) * 0.01
+        p = np.tile(now.position[0] + [0.1, 0.0, 0.0], (t.size, 1))  # 10 cm away, at rest
+        with pytest.raises(JointLimitError, match="where the setpoints join the targets already sent"):
+            robot.send(Setpoints(t=t, position=p[:, None], velocity=np.zeros((t.size, 1, 3))))
+    finally:
+        fake.resume()

@@ -261,7 +261,7 @@ class JointStreamingDriver:
             IKError: A setpoint has no IK solution (a ``ValueError``).
             JointLimitError: The joint plan breaks a position, velocity or acceleration limit (a
                 ``ValueError`` naming joint, time, value and limit). Nothing of this plan is sent.
-            RuntimeError: Not connected, or stopped after a fault.
+            RuntimeError: Not connected, or stopped after a fault (close() and connect() again).
         """
         t_grid, p_grid = resample_setpoints(setpoints, self.period_s)
         with self._lock:
@@ -286,8 +286,7 @@ class JointStreamingDriver:
             report = check_joint_limits(self.kinematics.arm, t_all, q_all)
             if not report.ok:
                 hint = ""
-                start = hist_t.size
-                if check_joint_limits(self.kinematics.arm, t_all[start:], q_all[start:]).ok:
+                if check_joint_limits(self.kinematics.arm, t_all[hist_t.size :], q_all[hist_t.size :]).ok:
                     hint = (
                         "\n  (broken where the setpoints join the targets already sent, up to "
                         f"t={hist_t[-1]:.4f} s: "
@@ -297,10 +296,8 @@ class JointStreamingDriver:
                     "%s: refusing setpoints, nothing of them sent: %s%s", self.protocol_name, report, hint
                 )
                 raise JointLimitError(report, hint)
-            start = (
-                hist_t.size - 1
-            )  # the plan starts at the last target sent: interpolation joins it smoothly
-            self._plan = (t_all[start:], q_all[start:])
+            # The plan starts at the last target sent, so interpolation joins it without a jump.
+            self._plan = (t_all[hist_t.size - 1 :], q_all[hist_t.size - 1 :])
             self._active = True
 
     def stop(self) -> None:
@@ -369,7 +366,7 @@ class JointStreamingDriver:
         self._require_connected()
         if self._fault is not None:
             raise RuntimeError(
-                f"{self.protocol_name}: stopped after a fault ({self._fault}); reconnect first"
+                f"{self.protocol_name}: stopped after a fault ({self._fault}); close() and connect() again"
             )
 
     def _target_at(self, t: float) -> FloatArray:

@@ -20,6 +20,7 @@ The controller stops EGM by itself when this driver stops answering (``\\CommTim
 from __future__ import annotations
 
 import logging
+import time
 from typing import Any
 
 import numpy as np
@@ -89,9 +90,16 @@ class EgmRobot(JointStreamingDriver):
         self.bind()
 
     def _receive(self, timeout_s: float) -> JointSample | None:
-        ok, state = self._egm.receive_from_robot(timeout_s)
-        if not ok:
-            return None
+        deadline = time.monotonic() + timeout_s
+        while True:
+            # abb_robot_client also answers "nothing" at once when recvfrom fails (e.g. an ICMP error from a
+            # closed controller port): keep listening until the timeout really is over.
+            ok, state = self._egm.receive_from_robot(max(0.0, deadline - time.monotonic()))
+            if ok:
+                break
+            if time.monotonic() >= deadline:
+                return None
+            time.sleep(0.001)
         while True:  # answer the newest message only: older ones queued while we were busy are stale
             more, newer = self._egm.receive_from_robot(0.0)
             if not more:
