@@ -11,9 +11,9 @@ from dyndlo_vision.sim import CableParams, PhysicsOptions, Scene, SceneConfig
 from dyndlo_vision.tasks.base import CONTROL_PERIOD_S, EpisodeMonitor, Task
 from dyndlo_vision.tasks.rewards import (
     OSCILLATION_THRESHOLD_M,
-    avoid_flags,
     TABLE_V,
     RewardCoefficients,
+    avoid_flags,
     explicit_step_reward,
     explicit_time_reward,
 )
@@ -21,8 +21,15 @@ from dyndlo_vision.trajectory import ActionSpec
 
 # Section V-A: the target is 0.55 m above the start (up) or 0.412 m below it (down). The start points are
 # ours: inside the 0.9 m outreach from the shoulder, 0.3 m from the base axis, cable clear of the floor.
-START_M = {"up": (0.30, 0.0, 0.55), "down": (0.30, 0.0, 1.00)}
-TARGET_M = {"up": (0.30, 0.0, 1.10), "down": (0.30, 0.0, 0.588)}
+# layout -> target -> (start, goal). "vertical" is the paper's reading; in an exactly symmetric simulation a
+# vertical move leaves the tip exactly below the TCP, so a purely vertical plan (the geometric baseline) has
+# zero residual oscillation. "diagonal" keeps the paper's distances with a horizontal component as well.
+LAYOUTS = {
+    "vertical": {"up": ((0.30, 0.0, 0.55), (0.30, 0.0, 1.10)), "down": ((0.30, 0.0, 1.00), (0.30, 0.0, 0.588))},
+    "diagonal": {"up": ((0.55, 0.0, 0.55), (0.30, 0.0, 1.04)), "down": ((0.30, 0.0, 1.00), (0.60, 0.0, 0.717))},
+}
+START_M = {k: v[0] for k, v in LAYOUTS["vertical"].items()}
+TARGET_M = {k: v[1] for k, v in LAYOUTS["vertical"].items()}
 ARRIVAL_TOLERANCE_M = 0.01
 OBSERVATION_WINDOW_S = 1.0  # residual oscillation is measured over this long after arrival
 
@@ -42,17 +49,22 @@ class TimeOscillation(Task):
     episode_s = 4.0
 
     def __init__(self, target: str = "up", planar: bool = True, multi_step: bool = False,
-                 cable: CableParams | None = None, physics: PhysicsOptions | None = None) -> None:
+                 cable: CableParams | None = None, physics: PhysicsOptions | None = None,
+                 layout: str = "vertical") -> None:
         super().__init__(planar=planar, multi_step=multi_step)
         if target not in START_M:
             raise ValueError(f"target={target!r}; expected 'up' or 'down'")
+        if layout not in LAYOUTS:
+            raise ValueError(f"layout={layout!r}; expected one of {sorted(LAYOUTS)}")
         self.target = target
+        self.layout = layout
+        self.start_m, self.goal_m = LAYOUTS[layout][target]
         self.cable = cable or CableParams()
         self.physics = physics or PhysicsOptions()
         self.begin_episode()
 
     def scene_config(self) -> SceneConfig:
-        return SceneConfig(cable=self.cable, grippers_m=(START_M[self.target],), target_radius_m=0.015,
+        return SceneConfig(cable=self.cable, grippers_m=(self.start_m,), target_radius_m=0.015,
                            physics=self.physics, settle_s=1.5)
 
     def action_spec(self) -> ActionSpec:
@@ -66,7 +78,7 @@ class TimeOscillation(Task):
         return scene.config.cable.num_nodes - 1
 
     def sample_goal(self, rng: np.random.Generator) -> NDArray[np.float64]:
-        return np.asarray(TARGET_M[self.target], dtype=float)
+        return np.asarray(self.goal_m, dtype=float)
 
     def begin_episode(self) -> None:
         self._next_eval_s = 0.0
