@@ -25,8 +25,14 @@ from dyndlo_vision.trajectory import ActionSpec
 # vertical move leaves the tip exactly below the TCP, so a purely vertical plan (the geometric baseline) has
 # zero residual oscillation. "diagonal" keeps the paper's distances with a horizontal component as well.
 LAYOUTS = {
-    "vertical": {"up": ((0.30, 0.0, 0.55), (0.30, 0.0, 1.10)), "down": ((0.30, 0.0, 1.00), (0.30, 0.0, 0.588))},
-    "diagonal": {"up": ((0.55, 0.0, 0.55), (0.30, 0.0, 1.04)), "down": ((0.30, 0.0, 1.00), (0.60, 0.0, 0.717))},
+    "vertical": {
+        "up": ((0.30, 0.0, 0.55), (0.30, 0.0, 1.10)),
+        "down": ((0.30, 0.0, 1.00), (0.30, 0.0, 0.588)),
+    },
+    "diagonal": {
+        "up": ((0.55, 0.0, 0.55), (0.30, 0.0, 1.04)),
+        "down": ((0.30, 0.0, 1.00), (0.60, 0.0, 0.717)),
+    },
 }
 START_M = {k: v[0] for k, v in LAYOUTS["vertical"].items()}
 TARGET_M = {k: v[1] for k, v in LAYOUTS["vertical"].items()}
@@ -110,7 +116,8 @@ class TimeOscillation(Task):
             self._max_osc = max(self._max_osc, osc)
         now = avoid_flags(scene.tcp_positions(), scene.tcp_velocities(), scene.cable_nodes()[-1], self.limits,
                           self.check_collision)
-        step = explicit_step_reward(self.coefficients(), any(now.values()), arrived, osc, OSCILLATION_THRESHOLD_M)
+        step = explicit_step_reward(self.coefficients(), any(now.values()), arrived, osc,
+                                    OSCILLATION_THRESHOLD_M)
         for key, value in step.items():
             self._pending[key] += value
 
@@ -123,6 +130,7 @@ class TimeOscillation(Task):
         if final:
             t_traj = self._arrival_s if arrived else scene.time
             terms.update(explicit_time_reward(self.coefficients(), t_traj))
-        info: dict[str, Any] = {"oscillation_m": self.oscillation(scene), "residual_oscillation_m": self._max_osc,
+        info: dict[str, Any] = {"oscillation_m": self.oscillation(scene),
+                                "residual_oscillation_m": self._max_osc,
                                 "trajectory_time_s": self._arrival_s, "arrived": arrived}
         return terms, success, info
