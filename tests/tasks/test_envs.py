@@ -166,9 +166,20 @@ def test_c_rollout_matches_python_stepping(multi_step: bool) -> None:
             env.reset(seed=episode)
             done = False
             while not done:
-                _, reward, done, _, info = env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
-                run.append((reward, info["is_success"], dict(info["avoid"]), info["min_distance_m"],
-                            info["max_tcp_speed_m_s"], info["sim_time_s"], env.cable_nodes()[-1].copy()))
+                _, reward, done, _, info = env.step(
+                    rng.uniform(-1, 1, env.action_space.shape).astype(np.float32)
+                )
+                run.append(
+                    (
+                        reward,
+                        info["is_success"],
+                        dict(info["avoid"]),
+                        info["min_distance_m"],
+                        info["max_tcp_speed_m_s"],
+                        info["sim_time_s"],
+                        env.cable_nodes()[-1].copy(),
+                    )
+                )
         results.append(run)
     assert len(results[0]) == len(results[1])
     for fast, slow in zip(*results, strict=True):
