@@ -154,7 +154,7 @@ def test_multi_step_replans_are_continuous() -> None:
 
 @pytest.mark.parametrize("multi_step", [False, True])
 def test_c_rollout_matches_python_stepping(multi_step: bool) -> None:
-    """Tip control runs its open-loop stretches in MuJoCo's C rollout; the Python step loop is the reference."""
+    """Tip control runs open-loop stretches in MuJoCo's C rollout; the Python step loop is the reference."""
     results = []
     for batch in (True, False):
         env = gym.make("DynDLO/TipControl-v0", multi_step=multi_step).unwrapped
@@ -201,7 +201,7 @@ def test_target_marker_stays_at_the_goal_through_c_rollouts() -> None:
 
 @pytest.mark.parametrize("layout", ["vertical", "diagonal"])
 def test_geometric_lift_oscillation_by_layout(layout: str) -> None:
-    """Vertical moves keep a symmetric cable exactly below the TCP; the diagonal layout makes the tip swing."""
+    """Vertical moves keep a symmetric cable below the TCP; the diagonal layout makes the tip swing."""
     from dyndlo_vision.tasks.baselines import GeometricLift
 
     env = gym.make("DynDLO/TimeOscillation-v0", target="up", layout=layout)
