@@ -199,10 +199,10 @@ def abb_gofa_crb15000() -> ArmModel:
 
     DH rows derived from the joint origins of ABB's ROS-Industrial description (``abb_crb15000_support``,
     ``crb15000_5_95_macro.xacro``: shoulder 0.265 m above the base, upper arm 0.444 m, elbow offset 0.110 m,
-    forearm 0.470 m, wrist offset 0.080 m, flange 0.101 m beyond axis 5); the same numbers are drawn in ABB's
-    product specification 3HAC077389-001. The wrist is not spherical (axes 4 and 6 are 0.080 m apart), which
-    is why IK is numerical. Joint ranges and speeds: same sources (axis 6 is +-270 deg in the product
-    specification; the ROS description's +-180 deg is used). ABB does not publish axis accelerations: the
+    forearm 0.470 m, wrist offset 0.080 m, flange 0.101 m beyond axis 5); tests check the DH chain against
+    that description. The wrist is not spherical (axes 4 and 6 are 0.080 m apart), hence the numerical IK.
+    Joint ranges and speeds: the same file (axis 6 +-180 deg there; ABB's product specification
+    3HAC077389-001, not consulted here, is the primary source). ABB does not publish axis accelerations: the
     values here are assumptions to be identified on the robot.
     """
     half_pi = math.pi / 2
@@ -225,8 +225,8 @@ def abb_gofa_crb15000() -> ArmModel:
         # DH frame 6 has z along the flange normal and x along world +z at zero; ABB's tool0 has x along -z.
         flange_rotation=((-1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, 1.0)),
         seed_rad=(0.0, 0.0, 0.0, 0.0, half_pi, 0.0),
-        sources="geometry, ranges, speeds: ROS-Industrial abb_crb15000_support crb15000_5_95_macro.xacro "
-        "(ABB product specification 3HAC077389-001); accelerations: assumed",
+        sources="geometry, ranges, speeds: ROS-Industrial abb_crb15000_support crb15000_5_95_macro.xacro; "
+        "accelerations: assumed",
     )
 
 
