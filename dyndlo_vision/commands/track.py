@@ -25,6 +25,7 @@ import math
 import os
 import sys
 import tempfile
+import warnings
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -463,8 +464,20 @@ class _PointTracker:
         return row, image
 
 
+def _print_note(message: Warning | str, *_: object, **__: object) -> None:
+    """Shows a library warning (e.g. an assumed frame rate) as a one-line note on stderr."""
+    print(f"note: {message}", file=sys.stderr)
+
+
 def run(args: argparse.Namespace) -> int:
     """Track every frame of ``VIDEO`` and write the CSV (and the annotated MP4)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("once")
+        warnings.showwarning = _print_note
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     import cv2
     from tqdm import tqdm
 
@@ -493,7 +506,7 @@ def run(args: argparse.Namespace) -> int:
             writer = None
             if cfg.annotated is not None:
                 size = (source.width, source.height)
-                writer = cv2.VideoWriter(str(temps[1]), cv2.VideoWriter_fourcc(*"mp4v"), source.fps, size)
+                writer = cv2.VideoWriter(str(temps[1]), cv2.VideoWriter.fourcc(*"mp4v"), source.fps, size)
                 if not writer.isOpened():
                     raise ValueError(f"OpenCV cannot write an MP4 video to {cfg.annotated}")
             try:

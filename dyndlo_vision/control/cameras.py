@@ -53,13 +53,15 @@ class TruncatedVideoError(ValueError):
     """A video file ended before the number of frames its header promises (a cut or damaged file)."""
 
 
-def _bgr_to_rgb(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
+def _bgr_to_rgb(image: NDArray[Any]) -> NDArray[np.uint8]:
     """RGB uint8 (H, W, 3) from what OpenCV decoded (BGR, BGRA or grey)."""
     if image.ndim == 2:
-        return cv2.cvtColor(image, cv2.COLOR_GRAY2RGB)
-    if image.shape[2] == 4:
-        return cv2.cvtColor(image, cv2.COLOR_BGRA2RGB)
-    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+        code = cv2.COLOR_GRAY2RGB
+    elif image.shape[2] == 4:
+        code = cv2.COLOR_BGRA2RGB
+    else:
+        code = cv2.COLOR_BGR2RGB
+    return np.asarray(cv2.cvtColor(image, code), dtype=np.uint8)
 
 
 def average_frames(exposure_frames: Sequence[NDArray[np.uint8]]) -> NDArray[np.uint8]:

@@ -155,7 +155,7 @@ def annotate_frame(
                     _SHIFT,
                 )
         r = (unit + 1) * _SCALE
-        for i in np.flatnonzero(finite):
+        for i in np.flatnonzero(finite).tolist():
             c = _fixed(nodes[i])
             col = color(_LINE_RGB if vis[i] else _HIDDEN_RGB)
             thick = -1 if vis[i] else 1

@@ -177,10 +177,13 @@ def test_annotated_polyline_is_drawn_on_the_cable(clip: Clip, tmp_path: Path) ->
 
 def test_pixel_mode_on_an_image_folder(clip: Clip, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     out = tmp_path / "px.csv"
-    assert main(["track", str(clip.folder), "--fps", "25", "--out", str(out), "--quiet"]) == 0
-    assert "no --anchor; took the cable end at pixel" in capsys.readouterr().err
+    assert main(["track", str(clip.folder), "--out", str(out), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "note: image folder" in err and "assuming 25 fps" in err
+    assert "no --anchor; took the cable end at pixel" in err
     _, rows = _read_csv(out)
     assert len(rows) == N_FRAMES
+    np.testing.assert_allclose(_column(rows, "time_s")[:, 0], np.arange(N_FRAMES) / 25.0)
     assert all(r["x"] == r["y"] == r["z"] == "" for r in rows)
     visible = np.array([int(r["visible"]) for r in rows], dtype=bool)
     np.testing.assert_array_equal(~visible, np.isin(np.arange(N_FRAMES), BLANK_FRAMES))
