@@ -53,13 +53,13 @@ class Clip:
     held_world: np.ndarray  # (N_FRAMES, 3)
 
 
-def _frames(camera: PinholeCamera, split_background: bool = False) -> list[np.ndarray]:
+def _frames(camera: PinholeCamera, split_background: bool = False, n: int = N_FRAMES) -> list[np.ndarray]:
     background: tuple[int, int, int] | np.ndarray = (40, 60, 50)
     if split_background:  # dark sky over a light floor, like the MuJoCo renders
         background = np.full((camera.height, camera.width, 3), 15, np.uint8)
         background[camera.height // 2 :] = 190
     frames = []
-    for k in range(N_FRAMES):
+    for k in range(n):
         curve = camera.project(cable_world(k / FPS))
         if k in BLANK_FRAMES:
             curve = np.array([[-50.0, -50.0], [-40.0, -40.0]])  # off the image: nothing drawn
@@ -289,7 +289,7 @@ def test_bad_input_exits_2_and_writes_nothing(
     truncated = inputs / "cut.avi"
     if case == "truncated video":
         writer = cv2.VideoWriter(str(inputs / "full.avi"), cv2.VideoWriter_fourcc(*"MJPG"), FPS, (640, 480))
-        for rgb in _frames(clip.camera)[:12]:
+        for rgb in _frames(clip.camera, n=8):
             writer.write(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
         writer.release()
         data = (inputs / "full.avi").read_bytes()
