@@ -13,6 +13,7 @@ Typical use, per camera frame (RGB uint8)::
 Speed (one core, 640x480): ``python benchmarks/tracking_speed.py``.
 """
 
+from .annotate import annotate_frame, covariance_ellipse, project_point_covariance
 from .camera_model import CalibrationError, PinholeCamera
 from .centerline import (
     Centerline,
@@ -29,6 +30,9 @@ from .tracker import CableTracker, Measurement, Plane, lift_with_depth, lift_wit
 
 __all__ = [
     "BackgroundSegmenter",
+    "annotate_frame",
+    "covariance_ellipse",
+    "project_point_covariance",
     "CableTracker",
     "CalibrationError",
     "Centerline",
