@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dyndlo_vision.control.protocols import Camera, TcpState
+from dyndlo_vision.tasks.base import observation_vector
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +56,41 @@ class TrueState:
     def read(self, t_now: float, tcp: TcpState) -> PDloReading:
         """P_DLO now."""
         return PDloReading(self.env.p_dlo(), t_now, measured=True)
+
+
+class NoisyState:
+    """The simulator's P_DLO corrupted by a fitted observation-noise model, as in noisy-observation training.
+
+    Uses the same corruption as :class:`~dyndlo_vision.control.wrappers.NoisyObservation` (latency, bias,
+    speed-dependent noise, dropouts that coast), one draw per control cycle.
+
+    Args:
+        env: The DynDLO environment (after ``reset``).
+        model: An ``ObservationNoiseModel`` or the path of its JSON file (default: the packaged tracker fit).
+        seed: Seed of the noise stream.
+    """
+
+    def __init__(self, env: Any, model: Any = None, seed: int | None = None) -> None:
+        from dyndlo_vision.control.noise_model import packaged_noise_model_path
+        from dyndlo_vision.control.wrappers import NoisyObservation
+
+        self.env = env.unwrapped
+        self.noise = NoisyObservation(env, model if model is not None else packaged_noise_model_path())
+        self.noise.reset_noise(seed)
+        self.seed = seed
+
+    def reset(self) -> None:
+        """Restart the noise stream from the seed."""
+        self.noise.reset_noise(self.seed)
+
+    def read(self, t_now: float, tcp: TcpState) -> PDloReading:
+        """The corrupted P_DLO for now."""
+        scene = self.env.scene
+        true_p = self.env.p_dlo()
+        obs = observation_vector(scene.tcp_positions(), scene.tcp_velocities(), true_p, self.env.goal)
+        noisy = self.noise.observation(obs)
+        p = np.asarray(noisy[self.noise._p_dlo], dtype=float)  # noqa: SLF001
+        return PDloReading(p, t_now, measured=not self.noise._dropped)  # noqa: SLF001
 
 
 class TrackedState:

@@ -89,6 +89,16 @@ class NoisyObservation(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[NDArray[np.float32], dict[str, Any]]:
         """Resets the environment and the noise state; a ``seed`` also reseeds the noise."""
+        self.reset_noise(seed)
+        obs, info = super().reset(seed=seed, options=options)
+        return obs, {**info, "p_dlo_true": self._last_true.copy()}
+
+    def reset_noise(self, seed: int | None = None) -> None:
+        """Forget the noise state (history, dropout chain); a ``seed`` also reseeds the noise.
+
+        :meth:`reset` calls it; the control loop's noisy state source calls it alone, at the start of an
+        episode it resets itself.
+        """
         if seed is not None:
             self._rng = np.random.default_rng([int(seed), _NOISE_STREAM])
         elif self._rng is None:
@@ -97,8 +107,6 @@ class NoisyObservation(
         self._outputs.clear()
         self._dropped = False
         self._coast_steps = 0
-        obs, info = super().reset(seed=seed, options=options)
-        return obs, {**info, "p_dlo_true": self._last_true.copy()}
 
     def step(
         self, action: NDArray[np.float32]

@@ -177,3 +177,19 @@ def test_exception_stops_the_robot() -> None:
     with pytest.raises(RuntimeError, match="policy crashed"):
         loop.run(duration_s=0.4)
     assert robot.stopped
+
+
+def test_noisy_state_with_an_identity_model_is_the_truth_and_the_fitted_one_is_not() -> None:
+    from dyndlo_vision.control.noise_model import ObservationNoiseModel
+    from dyndlo_vision.control.state_sources import NoisyState
+
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    env.reset(seed=5)
+    action = np.full(env.action_space.shape, 0.3, np.float32)
+    errors = {}
+    for name, model in (("identity", ObservationNoiseModel()), ("fitted", None)):
+        env.reset(seed=5)
+        loop, _ = _loop(env, NoisyState(env, model, seed=5), lambda obs: action)
+        errors[name] = loop.run(duration_s=0.4).estimate_errors()
+    assert np.all(errors["identity"] < 1e-6)  # float32 observation round-off
+    assert np.any(errors["fitted"] > 0.0)
