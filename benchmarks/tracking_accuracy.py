@@ -6,8 +6,8 @@ physics runs in 1 ms steps; every 40 ms (25 Hz) the "tracking" camera renders th
 through the tracker: automatic segmentation (``BackgroundSegmenter`` against a background image of the
 episode's scene without the cable), the ordered centreline from the projected TCP, nodes placed by the
 known cable length, lifting to the motion plane y = 0, and Kalman filters of the tip and of all nodes. What
-the controller would read, the filter estimate predicted to ``t_capture + 40 ms``, is compared with the
-simulator's truth at that time.
+the controller would read, the filter estimate predicted to ``t_capture + 40 ms`` (``--read-delay-ms``), is
+compared with the simulator's truth at that time.
 
 Conditions (pipelines), all on the same rendered episodes:
 
@@ -57,6 +57,7 @@ from numpy.typing import NDArray  # noqa: E402
 import dyndlo_vision  # noqa: E402, F401  (chooses the GL backend before mujoco is imported)
 from dyndlo_vision._atomic import write_atomic  # noqa: E402
 from dyndlo_vision.control.noise_model import ObservationNoiseModel  # noqa: E402
+from dyndlo_vision.control.sim_perception import LOOP_SIGMA_ACCEL  # noqa: E402
 from dyndlo_vision.sim.scene import CABLE_NAME  # noqa: E402
 from dyndlo_vision.tasks import make_env  # noqa: E402
 from dyndlo_vision.tasks.base import DynDLOEnv  # noqa: E402
@@ -83,7 +84,9 @@ from dyndlo_vision.tracking.metrics import (  # noqa: E402
 
 CAMERA = "tracking"
 FRAME_PERIOD_S = 0.04  # 25 Hz camera = control rate
-READ_DELAY_S = 0.04  # the controller reads the estimate 40 ms after the capture
+# Issue 4's protocol: the controller reads the estimate 40 ms (one frame) after the capture. The simulated
+# control loop (dyndlo_vision.control) renders and reads at the same instant: --read-delay-ms 0.
+READ_DELAYS_MS = (0, 40)
 MOTION_PLANE = Plane(np.array([0.0, 1.0, 0.0]), 0.0)  # planar tip control moves in y = 0
 # The skeleton stops about half a cable width short of each end and smoothing cuts sharp bends, so an
 # unoccluded cable is measured a little short: on frames whose path ends were both within 3 px of the true
@@ -504,7 +507,7 @@ def write_annotated(
 
 @dataclass
 class FilterOutput:
-    """Filter estimates read ``READ_DELAY_S`` after each capture (K frames)."""
+    """Filter estimates read ``read_delay_s`` after each capture (K frames)."""
 
     tip: NDArray[np.float64]  # (K, 3), NaN when the filter has no estimate
     tip_lost: NDArray[np.bool_]  # (K,)
@@ -517,9 +520,10 @@ def run_filters(
     times: NDArray[np.float64],
     sigma_accel: float,
     sigma_meas: float,
+    read_delay_s: float,
     with_nodes: bool = True,
 ) -> FilterOutput:
-    """Feeds an episode's raw measurements to a tip and an all-nodes filter, reading each 40 ms later."""
+    """Feeds an episode's measurements to a tip and an all-nodes filter, reading each ``read_delay_s`` on."""
     k_frames, n_nodes, _ = raw.shape
     tip_filter = PointFilter(sigma_accel=sigma_accel, sigma_meas=sigma_meas)
     node_filter = MultiPointFilter(n_nodes, sigma_accel=sigma_accel, sigma_meas=sigma_meas)
@@ -533,24 +537,29 @@ def run_filters(
         t = float(times[k])
         z = raw[k, -1]
         out.tip_accepted[k] = tip_filter.update(z if np.all(np.isfinite(z)) else None, t)
-        est = tip_filter.estimate(t + READ_DELAY_S)
+        est = tip_filter.estimate(t + read_delay_s)
         out.tip_lost[k] = est.lost
         if not est.lost:
             out.tip[k] = est.position
         if with_nodes:
             node_filter.update(raw[k], t)
-            many = node_filter.estimate(t + READ_DELAY_S)
+            many = node_filter.estimate(t + read_delay_s)
             out.nodes[k] = np.where(many.lost[:, None], np.nan, many.positions)
     return out
 
 
 def frame_records(
-    cap: EpisodeCapture, track: TrackOutput, filt: FilterOutput, pipe: Pipeline, episode: int
+    cap: EpisodeCapture,
+    track: TrackOutput,
+    filt: FilterOutput,
+    pipe: Pipeline,
+    episode: int,
+    read_frames: int,
 ) -> dict[str, NDArray[Any]]:
-    """Per-frame errors of one pipeline over one episode (metres)."""
+    """Per-frame errors of one pipeline over one episode (metres); the estimate is read ``read_frames`` on."""
     k_frames = track.nodes.shape[0]
     visible_share = 1.0 - pipe.occlusion
-    truth_now, truth_read = cap.nodes[:k_frames], cap.nodes[1 : k_frames + 1]
+    truth_now, truth_read = cap.nodes[:k_frames], cap.nodes[read_frames : k_frames + read_frames]
     tip_true_now, tip_true_read = truth_now[:, -1], truth_read[:, -1]
     raw_tip = track.nodes[:, -1]
     n_nodes = track.nodes.shape[1]
@@ -570,7 +579,10 @@ def frame_records(
     coverage = np.mean(np.all(np.isfinite(track.nodes[:, :n_unoccluded]), axis=2), axis=1)
     flipped = np.array([is_flipped(track.nodes[k], truth_now[k]) for k in range(k_frames)])
     lost = filt.tip_lost
-    read_speed = np.linalg.norm(truth_read[:, -1] - truth_now[:, -1], axis=1) / READ_DELAY_S
+    # P_DLO speed over the control step that ends at the read time (what the noise wrapper can compute).
+    tips = cap.nodes[:, -1]
+    step = np.vstack((np.zeros((1, 3)), np.diff(tips, axis=0))) / FRAME_PERIOD_S
+    read_speed = np.linalg.norm(step[read_frames : k_frames + read_frames], axis=1)
     return {
         "episode": np.full(k_frames, episode),
         "t": cap.times[:k_frames],
@@ -591,7 +603,7 @@ def frame_records(
         "fit_estimate": np.where(filt.tip_accepted[:, None], filt.tip, np.nan),
         "fit_raw_estimate": raw_tip,
         "fit_truth": tip_true_read,
-        "fit_velocity": cap.tip_velocity[1 : k_frames + 1],
+        "fit_velocity": cap.tip_velocity[read_frames : k_frames + read_frames],
         "fit_speed": read_speed,
         "ms": np.asarray(track.ms_per_frame),
     }
@@ -680,7 +692,7 @@ def print_table(results: dict[str, Any], labels: list[str]) -> None:
 def fit_noise_model(
     rec: dict[str, NDArray[Any]], source: str, pipeline: str, args: argparse.Namespace
 ) -> ObservationNoiseModel:
-    """Fits the observation-noise model to one pipeline's tip estimates read 40 ms after capture.
+    """Fits the observation-noise model to one pipeline's tip estimates at the read time.
 
     ``source="filtered"``: the tip filter's estimate, a dropout where this frame's tip measurement was
     missing or rejected; ``"raw"``: the raw measurement held until the read (no filter), a dropout where
@@ -696,7 +708,7 @@ def fit_noise_model(
         source=(
             f"benchmarks/tracking_accuracy.py --episodes {args.episodes} --seed {args.seed} "
             f"--whip-share {args.whip_share:g}: pipeline {pipeline!r}, {source} tip estimate read "
-            f"{READ_DELAY_S * 1e3:.0f} ms after capture, filter sigma_accel {args.sigma_accel:g} m/s^2"
+            f"{args.read_delay_ms:g} ms after capture, filter sigma_accel {args.sigma_accel:g} m/s^2"
         ),
     )
 
@@ -708,18 +720,34 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--out", type=Path, required=True, help="JSON file for the results")
     ap.add_argument("--fit-out", type=Path, default=None, help="write the fitted noise model (JSON) here")
     ap.add_argument(
-        "--fit-pipeline", default="blur", help="pipeline whose tip estimates the model is fitted to"
+        "--fit-pipeline",
+        default="sharp-pathend",
+        help="pipeline whose tip estimates the model is fitted to (default: the simulated control loop's: "
+        "sharp renders, path end as tip)",
     )
     ap.add_argument(
         "--fit-source",
         choices=("filtered", "raw"),
         default="filtered",
-        help="fit the filtered estimate read at t+40 ms (default) or the raw measurement held 40 ms",
+        help="fit the filtered estimate at the read time (default) or the raw measurement held until then",
+    )
+    ap.add_argument(
+        "--read-delay-ms",
+        type=int,
+        choices=READ_DELAYS_MS,
+        default=40,
+        help="when the controller reads the estimate after the capture (40: issue 4's protocol; 0: the "
+        "simulated control loop, which renders and reads at the same instant)",
     )
     ap.add_argument("--whip-share", type=float, default=0.5, help="share of episodes with fast whip actions")
     ap.add_argument("--exposure-ms", type=float, default=10.0, help="exposure of the blurred frames (ms)")
     ap.add_argument("--subframes", type=int, default=5, help="renders averaged per blurred frame")
-    ap.add_argument("--sigma-accel", type=float, default=20.0, help="filter process noise (m/s^2)")
+    ap.add_argument(
+        "--sigma-accel",
+        type=float,
+        default=LOOP_SIGMA_ACCEL,
+        help=f"filter process noise (m/s^2; default {LOOP_SIGMA_ACCEL:g}, the control loop's)",
+    )
     ap.add_argument("--sigma-meas", type=float, default=0.003, help="filter measurement noise (m)")
     ap.add_argument(
         "--sigma-sweep", default="", help="comma-separated sigma_accel values to compare (tip only)"
@@ -763,6 +791,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     length_px = env.scene.config.cable.length_m * plane_pixels_per_metre(cam, MOTION_PLANE)
     n_nodes = env.scene.config.cable.num_nodes
     offsets = subframe_offsets(args.exposure_ms * 1e-3, args.subframes, env.scene.timestep)
+    delay_s = args.read_delay_ms * 1e-3
+    read_frames = int(round(delay_s / FRAME_PERIOD_S))  # truth is recorded at the frame times
     nominal = nominal_lighting(env)
     rng = np.random.default_rng(args.seed)
     labels = speed_band_labels(SPEED_BAND_EDGES_M_S)
@@ -792,16 +822,22 @@ def main(argv: Sequence[str] | None = None) -> int:
             continue
         for pipe in pipelines:
             track = track_episode(cap, pipe, cam, length_px, n_nodes, args.annotate_dir, e)
-            filt = run_filters(track.nodes, cap.times[: len(cap.sharp)], args.sigma_accel, args.sigma_meas)
-            per_pipe[pipe.name].append(frame_records(cap, track, filt, pipe, e))
+            filt = run_filters(
+                track.nodes, cap.times[: len(cap.sharp)], args.sigma_accel, args.sigma_meas, delay_s
+            )
+            per_pipe[pipe.name].append(frame_records(cap, track, filt, pipe, e, read_frames))
             if pipe.name == args.fit_pipeline:
                 for s in sweep:
                     f2 = run_filters(
-                        track.nodes, cap.times[: len(cap.sharp)], s, args.sigma_meas, with_nodes=False
+                        track.nodes,
+                        cap.times[: len(cap.sharp)],
+                        s,
+                        args.sigma_meas,
+                        delay_s,
+                        with_nodes=False,
                     )
-                    sweep_records[s].append(
-                        np.linalg.norm(f2.tip - cap.nodes[1 : len(cap.sharp) + 1, -1], axis=1)
-                    )
+                    truth_read = cap.nodes[read_frames : len(cap.sharp) + read_frames, -1]
+                    sweep_records[s].append(np.linalg.norm(f2.tip - truth_read, axis=1))
         elapsed = time.perf_counter() - t_start
         print(
             f"episode {e + 1}/{args.episodes}: {len(cap.sharp)} frames, max tip speed "
@@ -829,11 +865,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"at 25 Hz; "
         f"camera {CAMERA!r} 640x480, cable {length_px:.1f} px long; exposure {args.exposure_ms:g} ms "
         f"({len(offsets)} renders); filter sigma_accel {args.sigma_accel:g} m/s^2, sigma_meas "
-        f"{args.sigma_meas * 1e3:g} mm; estimate read {READ_DELAY_S * 1e3:.0f} ms after capture"
+        f"{args.sigma_meas * 1e3:g} mm; estimate read {args.read_delay_ms:g} ms after capture"
     )
     print(
         "errors mean/median in mm. cable = symmetric point-to-polyline error of the measured nodes at "
-        "capture (visible part vs the unoccluded truth); cable@rd = all-nodes filter read 40 ms later; "
+        "capture (visible part vs the unoccluded truth); cable@rd = all-nodes filter at the read time; "
         "cover = share of unoccluded nodes seen; tip seen = share of frames with a tip measurement; "
         "tip@cap = raw tip at capture; "
         "hold@rd = raw tip held to read time; filt|seen = tip filter at read time on the frames whose tip "
