@@ -210,12 +210,10 @@ def render_now(env: DynDLOEnv) -> NDArray[np.uint8]:
 
     After ``mj_step`` MuJoCo's derived positions (``flexvert_xpos``, which the renderer draws) lag one step
     behind ``qpos`` (from which ``cable_nodes`` is computed): 1 cm at 10 m/s. ``mj_forward`` brings them up
-    to date without changing the state. The target marker is put back where the episode's goal is, because
-    the environment's C rollout resets mocap bodies to their model position.
+    to date without changing the state.
     """
     import mujoco
 
-    env.scene.set_target(env.goal)
     mujoco.mj_forward(env.model, env.data)
     img = env.render()
     assert img is not None
