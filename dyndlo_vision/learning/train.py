@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import signal
 import time
 from pathlib import Path
 from typing import Any
@@ -169,12 +170,16 @@ def train(config: RunConfig, out: Path, resume: bool = False, progress_bar: bool
         t0 = time.perf_counter()
         steps0 = int(model.num_timesteps)
         interrupted = False
+        # SIGTERM (kill, a cluster's pre-emption) ends the run like Ctrl-C: checkpoint first, then exit.
+        previous = signal.signal(signal.SIGTERM, _raise_keyboard_interrupt)
         try:
             if remaining > 0:
                 model.learn(remaining, callback=callbacks, reset_num_timesteps=not resume, tb_log_name="run")
         except KeyboardInterrupt:
             interrupted = True
             log.warning("interrupted at step %d: checkpoint saved, resume with --resume", model.num_timesteps)
+        finally:
+            signal.signal(signal.SIGTERM, previous)
         wall = float(state.get("wall_s", 0.0)) + time.perf_counter() - t0
         save_checkpoint(model, out, wall)
         if interrupted:
@@ -190,6 +195,10 @@ def train(config: RunConfig, out: Path, resume: bool = False, progress_bar: bool
     )
     write_atomic(out / "summary.json", lambda p: Path(p).write_text(json.dumps(summary, indent=2)))
     return summary
+
+
+def _raise_keyboard_interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
 
 
 def _steps_done(ckpt: Path) -> int:

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import os
+import signal
 import zipfile
 from pathlib import Path
 
@@ -75,10 +77,10 @@ def test_interrupted_run_keeps_a_checkpoint_and_resumes(
 ) -> None:
     from stable_baselines3.common.callbacks import BaseCallback
 
-    class Interrupt(BaseCallback):  # stands in for Ctrl-C at step 40
+    class Interrupt(BaseCallback):  # SIGTERM at step 40, as from `kill` (the handler turns it into Ctrl-C)
         def _on_step(self) -> bool:
             if self.num_timesteps >= 40:
-                raise KeyboardInterrupt
+                os.kill(os.getpid(), signal.SIGTERM)
             return True
 
     monkeypatch.setattr(train_module, "_eval_callback", lambda config, out: Interrupt())
