@@ -26,10 +26,12 @@ from dyndlo_vision.control.kinematics import (
     ur5e,
 )
 from dyndlo_vision.control.loop import ControlLoop, CycleRecord, LoopReport
+from dyndlo_vision.control.noise_model import ObservationNoiseModel, packaged_noise_model_path
 from dyndlo_vision.control.protocols import Camera, Frame, Robot, Setpoints, TcpState
 from dyndlo_vision.control.safety import ClampedRobot, Watchdog, WorkspaceBox, clamp_setpoints
 from dyndlo_vision.control.sim_robot import SimRobot
-from dyndlo_vision.control.state_sources import PDloReading, TrackedState, TrueState
+from dyndlo_vision.control.state_sources import NoisyState, PDloReading, TrackedState, TrueState
+from dyndlo_vision.control.wrappers import NoisyObservation
 
 __all__ = [
     "TOOL_DOWN",
@@ -44,6 +46,9 @@ __all__ = [
     "JointLimitError",
     "LoopReport",
     "MujocoCamera",
+    "NoisyObservation",
+    "NoisyState",
+    "ObservationNoiseModel",
     "OpenCVDeviceCamera",
     "PDloReading",
     "RealSenseCamera",
@@ -61,5 +66,6 @@ __all__ = [
     "average_frames",
     "check_joint_limits",
     "clamp_setpoints",
+    "packaged_noise_model_path",
     "ur5e",
 ]

@@ -216,3 +216,14 @@ def test_closed_loop_without_ends() -> None:
     r = np.hypot(cl.nodes_uv[:, 0] - 160, cl.nodes_uv[:, 1] - 120)
     assert np.abs(r - 80).max() < 2.0
     assert cl.length_px > 0.95 * 2 * np.pi * 80
+
+
+def test_a_path_a_few_pixels_short_of_the_cable_length_keeps_its_tip() -> None:
+    from dyndlo_vision.tracking.centerline import nodes_from_path
+
+    path = np.stack([np.full(101, 50.0), np.linspace(10.0, 204.0, 101)], axis=1)  # 194 px, cable 200 px
+    cl = nodes_from_path(path, np.ones(100, bool), 21, 200.0, (480, 640), 2.0)
+    assert cl.visible[-1]
+    np.testing.assert_allclose(cl.nodes_uv[-1], path[-1])
+    shorter = nodes_from_path(path[:80], np.ones(79, bool), 21, 200.0, (480, 640), 2.0)  # 153 px: occluded
+    assert not shorter.visible[-1]
