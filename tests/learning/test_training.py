@@ -180,3 +180,17 @@ def test_plot_draws_runs(tmp_path: Path) -> None:
 
     image = cv2.imread(str(tmp_path / "c.png"))
     assert image is not None and image.shape[0] > 200 and image.shape[1] > 400
+
+
+def test_training_with_the_fitted_observation_noise(tmp_path: Path) -> None:
+    from dyndlo_vision.control.noise_model import packaged_noise_model_path
+    from dyndlo_vision.learning.envs import make_env
+
+    config = _config("sac", 32, obs_noise=str(packaged_noise_model_path()))
+    env = make_env(config)
+    assert type(env.env).__name__ == "NoisyObservation"  # Monitor(NoisyObservation(TipControl))
+    train(config, tmp_path / "run", progress_bar=False)
+    assert (tmp_path / "run" / "model.zip").is_file()
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "--obs-noise", str(tmp_path / "missing.json"), "--out", str(tmp_path / "y")])
+    assert exc.value.code == 2 and not (tmp_path / "y").exists()
