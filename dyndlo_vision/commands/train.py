@@ -57,6 +57,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="task option passed to gym.make, e.g. target=down (repeatable)",
     )
     p.add_argument("--obs-noise", default=None, help="observation-noise model file (JSON) to train with")
+    p.add_argument("--randomize-cable", action="store_true",
+                   help="draw a new cable (length, mass, E, damping) every 10 training episodes")
     p.add_argument("--eval-freq", type=int, default=2000, help="evaluate every N steps (default 2000)")
     p.add_argument("--eval-episodes", type=int, default=20)
     p.add_argument(
@@ -88,6 +90,7 @@ def run(args: argparse.Namespace) -> int:
         hyperparams=hyperparams,
         env_options=parse_assignments(args.env_option, "--env-option"),
         obs_noise=str(Path(args.obs_noise).resolve()) if args.obs_noise else None,
+        randomize_cable=args.randomize_cable,
         eval_freq=args.eval_freq,
         eval_episodes=args.eval_episodes,
         checkpoint_freq=args.checkpoint_freq,

@@ -31,12 +31,13 @@ from dyndlo_vision.control.protocols import Camera, Frame, Robot, Setpoints, Tcp
 from dyndlo_vision.control.safety import ClampedRobot, Watchdog, WorkspaceBox, clamp_setpoints
 from dyndlo_vision.control.sim_robot import SimRobot
 from dyndlo_vision.control.state_sources import NoisyState, PDloReading, TrackedState, TrueState
-from dyndlo_vision.control.wrappers import NoisyObservation
+from dyndlo_vision.control.wrappers import CableRandomization, NoisyObservation
 
 __all__ = [
     "TOOL_DOWN",
     "ArmKinematics",
     "ArmModel",
+    "CableRandomization",
     "Camera",
     "ClampedRobot",
     "ControlLoop",

@@ -167,3 +167,83 @@ class NoisyObservation(
             out = self._delayed() + np.asarray(m.bias_m) + m.std_at(speed) * z
         self._outputs.append(out)
         return out
+
+
+#: Default ranges of :class:`CableRandomization`, as factors of the task's nominal cable (our choice: the
+#: paper gives none). Length changes the P_DLO reach, mass and stiffness the swing, damping how fast it
+#: dies out.
+DEFAULT_CABLE_RANGES: dict[str, tuple[float, float]] = {
+    "length_m": (0.9, 1.1),
+    "mass_kg": (0.7, 1.3),
+    "young_pa": (0.5, 2.0),
+    "damping_s": (0.5, 2.0),
+}
+
+
+class CableRandomization(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32],
+                                     NDArray[np.float32]]):
+    """Domain randomisation: a new cable (length, mass, Young's modulus, damping) every few episodes.
+
+    Changing the cable means a new MuJoCo model (compile and settle, about 0.1-0.3 s), so a new one is drawn
+    every ``every_episodes`` resets. Factors are drawn uniformly (log-uniformly for ``young_pa`` and
+    ``damping_s``) in ``ranges`` and multiply the task's nominal cable; the seed given to :meth:`reset` seeds
+    the draws. ``info["cable"]`` holds the cable of the episode.
+
+    Args:
+        env: A DynDLO environment made with ``gym.make`` (its task options are reused).
+        ranges: Parameter name -> (low factor, high factor); default :data:`DEFAULT_CABLE_RANGES`.
+        every_episodes: Draw a new cable every this many episodes (1: every episode).
+    """
+
+    def __init__(self, env: gym.Env[NDArray[np.float32], NDArray[np.float32]],
+                 ranges: dict[str, tuple[float, float]] | None = None, every_episodes: int = 10) -> None:
+        super().__init__(env)
+        from dyndlo_vision.sim.cable import CableParams
+
+        self.ranges = dict(DEFAULT_CABLE_RANGES if ranges is None else ranges)
+        fields = set(CableParams.__dataclass_fields__)
+        for name, (lo, hi) in self.ranges.items():
+            if name not in fields or name in ("num_segments",):
+                expected = sorted(DEFAULT_CABLE_RANGES)
+                raise ValueError(f"cannot randomise {name!r}; expected some of {expected}")
+            if not (0 < lo <= hi and math.isfinite(hi)):
+                raise ValueError(f"range of {name} must be 0 < low <= high factors, got ({lo}, {hi})")
+        if every_episodes < 1:
+            raise ValueError(f"every_episodes must be >= 1, got {every_episodes}")
+        self.every_episodes = int(every_episodes)
+        base = env.unwrapped
+        self.nominal = base.task.cable  # type: ignore[attr-defined]
+        self._episodes = 0
+        self._rng: np.random.Generator | None = None
+        self.cable = self.nominal
+
+    def _draw(self) -> Any:
+        from dataclasses import replace
+
+        assert self._rng is not None
+        changes = {}
+        for name, (lo, hi) in self.ranges.items():
+            if name in ("young_pa", "damping_s"):
+                factor = math.exp(self._rng.uniform(math.log(lo), math.log(hi)))
+            else:
+                factor = self._rng.uniform(lo, hi)
+            changes[name] = getattr(self.nominal, name) * factor
+        return replace(self.nominal, **changes)
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[NDArray[np.float32], dict[str, Any]]:
+        """Draw a new cable when due (rebuilding the environment's scene), then reset."""
+        if seed is not None:
+            self._rng = np.random.default_rng([int(seed), _NOISE_STREAM + 1])
+        elif self._rng is None:
+            self._rng = np.random.default_rng()
+        if self._episodes % self.every_episodes == 0:
+            self.cable = self._draw()
+            base = self.env.unwrapped
+            task = base.task  # type: ignore[attr-defined]
+            task.cable = self.cable
+            base.__init__(task, base.render_mode, base.render_camera)  # type: ignore[misc]  (rebuilds the scene)
+        self._episodes += 1
+        obs, info = self.env.reset(seed=seed, options=options)
+        return obs, {**info, "cable": self.cable}

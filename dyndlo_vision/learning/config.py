@@ -77,6 +77,8 @@ class RunConfig:
         hyperparams: Keyword arguments of the algorithm (from the YAML file, then ``--hp`` overrides).
         env_options: Task options passed to ``gym.make`` (e.g. ``{"target": "down"}``).
         obs_noise: Path of an observation-noise model file (``dyndlo_vision.control.noise_model``), or None.
+        randomize_cable: Draw a new cable (length, mass, E, damping) every 10 training episodes
+            (``dyndlo_vision.control.wrappers.CableRandomization``; evaluation keeps the nominal cable).
         eval_freq: Evaluate every this many environment steps.
         eval_episodes: Episodes per evaluation.
         checkpoint_freq: Save a resumable checkpoint every this many environment steps.
@@ -93,6 +95,7 @@ class RunConfig:
     hyperparams: dict[str, Any] = field(default_factory=dict)
     env_options: dict[str, Any] = field(default_factory=dict)
     obs_noise: str | None = None
+    randomize_cable: bool = False
     eval_freq: int = 2000
     eval_episodes: int = 20
     checkpoint_freq: int = 2000

@@ -15,14 +15,21 @@ MONITOR_KEYWORDS = ("is_success",)
 
 
 def make_env(
-    config: RunConfig, monitor_file: Path | None = None, render_mode: str | None = None
+    config: RunConfig,
+    monitor_file: Path | None = None,
+    render_mode: str | None = None,
+    randomize: bool | None = None,
 ) -> gym.Env[Any, Any]:
-    """One environment of the run: the task, the optional observation noise, and a Monitor."""
+    """One environment of the run: the task, optional cable randomisation and observation noise, a Monitor."""
     from stable_baselines3.common.monitor import Monitor
 
     import dyndlo_vision  # noqa: F401  (registers the ids in subprocesses too)
 
     env = gym.make(config.env_id, multi_step=config.multi_step, render_mode=render_mode, **config.env_options)
+    if config.randomize_cable if randomize is None else randomize:
+        from dyndlo_vision.control.wrappers import CableRandomization
+
+        env = CableRandomization(env, every_episodes=10)
     if config.obs_noise:
         from dyndlo_vision.control.noise_model import ObservationNoiseModel
         from dyndlo_vision.control.wrappers import NoisyObservation
@@ -31,21 +38,30 @@ def make_env(
     return Monitor(env, str(monitor_file) if monitor_file else None, info_keywords=MONITOR_KEYWORDS)
 
 
-def env_factory(config: RunConfig, monitor_file: Path | None) -> Callable[[], gym.Env[Any, Any]]:
+def env_factory(
+    config: RunConfig, monitor_file: Path | None, randomize: bool | None = None
+) -> Callable[[], gym.Env[Any, Any]]:
     """A picklable thunk for SubprocVecEnv."""
 
     def thunk() -> gym.Env[Any, Any]:
-        return make_env(config, monitor_file)
+        return make_env(config, monitor_file, randomize=randomize)
 
     return thunk
 
 
-def make_vec_env(config: RunConfig, n_envs: int, seed: int, monitor_dir: Path | None, kind: str) -> Any:
+def make_vec_env(
+    config: RunConfig,
+    n_envs: int,
+    seed: int,
+    monitor_dir: Path | None,
+    kind: str,
+    randomize: bool | None = None,
+) -> Any:
     """``n_envs`` environments in a DummyVecEnv or SubprocVecEnv, seeded ``seed, seed + 1, ...``."""
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
     thunks = [
-        env_factory(config, monitor_dir / f"env{rank}" if monitor_dir is not None else None)
+        env_factory(config, monitor_dir / f"env{rank}" if monitor_dir is not None else None, randomize)
         for rank in range(n_envs)
     ]
     vec = (

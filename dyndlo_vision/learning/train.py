@@ -104,7 +104,7 @@ def save_checkpoint(model: Any, out: Path, wall_s: float) -> None:
 def _eval_callback(config: RunConfig, out: Path) -> Any:
     from stable_baselines3.common.callbacks import EvalCallback
 
-    eval_env = make_vec_env(config, 1, config.seed + 10_000, None, "dummy")
+    eval_env = make_vec_env(config, 1, config.seed + 10_000, None, "dummy", randomize=False)
     return EvalCallback(
         eval_env,
         n_eval_episodes=config.eval_episodes,

@@ -182,13 +182,14 @@ def test_plot_draws_runs(tmp_path: Path) -> None:
     assert image is not None and image.shape[0] > 200 and image.shape[1] > 400
 
 
-def test_training_with_the_fitted_observation_noise(tmp_path: Path) -> None:
+def test_training_with_the_fitted_observation_noise_and_cable_randomization(tmp_path: Path) -> None:
     from dyndlo_vision.control.noise_model import packaged_noise_model_path
     from dyndlo_vision.learning.envs import make_env
 
-    config = _config("sac", 32, obs_noise=str(packaged_noise_model_path()))
+    config = _config("sac", 32, obs_noise=str(packaged_noise_model_path()), randomize_cable=True)
     env = make_env(config)
-    assert type(env.env).__name__ == "NoisyObservation"  # Monitor(NoisyObservation(TipControl))
+    assert type(env.env).__name__ == "NoisyObservation"  # Monitor(NoisyObservation(CableRandomization(...)))
+    assert type(env.env.env).__name__ == "CableRandomization"
     train(config, tmp_path / "run", progress_bar=False)
     assert (tmp_path / "run" / "model.zip").is_file()
     with pytest.raises(SystemExit) as exc:
