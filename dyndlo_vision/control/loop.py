@@ -173,6 +173,19 @@ class ControlLoop:
             reading.polyline_uv,
         )
 
+    def _pace(self, t_robot_before: float, wall_before: float) -> None:
+        """Keep the period on a real robot: wait out the rest of it in wall time.
+
+        A simulated robot advances its own clock by a period inside ``send`` and needs no waiting; a real
+        driver returns at once and its clock runs with the wall clock.
+        """
+        advanced = self.robot.state().t - t_robot_before
+        if advanced >= self.period_s - 1e-9:
+            return
+        remaining = self.period_s - (time.monotonic() - wall_before)
+        if remaining > 0:
+            time.sleep(remaining)
+
     def run(
         self,
         duration_s: float,
@@ -198,7 +211,9 @@ class ControlLoop:
                 if t - t_start >= duration_s - 1e-9:
                     report.stop_reason = "duration"
                     break
+                wall0 = time.monotonic()
                 record = self.cycle(index, replan=replan_every_cycle or index == 0)
+                self._pace(t, wall0)
                 report.cycles.append(record)
                 if on_cycle is not None:
                     on_cycle(record, getattr(self.source, "last_frame", None))

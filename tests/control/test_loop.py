@@ -193,3 +193,55 @@ def test_noisy_state_with_an_identity_model_is_the_truth_and_the_fitted_one_is_n
         errors[name] = loop.run(duration_s=0.4).estimate_errors()
     assert np.all(errors["identity"] < 1e-6)  # float32 observation round-off
     assert np.any(errors["fitted"] > 0.0)
+
+
+class WallClockRobot:
+    """A robot whose clock is the wall clock and whose send returns at once, like a real driver."""
+
+    def __init__(self) -> None:
+        self.sent: list[float] = []
+        self.stopped = False
+
+    def connect(self) -> None:
+        pass
+
+    def state(self) -> object:
+        from dyndlo_vision.control.protocols import TcpState
+
+        return TcpState(np.array([[0.45, 0.0, 0.6]]), np.zeros((1, 3)), time.monotonic())
+
+    def send(self, setpoints: Setpoints) -> None:
+        self.sent.append(time.monotonic())
+
+    def stop(self) -> None:
+        self.stopped = True
+
+    def close(self) -> None:
+        pass
+
+
+def test_loop_keeps_the_period_on_a_wall_clock_robot() -> None:
+    from dyndlo_vision.trajectory import ActionSpec, Replanner
+
+    class Still:
+        def read(self, t: float, tcp: object) -> object:
+            from dyndlo_vision.control.state_sources import PDloReading
+
+            return PDloReading(np.array([0.45, 0.0, 0.1]), t, measured=True)
+
+    spec = ActionSpec(
+        num_points=3, planar=True, dx_m=(-0.25, 0.25), dy_m=(-0.25, 0.25), dz_m=(-0.25, 0.25), dt_s=(0.1, 0.5)
+    )
+    robot = WallClockRobot()
+    loop = ControlLoop(
+        Still(),
+        robot,
+        lambda obs: np.zeros(spec.size, np.float32),
+        Replanner(spec, [[0.45, 0.0, 0.6]]),
+        np.array([0.8, 0.0, 0.4]),
+        setpoint_period_s=0.004,
+    )
+    report = loop.run(duration_s=0.4)
+    # Paced at 40 ms: at most 11 cycles in 0.4 s of wall-clock robot time (unpaced it would be hundreds);
+    # fewer when the machine is slow, since a late cycle is not made up for.
+    assert 1 <= len(report.cycles) <= 11
