@@ -62,25 +62,41 @@ def main() -> None:
     args = parser.parse_args()
     ref = run(PhysicsOptions(integrator="discrete", timestep_s=0.000125), args.segments, args.vmax)
     assert ref["ok"], "reference run blew up"
-    print(f"# machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cpus; vmax={args.vmax} m/s,"
-          f" {args.segments} segments, reference discrete@0.125ms")
-    print("Whip motion is chaotic: errors grow with time for every integrator, so they are quoted at fixed times.")
-    print("| integrator | dt (ms) | stable | tip err @0.25 s (mm) | @0.5 s | @1.0 s | max 0-0.5 s | sim-s / wall-s (median) |")
+    print(
+        f"# machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cpus;"
+        f" vmax={args.vmax} m/s, {args.segments} segments, reference discrete@0.125ms"
+    )
+    print(
+        "Whip motion is chaotic: errors grow with time for every integrator, "
+        "so they are quoted at fixed times."
+    )
+    print(
+        "| integrator | dt (ms) | stable | tip err @0.25 s (mm) | @0.5 s | @1.0 s | max 0-0.5 s "
+        "| sim-s / wall-s (median) |"
+    )
     print("|---|---|---|---|---|---|---|---|")
-    for integrator, dts in [("discrete", [0.0005, 0.001, 0.002, 0.005]), ("Euler", [0.0005, 0.001, 0.002]),
-                            ("RK4", [0.001, 0.002])]:
+    for integrator, dts in [
+        ("discrete", [0.0005, 0.001, 0.002, 0.005]),
+        ("Euler", [0.0005, 0.001, 0.002]),
+        ("RK4", [0.001, 0.002]),
+    ]:
         for dt in dts:
-            results = [run(PhysicsOptions(integrator=integrator, timestep_s=dt), args.segments, args.vmax)
-                       for _ in range(args.repeats)]
+            results = [
+                run(PhysicsOptions(integrator=integrator, timestep_s=dt), args.segments, args.vmax)
+                for _ in range(args.repeats)
+            ]
             r = results[0]
             if not r["ok"]:
-                print(f"| {integrator} | {dt*1e3:g} | no | - | - | - | - | - |")
+                print(f"| {integrator} | {dt * 1e3:g} | no | - | - | - | - | - |")
                 continue
             err = np.linalg.norm(r["tips"] - ref["tips"], axis=1) * 1e3  # sample k is at (k + 1) * 10 ms
             at = [err[int(round(t / 0.01)) - 1] for t in (0.25, 0.5, 1.0)]
             rate = float(np.median([x["rate"] for x in results]))
-            print(f"| {integrator} | {dt*1e3:g} | yes | {at[0]:.1f} | {at[1]:.1f} | {at[2]:.1f} | {err[:50].max():.1f} |"
-                  f" {rate:.1f} |", flush=True)
+            print(
+                f"| {integrator} | {dt * 1e3:g} | yes | {at[0]:.1f} | {at[1]:.1f} | {at[2]:.1f} "
+                f"| {err[:50].max():.1f} | {rate:.1f} |",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

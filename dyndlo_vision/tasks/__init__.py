@@ -26,7 +26,9 @@ TASKS: dict[str, type[Task]] = {
 ENV_IDS = tuple(f"DynDLO/{name}-v0" for name in TASKS)
 
 
-def make_env(task: str, render_mode: str | None = None, render_camera: str = "front", **options: Any) -> DynDLOEnv:
+def make_env(
+    task: str, render_mode: str | None = None, render_camera: str = "front", **options: Any
+) -> DynDLOEnv:
     """Build the environment of ``task`` (a key of ``TASKS``) with task ``options``.
 
     Raises:

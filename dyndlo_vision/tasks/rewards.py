@@ -4,7 +4,7 @@ r_tot = r_avoid + r_distance + r_success + r_dyn, with
 
 * r_avoid = lambda_1 * I_avoid, I_avoid = ||P - shoulder|| > outreach  or  ||P_dot|| > v_max  or
   z(P_DLO) < 1.25 cm (cable-floor collision)  or  ||P||_xy < eps_shoulder;
-* r_distance = lambda_2 * I_dist (implicit tasks) or lambda_2 * sum(dt_i) (explicit task, the trajectory time);
+* r_distance = lambda_2 * I_dist (implicit tasks) or lambda_2 * sum(dt_i) (explicit task: trajectory time);
 * r_success = lambda_3 * I_success;
 * r_dyn = lambda_4 * J_cost * I_dyn: implicit tasks I_dyn = (mean gripper height z_P >= M), J_cost = 1;
   task IV J_cost = ||P_eq - P_DLO||_xy (oscillation), I_dyn = arrived.

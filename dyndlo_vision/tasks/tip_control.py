@@ -73,7 +73,8 @@ class TipControl(Task):
         info = {"min_distance_m": monitor.min_goal_distance_m, "max_tcp_speed_m_s": monitor.max_tcp_speed_m_s}
         if not final:
             return {"r_avoid": 0.0, "r_distance": 0.0, "r_success": 0.0, "r_dyn": 0.0}, False, info
-        terms = implicit_reward(self.coefficients(), monitor.any_avoid, hit, not hit, monitor.max_mean_height_m)
+        terms = implicit_reward(self.coefficients(), monitor.any_avoid, hit, not hit,
+                                monitor.max_mean_height_m)
         if self.distance_reward == "linear":
             # Shaped variant (not the paper's): lambda_2 per 10 cm of closest approach beyond the target.
             gap = max(0.0, monitor.min_goal_distance_m - self.success_radius_m)

@@ -32,8 +32,15 @@ def test_hanging_chain_first_mode(integrator: str) -> None:
     # Straight line from the clamped first edge, tilted by 4 degrees: mostly the first mode.
     first = (home[0], home[1], home[2] - cable.segment_length_m)
     end = (first[0] + math.sin(tilt) * length, 0.0, first[2] - math.cos(tilt) * length)
-    scene = Scene(SceneConfig(cable=cable, grippers_m=(home,), initial_path_m=(home, first, end), settle_s=0.0,
-                              physics=PhysicsOptions(integrator=integrator, timestep_s=0.0005)))
+    scene = Scene(
+        SceneConfig(
+            cable=cable,
+            grippers_m=(home,),
+            initial_path_m=(home, first, end),
+            settle_s=0.0,
+            physics=PhysicsOptions(integrator=integrator, timestep_s=0.0005),
+        )
+    )
     scene.reset()
     dt = 0.002
     tip_x = []
@@ -49,9 +56,18 @@ def test_hanging_chain_first_mode(integrator: str) -> None:
 
 def test_cantilever_static_deflection() -> None:
     """A short stiff cantilever sags by w L^4 / (8 E I) under its own weight (Euler-Bernoulli)."""
-    cable = CableParams(length_m=0.1, num_segments=20, mass_kg=0.002, radius_m=0.002, young_pa=5e7, damping_s=0.01)
-    scene = Scene(SceneConfig(cable=cable, grippers_m=((0.5, 0.0, 0.5),), cable_axis=(1.0, 0.0, 0.0), settle_s=3.0,
-                              physics=PhysicsOptions(integrator="discrete", timestep_s=0.001)))
+    cable = CableParams(
+        length_m=0.1, num_segments=20, mass_kg=0.002, radius_m=0.002, young_pa=5e7, damping_s=0.01
+    )
+    scene = Scene(
+        SceneConfig(
+            cable=cable,
+            grippers_m=((0.5, 0.0, 0.5),),
+            cable_axis=(1.0, 0.0, 0.0),
+            settle_s=3.0,
+            physics=PhysicsOptions(integrator="discrete", timestep_s=0.001),
+        )
+    )
     scene.reset()
     nodes = scene.cable_nodes()
     deflection = 0.5 - nodes[-1, 2]
@@ -104,6 +120,7 @@ def test_random_trajectories_at_velocity_limit_stay_finite(seed: int) -> None:
 
 def test_timestep_convergence() -> None:
     """Halving the timestep shrinks the tip error against a fine reference (first-order integrator)."""
+
     def tip_after(dt: float) -> np.ndarray:
         scene = Scene(SceneConfig(settle_s=0.0, physics=PhysicsOptions(integrator="Euler", timestep_s=dt)))
         scene.reset()
