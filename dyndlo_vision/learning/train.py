@@ -105,7 +105,7 @@ def _eval_callback(config: RunConfig, out: Path) -> Any:
     from stable_baselines3.common.callbacks import EvalCallback
 
     eval_env = make_vec_env(config, 1, config.seed + 10_000, None, "dummy", randomize=False)
-    return EvalCallback(
+    callback = EvalCallback(
         eval_env,
         n_eval_episodes=config.eval_episodes,
         eval_freq=max(1, config.eval_freq // config.n_envs),
@@ -114,6 +114,23 @@ def _eval_callback(config: RunConfig, out: Path) -> Any:
         deterministic=True,
         verbose=0,
     )
+    _restore_evaluations(callback, out / "eval" / "evaluations.npz")
+    return callback
+
+
+def _restore_evaluations(callback: Any, path: Path) -> None:
+    """Carry a resumed run's earlier evaluations over, so evaluations.npz keeps the whole learning curve."""
+    if not path.is_file():
+        return
+    try:
+        data = np.load(path)
+        callback.evaluations_timesteps = [int(t) for t in data["timesteps"]]
+        callback.evaluations_results = [list(r) for r in data["results"]]
+        callback.evaluations_length = [list(n) for n in data["ep_lengths"]]
+        if "successes" in data:
+            callback.evaluations_successes = [list(x) for x in data["successes"]]
+    except (OSError, KeyError, ValueError) as err:
+        log.warning("could not read earlier evaluations from %s (%s): the curve restarts here", path, err)
 
 
 def train(config: RunConfig, out: Path, resume: bool = False, progress_bar: bool = True) -> dict[str, Any]:

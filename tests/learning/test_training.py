@@ -59,9 +59,12 @@ def test_train_then_resume(tmp_path: Path, algo: str) -> None:
 
     with pytest.raises(ValueError, match="already holds a run"):
         train(_config(algo, 64), out, progress_bar=False)
+    before = np.load(out / "eval" / "evaluations.npz")["timesteps"].tolist()
     train(_config(algo, 96), out, resume=True, progress_bar=False)
     state = json.loads((out / "checkpoint" / "state.json").read_text())
     assert state["num_timesteps"] >= 96
+    after = np.load(out / "eval" / "evaluations.npz")["timesteps"].tolist()
+    assert after[: len(before)] == before and len(after) > len(before)  # the curve continues
     model = policies.load(out / "model.zip")
     assert model.num_timesteps == state["num_timesteps"]
     if algo == "sac":
