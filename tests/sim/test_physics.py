@@ -138,3 +138,11 @@ def test_timestep_convergence() -> None:
     errors = [np.linalg.norm(tip_after(dt) - ref) for dt in (0.001, 0.0005, 0.00025)]
     assert errors[0] > errors[1] > errors[2]
     assert errors[0] < 0.01  # the default step is within 1 cm of the reference after 0.3 s of whipping
+
+
+def test_unstable_cable_parameters_get_a_clear_error() -> None:
+    """A rod too stiff for an explicit integrator at 2 ms blows up while settling: ValueError naming both."""
+    config = SceneConfig(cable=CableParams(young_pa=1e9), grippers_m=((0.45, 0.0, 0.6),),
+                         physics=PhysicsOptions(integrator="Euler", timestep_s=0.002), settle_s=0.5)
+    with pytest.raises(ValueError, match=r"unstable while settling with CableParams\(.*young_pa=1000000000"):
+        Scene(config)
