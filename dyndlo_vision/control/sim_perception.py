@@ -52,15 +52,25 @@ class GripperMaskedSegmenter:
 
 
 def render_without_cable(camera: MujocoCamera) -> NDArray[np.uint8]:
-    """The camera's view with the cable made transparent (the segmentation's background model)."""
+    """The camera's view with the cable and the grippers made transparent (the segmentation's background).
+
+    The grippers are hidden too: they move, and a gripper drawn at its start position would leave a "ghost"
+    blob there once it has moved (the live gripper is masked by its projected position instead).
+    """
     model = camera.model
     fid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_FLEX, CABLE_NAME)
-    alpha = float(model.flex_rgba[fid, 3])
+    geoms = [g for g in range(model.ngeom) if model.geom(g).name.startswith("tcp_")]
+    sites = [k for k in range(model.nsite) if model.site(k).name.startswith("tcp_")]
+    saved = (
+        float(model.flex_rgba[fid, 3]), model.geom_rgba[geoms, 3].copy(), model.site_rgba[sites, 3].copy()
+    )
     model.flex_rgba[fid, 3] = 0.0
+    model.geom_rgba[geoms, 3] = 0.0
+    model.site_rgba[sites, 3] = 0.0
     try:
         return camera.read().rgb
     finally:
-        model.flex_rgba[fid, 3] = alpha
+        model.flex_rgba[fid, 3], model.geom_rgba[geoms, 3], model.site_rgba[sites, 3] = saved
 
 
 def pixels_per_metre(camera: Any, point: NDArray[np.float64], plane: Plane = MOTION_PLANE) -> float:
