@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from dyndlo_vision._atomic import write_atomic
+from dyndlo_vision._atomic import write_atomic, write_video_atomic
 
 HELP = "closed-loop tip control in simulation on tracked state: video, plot and metrics"
 DEFAULT_POLICIES = ("tip-control-multi-step", "tip-control-single-step")
@@ -116,7 +116,8 @@ def run(args: argparse.Namespace) -> int:
             }
         )
         print(f"success rate {successes}/{args.episodes} (95% CI {lo:.2f}-{hi:.2f})")
-    _write_video(out / "demo.mp4", video)
+    if video:
+        write_video_atomic(out / "demo.mp4", video, rgb=False)  # annotated frames are BGR
     _write_plot(out / "p_dlo.png", first["trace"])
     for e in episodes:
         for key in ("trace", "_cycle_ms", "_stage_ms"):
@@ -260,24 +261,6 @@ def _annotate(rgb: np.ndarray, record: Any, calib: Any, goal: np.ndarray) -> np.
         cv2.LINE_AA,
     )
     return img
-
-
-def _write_video(path: Path, frames: list[np.ndarray]) -> None:
-    import cv2
-
-    if not frames:
-        return
-    h, w = frames[0].shape[:2]
-
-    def write(tmp: str) -> None:
-        writer = cv2.VideoWriter(tmp, cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (w, h))
-        if not writer.isOpened():
-            raise RuntimeError(f"OpenCV cannot write MP4 to {tmp}")
-        for frame in frames:
-            writer.write(frame)
-        writer.release()
-
-    write_atomic(path, write)
 
 
 def _write_plot(path: Path, trace: dict[str, Any]) -> None:

@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from dyndlo_vision._atomic import write_atomic
+from dyndlo_vision._atomic import write_atomic, write_video_atomic
 
 HELP = "evaluate a policy (shipped name, .zip, or 'geometric' for task IV) over N episodes"
 
@@ -97,7 +97,6 @@ def _write_video(
     path: Path, gym_id: str, multi_step: bool, options: dict[str, Any], policy: Any, seed: int, episodes: int
 ) -> None:
     """Render episodes at 25 Hz of simulated time to an MP4, atomically."""
-    import cv2
     import gymnasium as gym
     import numpy as np
 
@@ -116,14 +115,4 @@ def _write_video(
             obs, _, terminated, truncated, _ = env.step(act(obs))
             done = terminated or truncated
     env.close()
-    h, w = frames[0].shape[:2]
-
-    def write(tmp: str) -> None:
-        writer = cv2.VideoWriter(tmp, cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (w, h))
-        if not writer.isOpened():
-            raise RuntimeError(f"OpenCV cannot write MP4 to {tmp}")
-        for frame in frames:
-            writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
-        writer.release()
-
-    write_atomic(path, write)
+    write_video_atomic(path, frames)
