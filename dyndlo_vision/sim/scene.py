@@ -400,9 +400,9 @@ class Scene:
     # ------------------------------------------------------------------ writes
     def set_tcp_reference(self, position: ArrayLike, velocity: ArrayLike) -> None:
         """Set the reference position and velocity of every TCP, each (n_g, 3)."""
-        p = np.asarray(position, dtype=float).reshape(self.num_grippers, 3)
-        v = np.asarray(velocity, dtype=float).reshape(self.num_grippers, 3)
-        self.data.ctrl[self._tcp_act] = v + self._kp * (p - self._tcp_home)
+        p = np.asarray(position, dtype=float).reshape(1, self.num_grippers, 3)
+        v = np.asarray(velocity, dtype=float).reshape(1, self.num_grippers, 3)
+        self.data.ctrl[:] = self.tcp_controls(p, v)[0]
 
     def set_target(self, position: ArrayLike) -> None:
         """Move the visual target marker."""

@@ -330,13 +330,7 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         p, v = scene.tcp_from_state(qpos, qvel)
         p_dlo = scene.nodes_from_qpos(qpos)[:, self.task.p_dlo_node(scene)]
         speed = np.linalg.norm(v, axis=2)
-        shoulder = np.asarray(limits.shoulder_position_m)
-        flags = {
-            "outreach": bool(np.any(np.linalg.norm(p - shoulder, axis=2) > limits.outreach_m)),
-            "velocity": bool(np.any(speed > limits.v_max_m_s)),
-            "collision": bool(self.task.check_collision and np.any(p_dlo[:, 2] < limits.collision_height_m)),
-            "shoulder": bool(np.any(np.linalg.norm(p[:, :, :2], axis=2) < limits.shoulder_m)),
-        }
+        flags = avoid_flags(p, v, p_dlo, limits, self.task.check_collision)
         for key, value in flags.items():
             mon.avoid[key] = mon.avoid[key] or value
         mon.max_tcp_speed_m_s = max(mon.max_tcp_speed_m_s, float(speed.max()))
@@ -436,7 +430,4 @@ def _segment_point_distances(
 
 
 def _segment_point_distance(a: NDArray[np.float64], b: NDArray[np.float64], c: NDArray[np.float64]) -> float:
-    ab = b - a
-    denom = float(ab @ ab)
-    s = 0.0 if denom == 0.0 else float(np.clip((c - a) @ ab / denom, 0.0, 1.0))
-    return float(np.linalg.norm(a + s * ab - c))
+    return float(_segment_point_distances(a[None], b[None], c)[0])

@@ -82,12 +82,12 @@ def avoid_flags(
     tcp_positions: ArrayLike, tcp_velocities: ArrayLike, p_dlo: ArrayLike, limits: AvoidLimits,
     check_collision: bool = True,
 ) -> dict[str, bool]:
-    """Return each I_avoid condition for one instant.
+    """Return each I_avoid condition for one instant, or for any of K instants.
 
     Args:
-        tcp_positions: (n_g, 3) gripper positions.
-        tcp_velocities: (n_g, 3) gripper velocities.
-        p_dlo: (3,) position of the cable's section of interest.
+        tcp_positions: (n_g, 3) gripper positions, or (K, n_g, 3) for K instants.
+        tcp_velocities: Gripper velocities, same shape.
+        p_dlo: (3,) position of the cable's section of interest, or (K, 3).
         limits: Thresholds.
         check_collision: Whether cable-floor contact of P_DLO counts (not for vaulting, whose cable lies on
             the floor by design).
@@ -96,10 +96,10 @@ def avoid_flags(
     v = np.atleast_2d(np.asarray(tcp_velocities, dtype=float))
     shoulder = np.asarray(limits.shoulder_position_m)
     return {
-        "outreach": bool(np.any(np.linalg.norm(p - shoulder, axis=1) > limits.outreach_m)),
-        "velocity": bool(np.any(np.linalg.norm(v, axis=1) > limits.v_max_m_s)),
-        "collision": bool(check_collision and float(np.asarray(p_dlo)[2]) < limits.collision_height_m),
-        "shoulder": bool(np.any(np.linalg.norm(p[:, :2], axis=1) < limits.shoulder_m)),
+        "outreach": bool(np.any(np.linalg.norm(p - shoulder, axis=-1) > limits.outreach_m)),
+        "velocity": bool(np.any(np.linalg.norm(v, axis=-1) > limits.v_max_m_s)),
+        "collision": bool(check_collision and np.any(np.asarray(p_dlo)[..., 2] < limits.collision_height_m)),
+        "shoulder": bool(np.any(np.linalg.norm(p[..., :2], axis=-1) < limits.shoulder_m)),
     }
 
 
