@@ -10,4 +10,5 @@ COMMANDS: dict[str, str] = {
     "evaluate": "evaluate",
     "plot": "plot",
     "train": "train",
+    "distill": "distill",
 }

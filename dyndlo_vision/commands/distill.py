@@ -1,0 +1,72 @@
+"""``dyndlo-vision distill``: a multi-step tip-control policy from a single-step one, by DAgger."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+HELP = (
+    "distil a single-step tip-control policy into a multi-step (re-planning) PPO policy by DAgger; resumable"
+)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``distill``."""
+    p.add_argument(
+        "--teacher",
+        default="tip-control-single-step",
+        help="shipped name or .zip of the single-step policy (default: tip-control-single-step)",
+    )
+    p.add_argument("--rounds", type=int, default=3, help="DAgger rounds; round 0 is the expert's (default 3)")
+    p.add_argument("--episodes", type=int, default=200, help="episodes per round after round 0 (default 200)")
+    p.add_argument("--first-round-episodes", type=int, default=400, help="episodes of round 0 (default 400)")
+    p.add_argument(
+        "--obs-noise",
+        default=None,
+        help="observation-noise model (JSON) the student sees P_DLO through; 'packaged' for the "
+        "shipped tracker model (default: true state)",
+    )
+    p.add_argument("--seed", type=int, default=1, help="episode seeds start at SEED * 1e6 (default 1)")
+    p.add_argument("--workers", type=int, default=2, help="processes collecting episodes (default 2)")
+    p.add_argument(
+        "--epochs", type=int, default=300, help="regression passes over the data per round (default 300)"
+    )
+    p.add_argument(
+        "--out", default=None, help="run folder (default: runs/tip-control-multi-step-distill-s<seed>)"
+    )
+    p.add_argument("--resume", action="store_true", help="continue the run in --out after its last round")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Resolve the options, then run the rounds."""
+    from dyndlo_vision.learning.distill import DistillConfig, distill
+
+    noise = args.obs_noise
+    if noise == "packaged":
+        from dyndlo_vision.control.noise_model import packaged_noise_model_path
+
+        noise = str(packaged_noise_model_path())
+    elif noise is not None:
+        if not Path(noise).is_file():
+            raise FileNotFoundError(f"--obs-noise {noise}: no such file")
+        noise = str(Path(noise).resolve())
+    config = DistillConfig(
+        teacher=args.teacher,
+        rounds=args.rounds,
+        episodes=args.episodes,
+        first_round_episodes=args.first_round_episodes,
+        noise_model=noise,
+        seed=args.seed,
+        workers=args.workers,
+        epochs=args.epochs,
+    )
+    out = Path(args.out or f"runs/tip-control-multi-step-distill-s{args.seed}")
+    try:
+        history = distill(config, out, resume=args.resume)
+    except KeyboardInterrupt:
+        print(f"interrupted; resume with: dyndlo-vision distill --resume --out {out} (and the same options)")
+        return 130
+    print(json.dumps(history[-1], indent=2))
+    print(f"wrote {out / 'model.zip'}")
+    return 0

@@ -1,0 +1,548 @@
+"""Distil a single-step (plan once) policy into a multi-step (re-plan every 40 ms) policy by DAgger.
+
+Why: the multi-step task's reward is sparse (+100 for a hit, -50 for any limit broken, judged once at the end
+of 40 decisions) and random re-planning breaks the speed limit in every episode; SAC at 35 000 steps never
+hit the target, and the paper needed 5e6 PPO steps. A single-step policy already knows *which* whip hits the
+target. What the multi-step policy must add is to keep following that whip while it re-plans every 40 ms from
+the current position and velocity.
+
+* :class:`PlanFollowingExpert` turns a single-step plan into multi-step actions: at each decision it finds,
+  by bounded least squares, the action whose re-planned B-spline (from the commanded position *and velocity*
+  now) stays closest to the rest of the single-step trajectory. It knows the time and the plan, which the
+  multi-step observation (table II) does not contain, so it is a teacher, not a policy.
+* :func:`collect` runs episodes in which the student acts (with probability ``1 - beta``) or the expert does,
+  and records the observation the student saw with the expert's action for it (DAgger, Ross et al. 2011).
+* :func:`fit_student` regresses the mean of a stable-baselines3 PPO policy onto the aggregated labels, so the
+  result is an ordinary PPO zip that ``policies.load``, ``evaluate``, the control loop and PPO fine-tuning
+  all take.
+
+With ``noise_model`` the episodes run under :class:`~dyndlo_vision.control.wrappers.NoisyObservation`: the
+student sees the corrupted P_DLO (and learns to act on it), the expert is unaffected (it reads no P_DLO).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import least_squares
+
+from dyndlo_vision.trajectory import ActionSpec, BSplineTrajectory
+
+__all__ = ["PlanFollowingExpert", "DistillConfig", "collect", "fit_student", "distill"]
+
+
+class PlanFollowingExpert:
+    """Multi-step actions that keep following one single-step plan.
+
+    Args:
+        spec: The task's action spec (multi-step and single-step share it).
+        samples: Times at which the re-plan is compared with the reference, spread over the rest of the
+            reference (at least ``spec``'s shortest plan) plus ``tail_s``.
+        early_s: The re-plan is executed only until the next decision; errors in the first ``early_s`` (at
+            ``early_samples`` more times) count ``early_weight`` times more.
+        speed_limit_m_s: Commanded TCP speeds above this are penalised (``speed_weight`` metres of residual
+            per m/s of excess), so that corrections from states off the plan stay inside v_max (1.8 m/s); None
+            turns the penalty off.
+        max_nfev: Evaluation budget of each least-squares fit (warm-started from the previous action).
+    """
+
+    def __init__(
+        self,
+        spec: ActionSpec,
+        samples: int = 30,
+        tail_s: float = 0.1,
+        early_s: float = 0.04,
+        early_samples: int = 10,
+        early_weight: float = 10.0,
+        speed_limit_m_s: float | None = 1.7,
+        speed_weight: float = 0.2,
+        max_nfev: int = 60,
+    ) -> None:
+        if spec.append_final_point:
+            raise ValueError("PlanFollowingExpert needs an ActionSpec without a fixed final point")
+        self.spec = spec
+        self.samples = int(samples)
+        self.tail_s = float(tail_s)
+        self.early_s = float(early_s)
+        self.early_samples = int(early_samples)
+        self.early_weight = float(early_weight)
+        self.speed_limit_m_s = speed_limit_m_s
+        self.speed_weight = float(speed_weight)
+        self.max_nfev = int(max_nfev)
+        self.reference: BSplineTrajectory | None = None
+        self._last: NDArray[np.float64] | None = None
+        self.last_rms_m = 0.0
+
+    def start(self, plan_action: NDArray[np.floating[Any]], home: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Take the single-step plan (its normalised action from ``home`` at rest, t = 0); return it.
+
+        At t = 0 from rest the multi-step re-plan of this action *is* the single-step trajectory.
+        """
+        a = np.clip(np.asarray(plan_action, dtype=np.float64), -1.0, 1.0)
+        points, times = self.spec.decode(a, home, 0.0)
+        self.reference = BSplineTrajectory(points, times)
+        self._last = a
+        self.last_rms_m = 0.0
+        return a.copy()
+
+    def act(
+        self, t: float, position: NDArray[np.float64], velocity: NDArray[np.float64]
+    ) -> NDArray[np.float64]:
+        """The action whose re-plan from the commanded ``position``/``velocity`` at ``t`` follows the plan."""
+        if self.reference is None or self._last is None:
+            raise RuntimeError("call start() with the single-step plan first")
+        ref = self.reference
+        horizon = max(ref.t_end - t, self.spec.num_intervals * self.spec.dt_s[0]) + self.tail_s
+        early = np.linspace(0.002, self.early_s, self.early_samples)
+        ts = t + np.concatenate([early, np.linspace(self.early_s, horizon, self.samples + 1)[1:]])
+        weight = np.where(ts - t <= self.early_s + 1e-9, self.early_weight, 1.0)[:, None]
+        target = ref.position(ts)
+        p0 = np.asarray(position, dtype=np.float64)
+        v0 = np.asarray(velocity, dtype=np.float64)
+
+        def residuals(a: NDArray[np.float64]) -> NDArray[np.float64]:
+            points, times = self.spec.decode(a, p0, t)
+            plan = BSplineTrajectory(points, times, start_velocity=v0)
+            position = ((plan.position(ts) - target) * weight).ravel()
+            if self.speed_limit_m_s is None:
+                return position
+            excess = np.linalg.norm(plan.velocity(ts), axis=1) - self.speed_limit_m_s
+            return np.concatenate([position, self.speed_weight * np.maximum(excess, 0.0)])
+
+        guess = np.clip(self._last, -0.999, 0.999)
+        sol = least_squares(residuals, guess, bounds=(-1.0, 1.0), diff_step=1e-3, max_nfev=self.max_nfev)
+        self._last = sol.x
+        self.last_rms_m = float(np.sqrt(np.mean(sol.fun[: 3 * len(ts)] ** 2)))
+        return np.asarray(sol.x, dtype=np.float64)
+
+
+# ---------------------------------------------------------------------------------------------- episodes
+@dataclass
+class Episodes:
+    """What :func:`collect` gathered: observations with the expert's actions, and how the episodes ended."""
+
+    observations: NDArray[np.float32]
+    true_observations: NDArray[np.float32]
+    actions: NDArray[np.float32]
+    seeds: NDArray[np.int64]
+    successes: NDArray[np.bool_]
+    avoided: NDArray[np.bool_]
+    fit_rms_m: NDArray[np.float64]
+
+    @staticmethod
+    def concatenate(parts: Sequence[Episodes]) -> Episodes:
+        """All ``parts`` in one."""
+        return Episodes(
+            *(np.concatenate([getattr(p, f) for p in parts]) for f in Episodes.__dataclass_fields__)
+        )
+
+    def save(self, path: Path) -> None:
+        """Write to ``path`` (.npz) atomically."""
+        from dyndlo_vision._atomic import write_atomic
+
+        def write(tmp: str) -> None:
+            with open(tmp, "wb") as f:
+                np.savez_compressed(f, **{k: getattr(self, k) for k in Episodes.__dataclass_fields__})
+
+        write_atomic(path, write)
+
+    @staticmethod
+    def load(path: Path) -> Episodes:
+        """Read a file written by :meth:`save`."""
+        with np.load(path) as data:
+            return Episodes(*(data[k] for k in Episodes.__dataclass_fields__))
+
+
+def true_observation(env: Any) -> NDArray[np.float32]:
+    """The table-II observation of the true state (what the single-step teacher was trained on)."""
+    from dyndlo_vision.tasks.base import observation_vector
+
+    u = env.unwrapped
+    return observation_vector(u.scene.tcp_positions(), u.scene.tcp_velocities(), u.p_dlo(), u.goal)
+
+
+def run_episode(
+    env: Any,
+    teacher: Any,
+    expert: PlanFollowingExpert,
+    seed: int,
+    student: Any = None,
+    beta: float = 1.0,
+    rng: np.random.Generator | None = None,
+) -> dict[str, Any]:
+    """One multi-step episode: the student acts with probability ``1 - beta`` per decision, else the expert.
+
+    Returns:
+        ``observations`` (as the student saw them), ``true_observations`` (the simulator's state) and
+        ``actions`` (the expert's label for every observation), ``success``, ``avoid``
+        (any avoid condition), ``fit_rms_m`` (median residual of the expert's fits) and ``info``.
+    """
+    rng = rng or np.random.default_rng(seed)
+    obs, _ = env.reset(seed=seed)
+    u = env.unwrapped
+    plan, _ = teacher.predict(true_observation(env), deterministic=True)
+    observations, true_obs, labels, rms = [], [], [], []
+    done, k, info = False, 0, {}
+    while not done:
+        if k == 0:
+            label = expert.start(plan, u.scene.gripper_home[0])
+        else:
+            t = u.scene.time
+            label = expert.act(t, *u.replanner.commanded_state(t))
+            rms.append(expert.last_rms_m)
+        action = label
+        if student is not None and rng.random() >= beta:
+            action, _ = student.predict(obs, deterministic=True)
+        observations.append(np.asarray(obs, dtype=np.float32))
+        true_obs.append(true_observation(env))
+        labels.append(label.astype(np.float32))
+        obs, _, terminated, truncated, info = env.step(np.asarray(action, dtype=np.float32))
+        done = terminated or truncated
+        k += 1
+    return {
+        "observations": np.array(observations),
+        "true_observations": np.array(true_obs),
+        "actions": np.array(labels),
+        "success": bool(info["is_success"]),
+        "avoid": any(info["avoid"].values()),
+        "fit_rms_m": float(np.median(rms)) if rms else 0.0,
+        "info": info,
+    }
+
+
+def make_distill_env(task_options: dict[str, Any], noise_model: str | None) -> Any:
+    """The multi-step tip-control environment, under the noise model when one is given."""
+    import gymnasium as gym
+
+    import dyndlo_vision  # noqa: F401  (registers the ids in worker processes)
+
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True, **task_options)
+    if noise_model:
+        from dyndlo_vision.control.wrappers import NoisyObservation
+
+        env = NoisyObservation(env, noise_model)
+    return env
+
+
+def _collect_chunk(job: dict[str, Any]) -> Episodes:
+    """Worker: run the episodes of ``job["seeds"]`` (see :func:`collect`)."""
+    import torch
+
+    from dyndlo_vision import policies
+
+    torch.set_num_threads(1)
+    env = make_distill_env(job["task_options"], job["noise_model"])
+    teacher = policies.load(job["teacher"])
+    student = policies.load(job["student"], env=env, algo="ppo") if job["student"] else None
+    expert = PlanFollowingExpert(env.unwrapped.spec_actions)
+    parts = []
+    for seed in job["seeds"]:
+        ep = run_episode(
+            env,
+            teacher,
+            expert,
+            int(seed),
+            student,
+            job["beta"],
+            np.random.default_rng([int(seed), job["round"]]),
+        )
+        n = len(ep["actions"])
+        parts.append(
+            Episodes(
+                ep["observations"],
+                ep["true_observations"],
+                ep["actions"],
+                np.full(n, seed, dtype=np.int64),
+                np.array([ep["success"]]),
+                np.array([ep["avoid"]]),
+                np.array([ep["fit_rms_m"]]),
+            )
+        )
+    env.close()
+    return Episodes.concatenate(parts)
+
+
+def collect(
+    seeds: Sequence[int],
+    teacher: str,
+    student: str | None = None,
+    beta: float = 1.0,
+    noise_model: str | None = None,
+    task_options: dict[str, Any] | None = None,
+    workers: int = 1,
+    round_index: int = 0,
+) -> Episodes:
+    """Run one DAgger round's episodes (one per seed) in ``workers`` processes.
+
+    Args:
+        seeds: Episode seeds (goal and noise).
+        teacher: Shipped name or path of the single-step policy whose plans the expert follows.
+        student: Path of the PPO student acting with probability ``1 - beta`` (None: the expert always acts).
+        beta: Probability that the expert's action is executed at a decision.
+        noise_model: Observation-noise model file the student's observations are corrupted with.
+        task_options: Keyword options of the tip-control environment.
+        workers: Processes (each builds its own environment).
+        round_index: Mixed into the per-episode random stream that picks who acts.
+    """
+    seeds = [int(s) for s in seeds]
+    jobs = [
+        {
+            "seeds": seeds[i::workers],
+            "teacher": teacher,
+            "student": student,
+            "beta": float(beta),
+            "noise_model": noise_model,
+            "task_options": dict(task_options or {}),
+            "round": round_index,
+        }
+        for i in range(workers)
+    ]
+    jobs = [j for j in jobs if j["seeds"]]
+    if workers <= 1 or len(jobs) <= 1:
+        return Episodes.concatenate([_collect_chunk(j) for j in jobs])
+    with ProcessPoolExecutor(len(jobs), mp_context=get_context("forkserver")) as pool:
+        return Episodes.concatenate(list(pool.map(_collect_chunk, jobs)))
+
+
+# ---------------------------------------------------------------------------------------------- student
+def new_student(env: Any, net_arch: Sequence[int], seed: int) -> Any:
+    """A PPO model whose policy will be fitted (observation -> mean action); log std starts at -2."""
+    from stable_baselines3 import PPO
+
+    kwargs = {"net_arch": {"pi": list(net_arch), "vf": [64, 64]}, "log_std_init": -2.0}
+    return PPO("MlpPolicy", env, policy_kwargs=kwargs, seed=seed, device="cpu", verbose=0)
+
+
+def fit_student(
+    model: Any,
+    data: Episodes,
+    epochs: int = 300,
+    batch_size: int = 256,
+    lr: float = 1e-3,
+    validation_fraction: float = 0.1,
+    seed: int = 0,
+) -> dict[str, float]:
+    """Regress the PPO policy's mean action onto the expert's actions (mean squared error, Adam, cosine lr).
+
+    Whole episodes (by seed) are held out for validation. Returns the final training and validation loss.
+    """
+    import torch
+
+    rng = np.random.default_rng(seed)
+    episodes = np.unique(data.seeds)
+    held = set(rng.choice(episodes, size=max(1, int(len(episodes) * validation_fraction)), replace=False))
+    val = np.isin(data.seeds, list(held))
+    obs = torch.as_tensor(data.observations, dtype=torch.float32)
+    act = torch.as_tensor(data.actions, dtype=torch.float32)
+    train_idx = np.flatnonzero(~val)
+    policy = model.policy
+    params = [*policy.mlp_extractor.policy_net.parameters(), *policy.action_net.parameters()]
+    optimiser = torch.optim.Adam(params, lr=lr)
+    steps = epochs * max(1, int(np.ceil(len(train_idx) / batch_size)))
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=steps, eta_min=lr * 0.05)
+
+    def mean_action(x: torch.Tensor) -> torch.Tensor:
+        features = policy.extract_features(x, policy.pi_features_extractor)
+        return policy.action_net(policy.mlp_extractor.forward_actor(features))
+
+    policy.set_training_mode(True)
+    train_loss = float("nan")
+    for _ in range(epochs):
+        order = rng.permutation(train_idx)
+        total = 0.0
+        for start in range(0, len(order), batch_size):
+            batch = torch.as_tensor(order[start : start + batch_size])
+            loss = torch.mean((mean_action(obs[batch]) - act[batch]) ** 2)
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+            schedule.step()
+            total += float(loss.detach()) * len(batch)
+        train_loss = total / len(order)
+    policy.set_training_mode(False)
+    with torch.no_grad():
+        val_loss = float(torch.mean((mean_action(obs[val]) - act[val]) ** 2)) if val.any() else float("nan")
+    return {"train_mse": train_loss, "validation_mse": val_loss}
+
+
+# ---------------------------------------------------------------------------------------------- DAgger
+@dataclass(frozen=True)
+class DistillConfig:
+    """A distillation run, stored as ``config.json`` in its folder so that it can be resumed.
+
+    Attributes:
+        teacher: Shipped name or path of the single-step tip-control policy.
+        rounds: DAgger rounds. Round 0: the expert acts; rounds 1..: the student of the previous round acts.
+        episodes: Episodes per round after round 0.
+        first_round_episodes: Episodes of round 0.
+        noise_model: Observation-noise model file the student sees P_DLO through (None: true state).
+        seed: Episode seeds of round ``r`` are ``seed * 1_000_000 + r * 10_000 + i`` (evaluation seeds
+            100000-100099 are never used with ``seed >= 1``).
+        workers: Processes collecting episodes.
+        net_arch: Hidden layers of the policy network.
+        epochs: Passes over the aggregated data per round.
+        task_options: Keyword options of the tip-control environment.
+    """
+
+    teacher: str = "tip-control-single-step"
+    rounds: int = 3
+    episodes: int = 200
+    first_round_episodes: int = 400
+    noise_model: str | None = None
+    seed: int = 1
+    workers: int = 2
+    net_arch: tuple[int, ...] = (256, 256, 256)
+    epochs: int = 300
+    task_options: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name in ("rounds", "episodes", "first_round_episodes", "workers", "epochs"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        if self.episodes >= 10_000 or self.first_round_episodes >= 10_000:
+            raise ValueError(
+                f"at most 9999 episodes per round, got {self.episodes}/{self.first_round_episodes}"
+            )
+        if self.seed < 1:
+            raise ValueError(f"seed must be >= 1 (seed 0 would reuse the evaluation seeds), got {self.seed}")
+        if not self.net_arch or any(int(n) < 1 for n in self.net_arch):
+            raise ValueError(f"net_arch must be positive layer sizes, got {self.net_arch!r}")
+        object.__setattr__(self, "net_arch", tuple(int(n) for n in self.net_arch))
+
+    def round_seeds(self, r: int) -> list[int]:
+        """Episode seeds of round ``r``."""
+        n = self.first_round_episodes if r == 0 else self.episodes
+        return [self.seed * 1_000_000 + r * 10_000 + i for i in range(n)]
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-ready form."""
+        return {**self.__dict__, "net_arch": list(self.net_arch)}
+
+
+def distill(config: DistillConfig, out: Path, resume: bool = False, log: Any = print) -> list[dict[str, Any]]:
+    """Run DAgger rounds into ``out``.
+
+    Each finished round leaves ``round<r>.npz``, ``model.zip`` (also kept as ``model_round<r>.zip``),
+    ``model.json`` and ``history.json``.
+
+    An interrupted run resumes (``resume=True``) after its last finished round, reusing the data of a round
+    that was collected but not yet trained on; a finished run resumed with more ``rounds`` goes on.
+    Returns the per-round history (also ``history.json``).
+    """
+    import torch
+
+    from dyndlo_vision import policies
+    from dyndlo_vision._atomic import write_atomic
+
+    out = Path(out)
+    config_file, history_file = out / "config.json", out / "history.json"
+    if resume:
+        if not config_file.is_file():
+            raise FileNotFoundError(f"nothing to resume: {config_file} does not exist")
+        stored = json.loads(config_file.read_text())
+        wanted = json.loads(json.dumps(config.to_json()))
+        if {k: v for k, v in stored.items() if k != "rounds"} != {
+            k: v for k, v in wanted.items() if k != "rounds"
+        }:
+            raise ValueError(
+                f"{config_file} holds another configuration ({stored}); resume with the same options "
+                "(only --rounds may change)"
+            )
+        write_atomic(config_file, lambda tmp: Path(tmp).write_text(json.dumps(config.to_json(), indent=2)))
+        history: list[dict[str, Any]] = json.loads(history_file.read_text()) if history_file.is_file() else []
+    else:
+        if out.exists() and any(out.iterdir()):
+            raise ValueError(f"{out} exists and is not empty; use --resume or another --out")
+        out.mkdir(parents=True, exist_ok=True)
+        write_atomic(config_file, lambda tmp: Path(tmp).write_text(json.dumps(config.to_json(), indent=2)))
+        history = []
+
+    torch.manual_seed(config.seed)
+    env = make_distill_env(config.task_options, config.noise_model)
+    policies.resolve(config.teacher)  # fail early on a missing teacher
+    model_file = out / "model.zip"
+    model = (
+        policies.load(model_file, env=env, algo="ppo")
+        if history
+        else new_student(env, config.net_arch, config.seed)
+    )
+    data = [Episodes.load(out / f"round{r}.npz") for r in range(len(history))]
+    for r in range(len(history), config.rounds):
+        start = time_now()
+        round_file = out / f"round{r}.npz"
+        if round_file.is_file():
+            episodes = Episodes.load(round_file)
+            log(f"round {r}: reusing {round_file} ({len(episodes.successes)} episodes)")
+        else:
+            log(f"round {r}: {'expert' if r == 0 else 'student'} acts, {len(config.round_seeds(r))} episodes")
+            episodes = collect(
+                config.round_seeds(r),
+                config.teacher,
+                str(model_file) if r else None,
+                1.0 if r == 0 else 0.0,
+                config.noise_model,
+                config.task_options,
+                config.workers,
+                r,
+            )
+            episodes.save(round_file)
+        collect_s = time_now() - start
+        data.append(episodes)
+        losses = fit_student(model, Episodes.concatenate(data), epochs=config.epochs, seed=config.seed + r)
+        model.save(model_file)
+        shutil.copyfile(model_file, out / f"model_round{r}.zip")  # every round's student stays selectable
+        entry = {
+            "round": r,
+            "acting": "expert" if r == 0 else f"student of round {r - 1}",
+            "episodes": int(len(episodes.successes)),
+            "samples": int(len(episodes.actions)),
+            "total_samples": int(sum(len(d.actions) for d in data)),
+            "success_rate": float(np.mean(episodes.successes)),
+            "avoid_rate": float(np.mean(episodes.avoided)),
+            "expert_fit_rms_mm": float(1000 * np.median(episodes.fit_rms_m)),
+            **losses,
+            "collect_s": round(collect_s, 1),
+            "wall_s": round(time_now() - start, 1),
+        }
+        history.append(entry)
+        write_atomic(history_file, lambda tmp: Path(tmp).write_text(json.dumps(history, indent=2)))
+        _write_metadata(out, config, history)
+        log(json.dumps(entry))
+    env.close()
+    return history
+
+
+def _write_metadata(out: Path, config: DistillConfig, history: list[dict[str, Any]]) -> None:
+    """``model.json`` beside ``model.zip``: what ``policies.load`` and ``evaluate`` read."""
+    from dyndlo_vision._atomic import write_atomic
+
+    meta = {
+        "task": "tip-control",
+        "multi_step": True,
+        "algo": "ppo",
+        "env_options": config.task_options,
+        "method": "DAgger distillation of a single-step policy (dyndlo_vision.learning.distill)",
+        "teacher": config.teacher,
+        "obs_noise": config.noise_model,
+        "rounds": len(history),
+        "samples": history[-1]["total_samples"] if history else 0,
+        "episodes": sum(h["episodes"] for h in history),
+    }
+    write_atomic(out / "model.json", lambda tmp: Path(tmp).write_text(json.dumps(meta, indent=2)))
+
+
+def time_now() -> float:
+    """Monotonic wall time in seconds."""
+    import time
+
+    return time.monotonic()
