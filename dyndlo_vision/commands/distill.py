@@ -1,4 +1,4 @@
-"""``dyndlo-vision distill``: a multi-step tip-control policy from a single-step one, by DAgger."""
+"""``dyndlo-vision distill``: a multi-step tip-control policy from a single-step one, by imitation."""
 
 from __future__ import annotations
 
@@ -7,7 +7,8 @@ import json
 from pathlib import Path
 
 HELP = (
-    "distil a single-step tip-control policy into a multi-step (re-planning) PPO policy by DAgger; resumable"
+    "distil a single-step tip-control policy into a multi-step (re-planning) PPO policy by imitation "
+    "(behaviour cloning, optional DAgger rounds); resumable"
 )
 
 
@@ -18,7 +19,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="tip-control-single-step",
         help="shipped name or .zip of the single-step policy (default: tip-control-single-step)",
     )
-    p.add_argument("--rounds", type=int, default=3, help="DAgger rounds; round 0 is the expert's (default 3)")
+    p.add_argument(
+        "--rounds",
+        type=int,
+        default=1,
+        help="rounds: 0 is behaviour cloning, later ones DAgger (default 1; see docs/RESULTS.md)",
+    )
     p.add_argument("--episodes", type=int, default=200, help="episodes per round after round 0 (default 200)")
     p.add_argument("--first-round-episodes", type=int, default=400, help="episodes of round 0 (default 400)")
     p.add_argument(

@@ -1,4 +1,4 @@
-"""Distil a single-step (plan once) policy into a multi-step (re-plan every 40 ms) policy by DAgger.
+"""Distil a single-step (plan once) policy into a multi-step (re-plan every 40 ms) policy by imitation.
 
 Why: the multi-step task's reward is sparse (+100 for a hit, -50 for any limit broken, judged once at the end
 of 40 decisions) and random re-planning breaks the speed limit in every episode; SAC at 35 000 steps never
@@ -13,8 +13,7 @@ the current position and velocity.
 * :func:`collect` runs episodes in which the student acts (with probability ``1 - beta``) or the expert does,
   and records the observation the student saw with the expert's action for it (DAgger, Ross et al. 2011).
 * :func:`fit_student` regresses the mean of a stable-baselines3 PPO policy onto the aggregated labels, so the
-  result is an ordinary PPO zip that ``policies.load``, ``evaluate``, the control loop and PPO fine-tuning
-  all take.
+  result is an ordinary PPO zip that ``policies.load``, ``evaluate`` and the control loop take.
 
 With ``noise_model`` the episodes run under :class:`~dyndlo_vision.control.wrappers.NoisyObservation`: the
 student sees the corrupted P_DLO (and learns to act on it), the expert is unaffected (it reads no P_DLO).
@@ -381,7 +380,9 @@ class DistillConfig:
 
     Attributes:
         teacher: Shipped name or path of the single-step tip-control policy.
-        rounds: DAgger rounds. Round 0: the expert acts; rounds 1..: the student of the previous round acts.
+        rounds: Round 0: the expert acts (behaviour cloning); rounds 1..: the student of the previous round
+            acts and the expert labels (DAgger). One round is the default: more made the student worse in our
+            measurements (docs/RESULTS.md).
         episodes: Episodes per round after round 0.
         first_round_episodes: Episodes of round 0.
         noise_model: Observation-noise model file the student sees P_DLO through (None: true state).
@@ -394,7 +395,7 @@ class DistillConfig:
     """
 
     teacher: str = "tip-control-single-step"
-    rounds: int = 3
+    rounds: int = 1
     episodes: int = 200
     first_round_episodes: int = 400
     noise_model: str | None = None
