@@ -1,0 +1,40 @@
+"""The policies shipped in the package load by name, match their metadata and still hit the target."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import pytest
+
+import dyndlo_vision  # noqa: F401
+from dyndlo_vision import policies
+from dyndlo_vision.learning.config import env_id
+
+
+def test_both_tip_control_modes_are_shipped() -> None:
+    assert {"tip-control-single-step", "tip-control-multi-step"} <= set(policies.available())
+    for name in policies.available():
+        meta = policies.metadata(name)
+        assert meta["task"] == "tip-control" and meta["algo"] in ("ppo", "sac")
+        assert meta["multi_step"] == name.endswith("multi-step")
+        evaluation = meta["evaluation"]
+        assert evaluation["episodes"] == 100 and evaluation["success_rate"] >= 0.9
+        lo, hi = evaluation["success_ci95"]
+        assert lo <= evaluation["success_rate"] <= hi
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["tip-control-single-step", "tip-control-multi-step"])
+def test_shipped_policy_hits_unseen_targets(name: str) -> None:
+    """Seeds 100000-100019 of the evaluation set (never trained on): 19/20 single-step, 20/20 multi-step."""
+    meta = policies.metadata(name)
+    env = gym.make(env_id(meta["task"]), multi_step=meta["multi_step"])
+    model = policies.load(name, env=env)
+    hits = 0
+    for seed in range(100_000, 100_020):
+        obs, _ = env.reset(seed=seed)
+        done = False
+        while not done:
+            action, _ = model.predict(obs, deterministic=True)
+            obs, _, done, _, info = env.step(action)
+        hits += bool(info["is_success"])
+    assert hits >= 18, f"{name}: {hits}/20"
