@@ -39,6 +39,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--epochs", type=int, default=300, help="regression passes over the data per round (default 300)"
     )
     p.add_argument(
+        "--expert-speed-limit",
+        type=float,
+        default=None,
+        metavar="M_S",
+        help="penalise the expert's commanded TCP speeds above this (e.g. 1.7; default: off)",
+    )
+    p.add_argument(
         "--out", default=None, help="run folder (default: runs/tip-control-multi-step-distill-s<seed>)"
     )
     p.add_argument("--resume", action="store_true", help="continue the run in --out after its last round")
@@ -66,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         workers=args.workers,
         epochs=args.epochs,
+        expert_speed_limit_m_s=args.expert_speed_limit,
     )
     out = Path(args.out or f"runs/tip-control-multi-step-distill-s{args.seed}")
     try:

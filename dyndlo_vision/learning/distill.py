@@ -50,7 +50,7 @@ class PlanFollowingExpert:
             ``early_samples`` more times) count ``early_weight`` times more.
         speed_limit_m_s: Commanded TCP speeds above this are penalised (``speed_weight`` metres of residual
             per m/s of excess), so that corrections from states off the plan stay inside v_max (1.8 m/s); None
-            turns the penalty off.
+            (default, what the shipped policy was made with) turns the penalty off.
         max_nfev: Evaluation budget of each least-squares fit (warm-started from the previous action).
     """
 
@@ -62,7 +62,7 @@ class PlanFollowingExpert:
         early_s: float = 0.04,
         early_samples: int = 10,
         early_weight: float = 10.0,
-        speed_limit_m_s: float | None = 1.7,
+        speed_limit_m_s: float | None = None,
         speed_weight: float = 0.2,
         max_nfev: int = 60,
     ) -> None:
@@ -242,7 +242,7 @@ def _collect_chunk(job: dict[str, Any]) -> Episodes:
     env = make_distill_env(job["task_options"], job["noise_model"])
     teacher = policies.load(job["teacher"])
     student = policies.load(job["student"], env=env, algo="ppo") if job["student"] else None
-    expert = PlanFollowingExpert(env.unwrapped.spec_actions)
+    expert = PlanFollowingExpert(env.unwrapped.spec_actions, speed_limit_m_s=job["speed_limit"])
     parts = []
     for seed in job["seeds"]:
         ep = run_episode(
@@ -279,6 +279,7 @@ def collect(
     task_options: dict[str, Any] | None = None,
     workers: int = 1,
     round_index: int = 0,
+    speed_limit_m_s: float | None = None,
 ) -> Episodes:
     """Run one DAgger round's episodes (one per seed) in ``workers`` processes.
 
@@ -291,6 +292,7 @@ def collect(
         task_options: Keyword options of the tip-control environment.
         workers: Processes (each builds its own environment).
         round_index: Mixed into the per-episode random stream that picks who acts.
+        speed_limit_m_s: The expert's speed penalty threshold (None: off).
     """
     seeds = [int(s) for s in seeds]
     jobs = [
@@ -302,6 +304,7 @@ def collect(
             "noise_model": noise_model,
             "task_options": dict(task_options or {}),
             "round": round_index,
+            "speed_limit": speed_limit_m_s,
         }
         for i in range(workers)
     ]
@@ -391,6 +394,7 @@ class DistillConfig:
         workers: Processes collecting episodes.
         net_arch: Hidden layers of the policy network.
         epochs: Passes over the aggregated data per round.
+        expert_speed_limit_m_s: :class:`PlanFollowingExpert`'s ``speed_limit_m_s``.
         task_options: Keyword options of the tip-control environment.
     """
 
@@ -403,6 +407,7 @@ class DistillConfig:
     workers: int = 2
     net_arch: tuple[int, ...] = (256, 256, 256)
     epochs: int = 300
+    expert_speed_limit_m_s: float | None = None
     task_options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -416,6 +421,9 @@ class DistillConfig:
             )
         if self.seed < 1:
             raise ValueError(f"seed must be >= 1 (seed 0 would reuse the evaluation seeds), got {self.seed}")
+        limit = self.expert_speed_limit_m_s
+        if limit is not None and not (isinstance(limit, int | float) and 0 < limit < float("inf")):
+            raise ValueError(f"expert_speed_limit_m_s must be a positive speed in m/s or None, got {limit!r}")
         if not self.net_arch or any(int(n) < 1 for n in self.net_arch):
             raise ValueError(f"net_arch must be positive layer sizes, got {self.net_arch!r}")
         object.__setattr__(self, "net_arch", tuple(int(n) for n in self.net_arch))
@@ -495,6 +503,7 @@ def distill(config: DistillConfig, out: Path, resume: bool = False, log: Any = p
                 config.task_options,
                 config.workers,
                 r,
+                config.expert_speed_limit_m_s,
             )
             episodes.save(round_file)
         collect_s = time_now() - start

@@ -111,6 +111,8 @@ def test_config_rejects_bad_values() -> None:
         DistillConfig(seed=0)
     with pytest.raises(ValueError, match="net_arch"):
         DistillConfig(net_arch=(0,))
+    with pytest.raises(ValueError, match="expert_speed_limit_m_s"):
+        DistillConfig(expert_speed_limit_m_s=0.0)
     assert DistillConfig(seed=2).round_seeds(1)[:2] == [2_010_000, 2_010_001]
 
 
@@ -155,7 +157,8 @@ def test_cli_distill_bad_input(tmp_path, capsys) -> None:
         main(["distill", "--obs-noise", str(tmp_path / "missing.json"), "--out", str(tmp_path / "x")])
     assert err.value.code == 2
     assert "missing.json" in capsys.readouterr().err
-    with pytest.raises(SystemExit) as err:
-        main(["distill", "--rounds", "0", "--out", str(tmp_path / "y")])
-    assert err.value.code == 2
+    for bad in (["--rounds", "0"], ["--expert-speed-limit", "-1"]):
+        with pytest.raises(SystemExit) as err:
+            main(["distill", *bad, "--out", str(tmp_path / "y")])
+        assert err.value.code == 2
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
