@@ -135,15 +135,6 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _finish_plan(robot: Any, replanner: Any, t: float, duration_s: float, period_s: float) -> None:
-    """Send the rest of the current plan, from ``t`` for ``duration_s``, without re-planning."""
-    from dyndlo_vision.control.protocols import Setpoints
-
-    times = t + period_s * np.arange(int(round(duration_s / period_s)))
-    if times.size:
-        robot.send(Setpoints(times, *replanner.references(times)))
-
-
 def run_episode(
     env: Any, model: Any, seed: int, observation: str, camera_name: str, video: list[np.ndarray] | None
 ) -> dict[str, Any]:
@@ -193,7 +184,7 @@ def run_episode(
         report = loop.run(base.task.episode_s, done=base.is_done_early, on_cycle=on_cycle)
         if report.stop_reason == "duration":
             # As in the environment: after the last re-plan the TCP follows that plan (it ends at rest).
-            _finish_plan(robot, base.replanner, base.scene.time, base.task.settle_s, base.scene.timestep)
+            loop.finish_plan(base.task.settle_s)
     else:
         report = loop.run(
             10.0,

@@ -186,6 +186,19 @@ class ControlLoop:
         if remaining > 0:
             time.sleep(remaining)
 
+    def finish_plan(self, duration_s: float) -> None:
+        """Send the rest of the current plan for ``duration_s`` of robot time, without re-planning.
+
+        This is what the environment does after a multi-step episode's last decision (the plan ends at rest),
+        so a loop episode ends like the environment's. No frames are read; the robot's safety layers apply.
+        """
+        if not duration_s > 0:
+            raise ValueError(f"duration_s must be > 0, got {duration_s!r}")
+        t0 = self.robot.state().t
+        times = t0 + self.setpoint_period_s * np.arange(int(round(duration_s / self.setpoint_period_s)))
+        if times.size:
+            self.robot.send(Setpoints(times, *self.replanner.references(times)))
+
     def run(
         self,
         duration_s: float,

@@ -72,6 +72,32 @@ def test_loop_on_true_state_reproduces_the_environment_episode() -> None:
     assert info_loop["avoid"] == info_env["avoid"]
 
 
+def test_finish_plan_ends_the_episode_as_the_environment_does() -> None:
+    """40 decisions, then the environment follows the last plan for the settle time; so does finish_plan."""
+    rng = np.random.default_rng(3)
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    actions = rng.uniform(-0.4, 0.4, (40, *env.action_space.shape)).astype(np.float32)
+    env.reset(seed=5)
+    for k in range(40):
+        _, _, terminated, _, info_env = env.step(actions[k])
+        if terminated:
+            break
+    assert k == 39 and not info_env["is_success"]  # the whole episode, settle included
+    tip_env, t_env = env.unwrapped.cable_nodes()[-1].copy(), env.unwrapped.scene.time
+
+    env.reset(seed=5)
+    loop, _ = _loop(env, TrueState(env), ScriptedPolicy(actions))
+    report = loop.run(duration_s=env.unwrapped.task.episode_s)
+    assert report.stop_reason == "duration" and len(report.cycles) == 40
+    loop.finish_plan(env.unwrapped.task.settle_s)
+    assert env.unwrapped.scene.time == pytest.approx(t_env)
+    np.testing.assert_allclose(env.unwrapped.cable_nodes()[-1], tip_env, atol=1e-9)
+    _, _, info_loop = env.unwrapped.outcome()
+    assert info_loop["min_distance_m"] == pytest.approx(info_env["min_distance_m"], abs=1e-9)
+    with pytest.raises(ValueError, match="duration_s"):
+        loop.finish_plan(0.0)
+
+
 @pytest.mark.slow
 def test_tracked_state_follows_the_tip_in_simulation() -> None:
     from dyndlo_vision.control.sim_perception import tracked_state
