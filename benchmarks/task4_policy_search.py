@@ -1,4 +1,4 @@
-"""Task IV: can any single-step plan beat the geometric lift at equal time? Cross-entropy search over the action.
+"""Task IV: can a single-step plan beat the geometric lift at equal time? Cross-entropy search over plans.
 
 Task IV starts from the same state every episode and its goal is fixed, so a plan (one action) is a complete
 policy and the environment's reward can be optimised directly. This searches the action with the cross-entropy
@@ -69,14 +69,27 @@ def main() -> None:
         mean, std = elite.mean(axis=0), np.maximum(elite.std(axis=0), 0.02)
         if rewards.max() > best_reward:
             best_reward, best = float(rewards.max()), population[int(np.argmax(rewards))]
-        print(f"iteration {it}: best {rewards.max():.2f}, median {np.median(rewards):.2f}, "
-              f"best so far {best_reward:.2f} ({time.perf_counter() - t0:.0f} s)", flush=True)
+        print(
+            f"iteration {it}: best {rewards.max():.2f}, median {np.median(rewards):.2f}, "
+            f"best so far {best_reward:.2f} ({time.perf_counter() - t0:.0f} s)",
+            flush=True,
+        )
     found = summary(*episode(env, best))
     geometric = summary(*episode(env, GeometricLift(env, found["planned_time_s"])(obs)))
     episodes = 1 + args.iterations * args.population
-    print(json.dumps({"target": args.target, "layout": args.layout, "episodes": episodes,
-                      "search": found, "geometric_same_time": geometric,
-                      "action": np.round(best, 4).tolist()}, indent=2))
+    print(
+        json.dumps(
+            {
+                "target": args.target,
+                "layout": args.layout,
+                "episodes": episodes,
+                "search": found,
+                "geometric_same_time": geometric,
+                "action": np.round(best, 4).tolist(),
+            },
+            indent=2,
+        )
+    )
 
 
 if __name__ == "__main__":
