@@ -335,13 +335,15 @@ def fit_student(
 ) -> dict[str, float]:
     """Regress the PPO policy's mean action onto the expert's actions (mean squared error, Adam, cosine lr).
 
-    Whole episodes (by seed) are held out for validation. Returns the final training and validation loss.
+    Whole episodes (by seed) are held out for validation (none when there is only one episode). Returns the
+    final training and validation loss (NaN without validation episodes).
     """
     import torch
 
     rng = np.random.default_rng(seed)
     episodes = np.unique(data.seeds)
-    held = set(rng.choice(episodes, size=max(1, int(len(episodes) * validation_fraction)), replace=False))
+    n_held = max(1, int(len(episodes) * validation_fraction)) if len(episodes) > 1 else 0  # keep one to train
+    held = set(rng.choice(episodes, size=n_held, replace=False))
     val = np.isin(data.seeds, list(held))
     obs = torch.as_tensor(data.observations, dtype=torch.float32)
     act = torch.as_tensor(data.actions, dtype=torch.float32)

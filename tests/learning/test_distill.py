@@ -162,3 +162,26 @@ def test_cli_distill_bad_input(tmp_path, capsys) -> None:
             main(["distill", *bad, "--out", str(tmp_path / "y")])
         assert err.value.code == 2
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+
+
+def test_fit_student_regresses_the_mean_action() -> None:
+    """The PPO network's mean action learns a smooth map of the observation; one episode trains without
+    validation."""
+    from dyndlo_vision.learning.distill import fit_student, new_student
+
+    rng = np.random.default_rng(0)
+    n = 400
+    obs = rng.uniform(-1, 1, (n, 12)).astype(np.float32)
+    weights = rng.normal(0, 0.5, (12, 9))
+    actions = np.tanh(obs @ weights).astype(np.float32)
+    seeds = np.repeat(np.arange(8), n // 8)
+    data = Episodes(obs, obs, actions, seeds, np.ones(8, bool), np.zeros(8, bool), np.zeros(8))
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    model = new_student(env, (64, 64), seed=0)
+    before = float(np.mean((model.predict(obs, deterministic=True)[0] - actions) ** 2))
+    losses = fit_student(model, data, epochs=150, batch_size=64, seed=0)
+    assert losses["validation_mse"] < 0.1 * before, (before, losses)
+    one = Episodes(
+        obs[:50], obs[:50], actions[:50], np.zeros(50, int), np.ones(1, bool), np.zeros(1, bool), np.zeros(1)
+    )
+    assert np.isnan(fit_student(model, one, epochs=2)["validation_mse"])
