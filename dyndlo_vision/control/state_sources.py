@@ -15,7 +15,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dyndlo_vision.control.protocols import Camera, TcpState
-from dyndlo_vision.tasks.base import observation_vector
 
 log = logging.getLogger(__name__)
 
@@ -85,10 +84,7 @@ class NoisyState:
 
     def read(self, t_now: float, tcp: TcpState) -> PDloReading:
         """The corrupted P_DLO for now."""
-        scene = self.env.scene
-        true_p = self.env.p_dlo()
-        obs = observation_vector(scene.tcp_positions(), scene.tcp_velocities(), true_p, self.env.goal)
-        noisy = self.noise.observation(obs)
+        noisy = self.noise.observation(self.env.observation())
         p = np.asarray(noisy[self.noise._p_dlo], dtype=float)  # noqa: SLF001
         return PDloReading(p, t_now, measured=not self.noise._dropped)  # noqa: SLF001
 

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import time
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
@@ -161,14 +162,6 @@ class Episodes:
             return Episodes(*(data[k] for k in Episodes.__dataclass_fields__))
 
 
-def true_observation(env: Any) -> NDArray[np.float32]:
-    """The table-II observation of the true state (what the single-step teacher was trained on)."""
-    from dyndlo_vision.tasks.base import observation_vector
-
-    u = env.unwrapped
-    return observation_vector(u.scene.tcp_positions(), u.scene.tcp_velocities(), u.p_dlo(), u.goal)
-
-
 def run_episode(
     env: Any,
     teacher: Any,
@@ -188,7 +181,7 @@ def run_episode(
     rng = rng or np.random.default_rng(seed)
     obs, _ = env.reset(seed=seed)
     u = env.unwrapped
-    plan, _ = teacher.predict(true_observation(env), deterministic=True)
+    plan, _ = teacher.predict(u.observation(), deterministic=True)  # the teacher saw true state
     observations, true_obs, labels, rms = [], [], [], []
     done, k, info = False, 0, {}
     while not done:
@@ -202,7 +195,7 @@ def run_episode(
         if student is not None and rng.random() >= beta:
             action, _ = student.predict(obs, deterministic=True)
         observations.append(np.asarray(obs, dtype=np.float32))
-        true_obs.append(true_observation(env))
+        true_obs.append(u.observation())
         labels.append(label.astype(np.float32))
         obs, _, terminated, truncated, info = env.step(np.asarray(action, dtype=np.float32))
         done = terminated or truncated
@@ -489,7 +482,7 @@ def distill(config: DistillConfig, out: Path, resume: bool = False, log: Any = p
     )
     data = [Episodes.load(out / f"round{r}.npz") for r in range(len(history))]
     for r in range(len(history), config.rounds):
-        start = time_now()
+        start = time.monotonic()
         round_file = out / f"round{r}.npz"
         if round_file.is_file():
             episodes = Episodes.load(round_file)
@@ -508,7 +501,7 @@ def distill(config: DistillConfig, out: Path, resume: bool = False, log: Any = p
                 config.expert_speed_limit_m_s,
             )
             episodes.save(round_file)
-        collect_s = time_now() - start
+        collect_s = time.monotonic() - start
         data.append(episodes)
         losses = fit_student(model, Episodes.concatenate(data), epochs=config.epochs, seed=config.seed + r)
         model.save(model_file)
@@ -524,7 +517,7 @@ def distill(config: DistillConfig, out: Path, resume: bool = False, log: Any = p
             "expert_fit_rms_mm": float(1000 * np.median(episodes.fit_rms_m)),
             **losses,
             "collect_s": round(collect_s, 1),
-            "wall_s": round(time_now() - start, 1),
+            "wall_s": round(time.monotonic() - start, 1),
         }
         history.append(entry)
         write_atomic(history_file, lambda tmp: Path(tmp).write_text(json.dumps(history, indent=2)))
@@ -551,10 +544,3 @@ def _write_metadata(out: Path, config: DistillConfig, history: list[dict[str, An
         "episodes": sum(h["episodes"] for h in history),
     }
     write_atomic(out / "model.json", lambda tmp: Path(tmp).write_text(json.dumps(meta, indent=2)))
-
-
-def time_now() -> float:
-    """Monotonic wall time in seconds."""
-    import time
-
-    return time.monotonic()

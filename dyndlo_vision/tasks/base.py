@@ -217,7 +217,7 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self._monitor = EpisodeMonitor()
         self._decisions = 0
         self._sample_monitor()
-        return self._observation(), {"goal": self._goal.copy()}
+        return self.observation(), {"goal": self._goal.copy()}
 
     def step(
         self, action: NDArray[np.float32]
@@ -244,7 +244,7 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
                                 "avoid": dict(self._monitor.avoid), "sim_time_s": self.scene.time}
         if diverged:
             info["diverged"] = True
-        return self._observation(), reward, bool(final or diverged), False, info
+        return self.observation(), reward, bool(final or diverged), False, info
 
     def render(self) -> NDArray[np.uint8] | None:
         """Return an RGB image from ``render_camera`` (rgb_array mode), else None."""
@@ -365,7 +365,8 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         mon.samples += 1
         self.task.on_sample(scene, self._goal, mon)
 
-    def _observation(self) -> NDArray[np.float32]:
+    def observation(self) -> NDArray[np.float32]:
+        """The table-II observation of the simulator's true state now (what ``reset`` and ``step`` return)."""
         scene = self.scene
         return observation_vector(scene.tcp_positions(), scene.tcp_velocities(), self.p_dlo(), self._goal)
 
