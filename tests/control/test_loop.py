@@ -45,6 +45,16 @@ def _loop(env: gym.Env, source: object, policy: object) -> tuple[ControlLoop, Si
     return loop, robot
 
 
+def _env_episode(env: gym.Env, actions: np.ndarray, seed: int, decisions: int) -> tuple[int, dict]:
+    """Play ``actions`` from ``reset(seed)`` for at most ``decisions``; return (steps, last info)."""
+    env.reset(seed=seed)
+    for k in range(decisions):
+        _, _, terminated, _, info = env.step(actions[k])
+        if terminated:
+            break
+    return k + 1, info
+
+
 def test_sim_robot_is_a_robot() -> None:
     assert isinstance(SimRobot(gym.make("DynDLO/TipControl-v0")), Robot)
 
@@ -54,13 +64,8 @@ def test_loop_on_true_state_reproduces_the_environment_episode() -> None:
     rng = np.random.default_rng(7)
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
     actions = rng.uniform(-0.6, 0.6, (40, *env.action_space.shape)).astype(np.float32)
-    env.reset(seed=11)
-    for k in range(12):
-        _, _, terminated, _, info_env = env.step(actions[k])
-        if terminated:
-            break
+    steps, info_env = _env_episode(env, actions, seed=11, decisions=12)
     tip_env = env.unwrapped.cable_nodes()[-1].copy()
-    steps = k + 1
 
     env.reset(seed=11)
     loop, _ = _loop(env, TrueState(env), ScriptedPolicy(actions))
@@ -77,12 +82,8 @@ def test_finish_plan_ends_the_episode_as_the_environment_does() -> None:
     rng = np.random.default_rng(3)
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
     actions = rng.uniform(-0.4, 0.4, (40, *env.action_space.shape)).astype(np.float32)
-    env.reset(seed=5)
-    for k in range(40):
-        _, _, terminated, _, info_env = env.step(actions[k])
-        if terminated:
-            break
-    assert k == 39 and not info_env["is_success"]  # the whole episode, settle included
+    steps, info_env = _env_episode(env, actions, seed=5, decisions=40)
+    assert steps == 40 and not info_env["is_success"]  # the whole episode, settle included
     tip_env, t_env = env.unwrapped.cable_nodes()[-1].copy(), env.unwrapped.scene.time
 
     env.reset(seed=5)
