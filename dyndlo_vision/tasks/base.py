@@ -96,18 +96,31 @@ class Task(ABC):
     def begin_episode(self) -> None:  # noqa: B027  (optional hook)
         """Clear per-episode state (called by the environment's reset)."""
 
-    def on_sample(  # noqa: B027  (optional hook)
-        self, scene: Scene, goal: NDArray[np.float64], monitor: EpisodeMonitor
+    def on_samples(  # noqa: B027  (optional hook)
+        self, times: NDArray[np.float64], tcp_positions: NDArray[np.float64],
+        tcp_velocities: NDArray[np.float64], p_dlo: NDArray[np.float64],
+        min_goal_distances: NDArray[np.float64], monitor: EpisodeMonitor,
     ) -> None:
-        """Called at every monitor sample (every ``MONITOR_PERIOD_S``) after the monitor is updated."""
+        """Called after the monitor took K samples (one every ``MONITOR_PERIOD_S``), with their states.
+
+        Args:
+            times: (K,) simulated times of the samples.
+            tcp_positions: (K, n_g, 3) gripper positions.
+            tcp_velocities: (K, n_g, 3) gripper velocities.
+            p_dlo: (K, 3) positions of the cable's section of interest.
+            min_goal_distances: (K,) the episode's smallest goal distance up to and including each sample.
+            monitor: The episode monitor, already updated with all K samples.
+        """
+
+    def goal_distances(
+        self, tcp_positions: NDArray[np.float64], p_dlo: NDArray[np.float64], goal: NDArray[np.float64]
+    ) -> NDArray[np.float64]:
+        """Distances used for the goal condition at K samples, (K, n_g, 3) and (K, 3) -> (K,) (min kept)."""
+        return np.linalg.norm(p_dlo - goal, axis=-1)
 
     def final_point(self, goal: NDArray[np.float64]) -> NDArray[np.float64] | None:
         """The point appended to every plan (task IV), else None."""
         return None
-
-    def goal_distance(self, scene: Scene, goal: NDArray[np.float64], p_dlo: NDArray[np.float64]) -> float:
-        """Distance used for the goal condition, checked at every monitor sample (min kept)."""
-        return float(np.linalg.norm(p_dlo - goal))
 
     @abstractmethod
     def evaluate(
@@ -160,12 +173,9 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self._decisions = 0
         #: Called with the environment every 40 ms of simulated time while it simulates (None: never).
         self.frame_hook: Callable[[DynDLOEnv], None] | None = None
-        # Tasks that read nothing but the TCPs and P_DLO at monitor samples run their open-loop stretches in
-        # MuJoCo's C rollout (no Python per step), about twice as fast; the others step in Python.
-        task_type = type(task)
-        self._batch_monitor = (
-            task_type.goal_distance is Task.goal_distance and task_type.on_sample is Task.on_sample
-        )
+        # The open-loop stretches of an episode run in MuJoCo's C rollout (no Python per step) and the monitor
+        # and task hooks see the recorded states afterwards; False steps in Python (the reference, for tests).
+        self._batch_monitor = True
 
     # ------------------------------------------------------------------ gym API
     @property
@@ -311,10 +321,11 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         if self._batch_monitor:
             # The plan is open loop over these steps: run them in MuJoCo's C rollout and check the constraints
             # on the recorded states afterwards, at the same monitor instants as the loop below.
+            t0 = scene.time
             qpos, qvel, finite = scene.rollout(scene.tcp_controls(ref_p, ref_v))
             samples = np.arange(self._steps_per_monitor - 1, finite, self._steps_per_monitor)
             if samples.size:
-                self._sample_monitor_batch(qpos[samples], qvel[samples])
+                self._sample_monitor_batch(t0 + self._dt * (samples + 1), qpos[samples], qvel[samples])
             return
         for k in range(nsteps):
             scene.set_tcp_reference(ref_p[k], ref_v[k])
@@ -324,46 +335,41 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
                 if not scene.is_finite():
                     return
 
-    def _sample_monitor_batch(self, qpos: NDArray[np.float64], qvel: NDArray[np.float64]) -> None:
-        """:meth:`_sample_monitor` for K recorded states at once (tasks without per-sample hooks)."""
+    def _sample_monitor_batch(
+        self, times: NDArray[np.float64], qpos: NDArray[np.float64], qvel: NDArray[np.float64]
+    ) -> None:
+        """:meth:`_sample_monitor` for K recorded states at once."""
         scene, mon, limits = self.scene, self._monitor, self.task.limits
         p, v = scene.tcp_from_state(qpos, qvel)
         p_dlo = scene.nodes_from_qpos(qpos)[:, self.task.p_dlo_node(scene)]
-        speed = np.linalg.norm(v, axis=2)
-        flags = avoid_flags(p, v, p_dlo, limits, self.task.check_collision)
-        for key, value in flags.items():
-            mon.avoid[key] = mon.avoid[key] or value
-        mon.max_tcp_speed_m_s = max(mon.max_tcp_speed_m_s, float(speed.max()))
-        mon.max_mean_height_m = max(mon.max_mean_height_m, float(p[:, :, 2].mean(axis=1).max()))
-        dist = np.linalg.norm(p_dlo - self._goal, axis=1)
-        if self.task.swept_goal_check:
-            start = p_dlo[:-1] if mon.last_p_dlo is None else np.vstack([mon.last_p_dlo, p_dlo[:-1]])
-            end = p_dlo[1:] if mon.last_p_dlo is None else p_dlo
-            if len(start):
-                dist = np.minimum(dist.min(), _segment_point_distances(start, end, self._goal).min())
-        mon.min_goal_distance_m = min(mon.min_goal_distance_m, float(np.min(dist)))
-        mon.last_p_dlo = p_dlo[-1].copy()
-        mon.samples += len(qpos)
+        self._record_samples(times, p, v, p_dlo)
 
     def _sample_monitor(self) -> None:
-        scene, mon = self.scene, self._monitor
-        p, v = scene.tcp_positions(), scene.tcp_velocities()
-        nodes = scene.cable_nodes()
-        p_dlo = nodes[self.task.p_dlo_node(scene)]
+        scene = self.scene
+        p_dlo = scene.cable_nodes()[self.task.p_dlo_node(scene)]
+        self._record_samples(np.array([scene.time]), scene.tcp_positions()[None], scene.tcp_velocities()[None],
+                             p_dlo[None])
+
+    def _record_samples(self, times: NDArray[np.float64], p: NDArray[np.float64], v: NDArray[np.float64],
+                        p_dlo: NDArray[np.float64]) -> None:
+        """Update the monitor with K samples (K,), (K, n_g, 3), (K, n_g, 3), (K, 3), then call the task."""
+        mon = self._monitor
         flags = avoid_flags(p, v, p_dlo, self.task.limits, self.task.check_collision)
         for key, value in flags.items():
             mon.avoid[key] = mon.avoid[key] or value
-        mon.max_tcp_speed_m_s = max(mon.max_tcp_speed_m_s, float(np.linalg.norm(v, axis=1).max()))
-        mon.max_mean_height_m = max(mon.max_mean_height_m, float(p[:, 2].mean()))
-        # Swept check: the distance to the goal of the segment P_DLO moved along since the last sample, so a
-        # fast tip cannot pass through the target between two samples unnoticed.
-        dist = self.task.goal_distance(scene, self._goal, p_dlo)
-        if mon.last_p_dlo is not None and self.task.swept_goal_check:
-            dist = min(dist, _segment_point_distance(mon.last_p_dlo, p_dlo, self._goal))
-        mon.min_goal_distance_m = min(mon.min_goal_distance_m, dist)
-        mon.last_p_dlo = p_dlo
-        mon.samples += 1
-        self.task.on_sample(scene, self._goal, mon)
+        mon.max_tcp_speed_m_s = max(mon.max_tcp_speed_m_s, float(np.linalg.norm(v, axis=2).max()))
+        mon.max_mean_height_m = max(mon.max_mean_height_m, float(p[:, :, 2].mean(axis=1).max()))
+        dist = self.task.goal_distances(p, p_dlo, self._goal)
+        if self.task.swept_goal_check:
+            # The distance to the goal of the segment P_DLO moved along since the previous sample, so a fast
+            # tip cannot pass through the target between two samples unnoticed.
+            previous = p_dlo[:1] if mon.last_p_dlo is None else mon.last_p_dlo[None]
+            dist = np.minimum(dist, _segment_point_distances(np.vstack([previous, p_dlo[:-1]]), p_dlo, self._goal))
+        running = np.minimum.accumulate(np.minimum(dist, mon.min_goal_distance_m))
+        mon.min_goal_distance_m = float(running[-1])
+        mon.last_p_dlo = p_dlo[-1].copy()
+        mon.samples += len(times)
+        self.task.on_samples(times, p, v, p_dlo, running, mon)
 
     def observation(self) -> NDArray[np.float32]:
         """The table-II observation of the simulator's true state now (what ``reset`` and ``step`` return)."""
@@ -429,6 +435,3 @@ def _segment_point_distances(
     s = np.clip(s, 0.0, 1.0)
     return np.linalg.norm(a + s[:, None] * ab - c, axis=1)
 
-
-def _segment_point_distance(a: NDArray[np.float64], b: NDArray[np.float64], c: NDArray[np.float64]) -> float:
-    return float(_segment_point_distances(a[None], b[None], c)[0])

@@ -95,31 +95,36 @@ class TimeOscillation(Task):
     def final_point(self, goal: NDArray[np.float64]) -> NDArray[np.float64] | None:
         return goal
 
-    def goal_distance(self, scene: Scene, goal: NDArray[np.float64], p_dlo: NDArray[np.float64]) -> float:
-        return float(np.linalg.norm(scene.tcp_positions()[0] - goal))
+    def goal_distances(self, tcp_positions: NDArray[np.float64], p_dlo: NDArray[np.float64],
+                       goal: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Arrival is the TCP's (not the tip's) distance to the goal."""
+        return np.linalg.norm(tcp_positions[:, 0] - goal, axis=-1)
 
     def oscillation(self, scene: Scene) -> float:
         """Horizontal distance of the tip from straight below the TCP."""
         tip = scene.cable_nodes()[-1]
         return float(np.linalg.norm(tip[:2] - scene.tcp_positions()[0, :2]))
 
-    def on_sample(self, scene: Scene, goal: NDArray[np.float64], monitor: EpisodeMonitor) -> None:
-        # The paper's per-step evaluation of the explicit task, at 25 Hz whatever the episode mode.
-        if scene.time + 1e-9 < self._next_eval_s:
-            return
-        self._next_eval_s += CONTROL_PERIOD_S
-        osc = self.oscillation(scene)
-        arrived = monitor.min_goal_distance_m < ARRIVAL_TOLERANCE_M  # monotone: once arrived, stays arrived
-        if arrived and self._arrival_s is None:
-            self._arrival_s = scene.time
-        if arrived:
-            self._max_osc = max(self._max_osc, osc)
-        now = avoid_flags(scene.tcp_positions(), scene.tcp_velocities(), scene.cable_nodes()[-1], self.limits,
-                          self.check_collision)
-        step = explicit_step_reward(self.coefficients(), any(now.values()), arrived, osc,
-                                    OSCILLATION_THRESHOLD_M)
-        for key, value in step.items():
-            self._pending[key] += value
+    def on_samples(self, times: NDArray[np.float64], tcp_positions: NDArray[np.float64],
+                   tcp_velocities: NDArray[np.float64], p_dlo: NDArray[np.float64],
+                   min_goal_distances: NDArray[np.float64], monitor: EpisodeMonitor) -> None:
+        # The paper's per-step evaluation of the explicit task, at 25 Hz whatever the episode mode: the first
+        # monitor sample at or after each multiple of the control period. P_DLO is the tip.
+        for k, t in enumerate(times):
+            if t + 1e-9 < self._next_eval_s:
+                continue
+            self._next_eval_s += CONTROL_PERIOD_S
+            osc = float(np.linalg.norm(p_dlo[k, :2] - tcp_positions[k, 0, :2]))
+            arrived = bool(min_goal_distances[k] < ARRIVAL_TOLERANCE_M)  # monotone: once arrived, stays
+            if arrived and self._arrival_s is None:
+                self._arrival_s = float(t)
+            if arrived:
+                self._max_osc = max(self._max_osc, osc)
+            now = avoid_flags(tcp_positions[k], tcp_velocities[k], p_dlo[k], self.limits, self.check_collision)
+            step = explicit_step_reward(self.coefficients(), any(now.values()), arrived, osc,
+                                        OSCILLATION_THRESHOLD_M)
+            for key, value in step.items():
+                self._pending[key] += value
 
     def evaluate(self, scene: Scene, goal: NDArray[np.float64], monitor: EpisodeMonitor,
                  final: bool) -> tuple[dict[str, float], bool, dict[str, Any]]:

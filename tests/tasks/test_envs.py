@@ -152,44 +152,43 @@ def test_multi_step_replans_are_continuous() -> None:
         previous = plan
 
 
+def _episodes(env_id: str, multi_step: bool, batch: bool, episodes: int, scale: float = 1.0) -> list[tuple]:
+    env = gym.make(env_id, multi_step=multi_step).unwrapped
+    assert env._batch_monitor  # noqa: SLF001
+    env._batch_monitor = batch  # noqa: SLF001
+    rng = np.random.default_rng(3)
+    run = []
+    for episode in range(episodes):
+        env.reset(seed=episode)
+        done = False
+        while not done:
+            action = rng.uniform(-scale, scale, env.action_space.shape).astype(np.float32)
+            _, reward, done, _, info = env.step(action)
+            continuous = [info["sim_time_s"], *env.p_dlo()]
+            for key in ("min_distance_m", "max_tcp_speed_m_s", "residual_oscillation_m", "trajectory_time_s"):
+                if key in info:
+                    continuous.append(np.nan if info[key] is None else info[key])
+            run.append((reward, info["is_success"], dict(info["avoid"]), np.array(continuous)))
+    return run
+
+
 @pytest.mark.parametrize("multi_step", [False, True])
-def test_c_rollout_matches_python_stepping(multi_step: bool) -> None:
-    """Tip control runs open-loop stretches in MuJoCo's C rollout; the Python step loop is the reference."""
-    results = []
-    for batch in (True, False):
-        env = gym.make("DynDLO/TipControl-v0", multi_step=multi_step).unwrapped
-        assert env._batch_monitor  # noqa: SLF001
-        env._batch_monitor = batch  # noqa: SLF001
-        rng = np.random.default_rng(3)
-        run = []
-        for episode in range(4):
-            env.reset(seed=episode)
-            done = False
-            while not done:
-                _, reward, done, _, info = env.step(
-                    rng.uniform(-1, 1, env.action_space.shape).astype(np.float32)
-                )
-                run.append(
-                    (
-                        reward,
-                        info["is_success"],
-                        dict(info["avoid"]),
-                        info["min_distance_m"],
-                        info["max_tcp_speed_m_s"],
-                        info["sim_time_s"],
-                        env.cable_nodes()[-1].copy(),
-                    )
-                )
-        results.append(run)
-    assert len(results[0]) == len(results[1])
-    for fast, slow in zip(*results, strict=True):
-        assert fast[:3] == slow[:3]
-        np.testing.assert_allclose(fast[3:6], slow[3:6], atol=1e-4)  # 0.1 mm: solver tolerance
-        np.testing.assert_allclose(fast[6], slow[6], atol=1e-4)
-
-
-def test_batch_monitor_only_for_tasks_without_hooks() -> None:
-    assert not gym.make("DynDLO/TimeOscillation-v0").unwrapped._batch_monitor  # noqa: SLF001
+@pytest.mark.parametrize(
+    ("env_id", "episodes", "scale"),
+    # Full-range random task IV plans whip the cable chaotically for the 1 s after arrival, so solver-tolerance
+    # differences grow to centimetres; milder plans keep the comparison meaningful.
+    [("DynDLO/TipControl-v0", 4, 1.0), ("DynDLO/TimeOscillation-v0", 3, 0.4)],
+)
+def test_c_rollout_matches_python_stepping(env_id: str, episodes: int, scale: float, multi_step: bool) -> None:
+    """Open-loop stretches run in MuJoCo's C rollout, the monitor and task hooks on the recorded states; the
+    Python step loop, which calls them after every sample, is the reference."""
+    fast = _episodes(env_id, multi_step, True, episodes, scale)
+    slow = _episodes(env_id, multi_step, False, episodes, scale)
+    assert len(fast) == len(slow)
+    for a, b in zip(fast, slow, strict=True):
+        assert a[1:3] == b[1:3]
+        assert a[0] == pytest.approx(b[0], abs=0.01)  # task IV sums 2.5 * oscillation over ~60 samples
+        np.testing.assert_allclose(a[3], b[3], atol=1e-4)  # 0.1 mm, 0.1 ms: solver tolerance
 
 
 def test_target_marker_stays_at_the_goal_through_c_rollouts() -> None:
