@@ -339,7 +339,7 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self, times: NDArray[np.float64], qpos: NDArray[np.float64], qvel: NDArray[np.float64]
     ) -> None:
         """:meth:`_sample_monitor` for K recorded states at once."""
-        scene, mon, limits = self.scene, self._monitor, self.task.limits
+        scene = self.scene
         p, v = scene.tcp_from_state(qpos, qvel)
         p_dlo = scene.nodes_from_qpos(qpos)[:, self.task.p_dlo_node(scene)]
         self._record_samples(times, p, v, p_dlo)
@@ -364,7 +364,8 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
             # The distance to the goal of the segment P_DLO moved along since the previous sample, so a fast
             # tip cannot pass through the target between two samples unnoticed.
             previous = p_dlo[:1] if mon.last_p_dlo is None else mon.last_p_dlo[None]
-            dist = np.minimum(dist, _segment_point_distances(np.vstack([previous, p_dlo[:-1]]), p_dlo, self._goal))
+            starts = np.vstack([previous, p_dlo[:-1]])
+            dist = np.minimum(dist, _segment_point_distances(starts, p_dlo, self._goal))
         running = np.minimum.accumulate(np.minimum(dist, mon.min_goal_distance_m))
         mon.min_goal_distance_m = float(running[-1])
         mon.last_p_dlo = p_dlo[-1].copy()
