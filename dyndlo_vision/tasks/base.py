@@ -347,8 +347,8 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     def _sample_monitor(self) -> None:
         scene = self.scene
         p_dlo = scene.cable_nodes()[self.task.p_dlo_node(scene)]
-        self._record_samples(np.array([scene.time]), scene.tcp_positions()[None], scene.tcp_velocities()[None],
-                             p_dlo[None])
+        p, v = scene.tcp_positions()[None], scene.tcp_velocities()[None]
+        self._record_samples(np.array([scene.time]), p, v, p_dlo[None])
 
     def _record_samples(self, times: NDArray[np.float64], p: NDArray[np.float64], v: NDArray[np.float64],
                         p_dlo: NDArray[np.float64]) -> None:

@@ -120,7 +120,8 @@ class TimeOscillation(Task):
                 self._arrival_s = float(t)
             if arrived:
                 self._max_osc = max(self._max_osc, osc)
-            now = avoid_flags(tcp_positions[k], tcp_velocities[k], p_dlo[k], self.limits, self.check_collision)
+            now = avoid_flags(tcp_positions[k], tcp_velocities[k], p_dlo[k], self.limits,
+                              self.check_collision)
             step = explicit_step_reward(self.coefficients(), any(now.values()), arrived, osc,
                                         OSCILLATION_THRESHOLD_M)
             for key, value in step.items():

@@ -175,11 +175,13 @@ def _episodes(env_id: str, multi_step: bool, batch: bool, episodes: int, scale: 
 @pytest.mark.parametrize("multi_step", [False, True])
 @pytest.mark.parametrize(
     ("env_id", "episodes", "scale"),
-    # Full-range random task IV plans whip the cable chaotically for the 1 s after arrival, so solver-tolerance
-    # differences grow to centimetres; milder plans keep the comparison meaningful.
+    # Full-range random task IV plans whip the cable chaotically for the 1 s after arrival, so
+    # solver-tolerance differences grow to centimetres; milder plans keep the comparison meaningful.
     [("DynDLO/TipControl-v0", 4, 1.0), ("DynDLO/TimeOscillation-v0", 3, 0.4)],
 )
-def test_c_rollout_matches_python_stepping(env_id: str, episodes: int, scale: float, multi_step: bool) -> None:
+def test_c_rollout_matches_python_stepping(
+    env_id: str, episodes: int, scale: float, multi_step: bool
+) -> None:
     """Open-loop stretches run in MuJoCo's C rollout, the monitor and task hooks on the recorded states; the
     Python step loop, which calls them after every sample, is the reference."""
     fast = _episodes(env_id, multi_step, True, episodes, scale)
