@@ -84,9 +84,8 @@ class NoisyState:
 
     def read(self, t_now: float, tcp: TcpState) -> PDloReading:
         """The corrupted P_DLO for now."""
-        noisy = self.noise.observation(self.env.observation())
-        p = np.asarray(noisy[self.noise._p_dlo], dtype=float)  # noqa: SLF001
-        return PDloReading(p, t_now, measured=not self.noise._dropped)  # noqa: SLF001
+        p, measured = self.noise.corrupt_p_dlo(self.env.p_dlo())
+        return PDloReading(p, t_now, measured=measured)
 
 
 class TrackedState:

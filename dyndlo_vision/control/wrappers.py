@@ -117,14 +117,24 @@ class NoisyObservation(
 
     def observation(self, observation: NDArray[np.float32]) -> NDArray[np.float32]:
         """The observation with P_DLO replaced by its corrupted value."""
-        if self._rng is None:  # observation() called without reset() through this wrapper
-            self._rng = np.random.default_rng()
         obs = np.array(observation, dtype=np.float32, copy=True)
-        true_p = obs[self._p_dlo].astype(np.float64)
+        p_dlo, _ = self.corrupt_p_dlo(obs[self._p_dlo].astype(np.float64))
+        obs[self._p_dlo] = p_dlo.astype(np.float32)
+        return obs
+
+    def corrupt_p_dlo(self, true_p_dlo: NDArray[np.float64]) -> tuple[NDArray[np.float64], bool]:
+        """One draw of the noise model for the true P_DLO of this control step.
+
+        Returns the corrupted P_DLO and whether it counts as measured (False during a dropout, when the
+        output coasts on the last measurements). :meth:`observation` calls it once per observation; the
+        control loop's noisy state source calls it once per cycle.
+        """
+        if self._rng is None:  # called without reset() through this wrapper
+            self._rng = np.random.default_rng()
+        true_p = np.asarray(true_p_dlo, dtype=np.float64).copy()
         self._last_true = true_p
         self._history.append(true_p)
-        obs[self._p_dlo] = self._corrupt().astype(np.float32)
-        return obs
+        return self._corrupt(), not self._dropped
 
     # ------------------------------------------------------------------ internals
     def _delayed(self) -> NDArray[np.float64]:

@@ -218,7 +218,7 @@ def test_noisy_state_with_an_identity_model_is_the_truth_and_the_fitted_one_is_n
         env.reset(seed=5)
         loop, _ = _loop(env, NoisyState(env, model, seed=5), lambda obs: action)
         errors[name] = loop.run(duration_s=0.4).estimate_errors()
-    assert np.all(errors["identity"] < 1e-6)  # float32 observation round-off
+    assert np.all(errors["identity"] == 0.0)
     assert np.any(errors["fitted"] > 0.0)
 
 
