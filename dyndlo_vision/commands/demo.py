@@ -228,40 +228,29 @@ def run_episode(
 
 
 def _annotate(rgb: np.ndarray, record: Any, calib: Any, goal: np.ndarray) -> np.ndarray:
-    """BGR frame with the tracked polyline (red), true P_DLO (green), estimate (blue), target (yellow)."""
+    """BGR frame: the tracker's drawing (polyline, estimate, status) plus the true P_DLO and the target."""
     import cv2
 
-    img = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
-    if record.polyline_uv is not None:
-        pts = record.polyline_uv[np.all(np.isfinite(record.polyline_uv), axis=1)]
-        if len(pts) > 1:
-            cv2.polylines(
-                img, [np.rint(pts).astype(np.int32).reshape(-1, 1, 2)], False, (0, 0, 255), 1, cv2.LINE_AA
-            )
+    from dyndlo_vision.tracking.annotate import annotate_frame
 
-    def mark(p: np.ndarray, color: tuple[int, int, int], radius: int) -> None:
-        if p is not None and np.all(np.isfinite(p)):
-            u, v = calib.project(np.asarray(p, dtype=float)[None])[0]
-            if np.isfinite(u) and np.isfinite(v):
-                cv2.circle(img, (int(round(u)), int(round(v))), radius, color, 2, cv2.LINE_AA)
+    def pixel(p: Any) -> np.ndarray | None:
+        if p is None or not np.all(np.isfinite(p)):
+            return None
+        uv = calib.project(np.asarray(p, dtype=float)[None])[0]
+        return uv if np.all(np.isfinite(uv)) else None
 
-    mark(goal, (0, 220, 255), 14)
-    mark(record.p_dlo_true, (0, 200, 0), 5)
-    mark(record.p_dlo_estimate, (255, 80, 0), 9)
     state = "measured" if record.measured else "predicted"
-    text = f"t={record.t:.2f}s  {state}  ctrl {record.controller_ms:.1f} ms"
-    cv2.putText(img, text, (10, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1, cv2.LINE_AA)
-    cv2.putText(
-        img,
-        "green: true P_DLO  blue: estimate  red: tracked cable  yellow: target",
-        (10, 468),
-        cv2.FONT_HERSHEY_SIMPLEX,
-        0.45,
-        (255, 255, 255),
-        1,
-        cv2.LINE_AA,
-    )
-    return img
+    img = annotate_frame(rgb, record.polyline_uv, None, point_uv=pixel(record.p_dlo_estimate),
+                         point_measured=record.measured, t=record.t,
+                         status=f"{state}  ctrl {record.controller_ms:.1f} ms")
+    for p, color, radius in ((goal, (255, 220, 0), 14), (record.p_dlo_true, (0, 200, 0), 5)):
+        uv = pixel(p)
+        if uv is not None:
+            cv2.circle(img, (int(round(uv[0])), int(round(uv[1]))), radius, color, 2, cv2.LINE_AA)
+    legend = "cyan: tracked cable  magenta: estimate (filled: measured)  green: true P_DLO  yellow: target"
+    cv2.putText(img, legend, (10, img.shape[0] - 12), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1,
+                cv2.LINE_AA)
+    return cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
 
 
 def _write_plot(path: Path, trace: dict[str, Any]) -> None:
