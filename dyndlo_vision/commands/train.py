@@ -59,6 +59,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--obs-noise", default=None, help="observation-noise model file (JSON) to train with")
     p.add_argument("--randomize-cable", action="store_true",
                    help="draw a new cable (length, mass, E, damping) every 10 training episodes")
+    p.add_argument(
+        "--demonstrations", type=int, default=0, metavar="N",
+        help="task IV, SAC: seed the replay buffer with N perturbed geometric-lift episodes before learning "
+             "(default 0, as in the paper)",
+    )
     p.add_argument("--eval-freq", type=int, default=2000, help="evaluate every N steps (default 2000)")
     p.add_argument("--eval-episodes", type=int, default=20)
     p.add_argument(
@@ -94,6 +99,7 @@ def run(args: argparse.Namespace) -> int:
         eval_freq=args.eval_freq,
         eval_episodes=args.eval_episodes,
         checkpoint_freq=args.checkpoint_freq,
+        demonstrations=args.demonstrations,
     )
     out = Path(args.out or f"runs/{config.key}-{algo}-s{args.seed}")
     try:

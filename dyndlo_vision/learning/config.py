@@ -23,6 +23,8 @@ TASK_NAMES: dict[str, str] = {
     "time-oscillation": "TimeOscillation",
 }
 ALGOS = ("ppo", "sac")
+#: Tasks with a scripted baseline whose episodes can seed SAC's replay buffer (``learning.demonstrations``).
+DEMONSTRABLE_TASKS = ("time-oscillation",)
 HYPERPARAMS_VERSION = 1
 
 
@@ -82,6 +84,8 @@ class RunConfig:
         eval_freq: Evaluate every this many environment steps.
         eval_episodes: Episodes per evaluation.
         checkpoint_freq: Save a resumable checkpoint every this many environment steps.
+        demonstrations: Episodes of the task's scripted baseline (perturbed) put into SAC's replay buffer
+            before learning (``dyndlo_vision.learning.demonstrations``); 0: none, as in the paper.
     """
 
     task: str
@@ -99,6 +103,7 @@ class RunConfig:
     eval_freq: int = 2000
     eval_episodes: int = 20
     checkpoint_freq: int = 2000
+    demonstrations: int = 0
 
     def __post_init__(self) -> None:
         env_id(self.task)
@@ -110,6 +115,16 @@ class RunConfig:
                 raise ValueError(f"{name}={value!r}; expected a positive integer")
         if self.vec_env not in ("subproc", "dummy"):
             raise ValueError(f"vec_env={self.vec_env!r}; expected 'subproc' or 'dummy'")
+        if not isinstance(self.demonstrations, int) or self.demonstrations < 0:
+            raise ValueError(f"demonstrations={self.demonstrations!r}; expected a non-negative integer")
+        if self.demonstrations and self.algo != "sac":
+            raise ValueError(f"demonstrations={self.demonstrations} need an off-policy algorithm (sac), "
+                             f"got algo={self.algo!r}")
+        if self.demonstrations and (self.task not in DEMONSTRABLE_TASKS or self.multi_step):
+            raise ValueError(
+                f"demonstrations are available for single-step {list(DEMONSTRABLE_TASKS)} only (a scripted "
+                f"baseline plans the whole episode), got task={self.task!r}, multi_step={self.multi_step}"
+            )
 
     @property
     def env_id(self) -> str:

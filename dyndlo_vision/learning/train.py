@@ -10,6 +10,7 @@ A run folder holds::
     eval/evaluations.npz     EvalCallback: timesteps, episode rewards, successes
     tb/                      TensorBoard logs
     model.zip, summary.json  the final policy and the run's figures (wall time, env steps/s, success)
+    demonstrations.json      (``--demonstrations N``) the baseline episodes that seeded SAC's replay buffer
 
 ``python -m dyndlo_vision.learning.train`` is the same as ``dyndlo-vision train``.
 """
@@ -33,6 +34,7 @@ from dyndlo_vision.learning.envs import make_vec_env
 log = logging.getLogger(__name__)
 
 CHECKPOINT_DIR = "checkpoint"
+DEMONSTRATIONS_FILE = "demonstrations.json"
 
 
 def algo_class(name: str) -> Any:
@@ -182,6 +184,16 @@ def train(config: RunConfig, out: Path, resume: bool = False, progress_bar: bool
                 tensorboard_log=str(out / "tb"),
                 **config.hyperparams,
             )
+            if config.demonstrations:
+                from dyndlo_vision.learning.demonstrations import seed_replay_buffer
+
+                t_demo = time.perf_counter()
+                demo = seed_replay_buffer(model, vec, config, config.demonstrations, config.seed)
+                demo["wall_s"] = round(time.perf_counter() - t_demo, 1)
+                state["wall_s"] = demo["wall_s"]  # the run's wall time includes them
+                text = json.dumps(demo, indent=2)
+                write_atomic(out / DEMONSTRATIONS_FILE, lambda p: Path(p).write_text(text))
+                log.info("replay buffer seeded with %s", demo)
         callbacks = _RunCallbacks.build(config, out, state, progress_bar) + [_eval_callback(config, out)]
         remaining = config.timesteps - int(model.num_timesteps)
         t0 = time.perf_counter()
@@ -232,6 +244,9 @@ def summarize(out: Path, wall_s: float, steps_this_session: int, session_s: floa
         "env_steps_per_s": round(steps_this_session / session_s, 2) if session_s > 0 else None,
         "cpu_count": os.cpu_count(),
     }
+    demos = out / DEMONSTRATIONS_FILE
+    if demos.is_file():
+        summary["demonstrations"] = json.loads(demos.read_text())
     evals = out / "eval" / "evaluations.npz"
     if evals.is_file():
         data = np.load(evals)

@@ -198,3 +198,45 @@ def test_training_with_the_fitted_observation_noise_and_cable_randomization(tmp_
     with pytest.raises(SystemExit) as exc:
         main(["train", "--obs-noise", str(tmp_path / "missing.json"), "--out", str(tmp_path / "y")])
     assert exc.value.code == 2 and not (tmp_path / "y").exists()
+
+
+def test_demonstrations_seed_the_replay_buffer_with_baseline_episodes(tmp_path: Path) -> None:
+    from stable_baselines3 import SAC
+
+    config = RunConfig(
+        task="time-oscillation", multi_step=False, algo="sac", timesteps=4, seed=1, n_envs=1, vec_env="dummy",
+        hyperparams={"learning_starts": 2, "batch_size": 4}, env_options={"layout": "diagonal"},
+        eval_freq=100, eval_episodes=1, checkpoint_freq=100, demonstrations=3,
+    )
+    out = tmp_path / "run"
+    summary = train(config, out, progress_bar=False)
+    demo = json.loads((out / "demonstrations.json").read_text())
+    assert demo["episodes"] == 3 and summary["demonstrations"] == demo
+    model = SAC.load(out / "checkpoint" / "model.zip")
+    model.load_replay_buffer(out / "checkpoint" / "replay_buffer.pkl")
+    buffer = model.replay_buffer
+    assert buffer.size() == 3 + 4  # the demonstrations, then the run's own steps
+    assert np.all(buffer.dones[:7, 0] == 1.0)  # single-step: every transition ends its episode
+    # The stored rewards are the environment's for the stored actions: replay the first demonstration.
+    env = gym.make("DynDLO/TimeOscillation-v0", layout="diagonal")
+    env.reset(seed=0)
+    _, reward, *_ = env.step(buffer.actions[0, 0])
+    assert reward == pytest.approx(float(buffer.rewards[0, 0]), abs=1e-6)
+    episodes = sum(len(f.read_text().splitlines()) - 2 for f in (out / "monitor").glob("*.csv"))
+    assert episodes == 3 + 4  # the demonstrations are real episodes, logged with the run's
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"algo": "ppo"}, "off-policy"),
+        ({"task": "tip-control"}, "single-step"),
+        ({"multi_step": True}, "single-step"),
+        ({"demonstrations": -1}, "non-negative"),
+    ],
+)
+def test_demonstrations_are_refused_where_they_cannot_apply(changes: dict, message: str) -> None:
+    base = {"task": "time-oscillation", "multi_step": False, "algo": "sac", "timesteps": 10,
+            "demonstrations": 5}
+    with pytest.raises(ValueError, match=message):
+        RunConfig(**{**base, **changes})
