@@ -53,17 +53,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Resolve the options, then run the rounds."""
+    from dyndlo_vision.control.noise_model import resolve_noise_model_path
     from dyndlo_vision.learning.distill import DistillConfig, distill
 
-    noise = args.obs_noise
-    if noise == "packaged":
-        from dyndlo_vision.control.noise_model import packaged_noise_model_path
-
-        noise = str(packaged_noise_model_path())
-    elif noise is not None:
-        if not Path(noise).is_file():
-            raise FileNotFoundError(f"--obs-noise {noise}: no such file")
-        noise = str(Path(noise).resolve())
+    noise = resolve_noise_model_path(args.obs_noise)
     config = DistillConfig(
         teacher=args.teacher,
         rounds=args.rounds,

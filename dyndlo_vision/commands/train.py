@@ -56,7 +56,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="KEY=VALUE",
         help="task option passed to gym.make, e.g. target=down (repeatable)",
     )
-    p.add_argument("--obs-noise", default=None, help="observation-noise model file (JSON) to train with")
+    p.add_argument(
+        "--obs-noise", default=None,
+        help="observation-noise model file (JSON) to train with; 'packaged' for the shipped tracker fit",
+    )
     p.add_argument("--randomize-cable", action="store_true",
                    help="draw a new cable (length, mass, E, damping) every 10 training episodes")
     p.add_argument(
@@ -79,8 +82,9 @@ def run(args: argparse.Namespace) -> int:
     from dyndlo_vision.learning.train import train
 
     algo = args.algo or ("sac" if args.task == "time-oscillation" else "ppo")
-    if args.obs_noise is not None and not Path(args.obs_noise).is_file():
-        raise FileNotFoundError(f"--obs-noise {args.obs_noise}: no such file")
+    from dyndlo_vision.control.noise_model import resolve_noise_model_path
+
+    obs_noise = resolve_noise_model_path(args.obs_noise)
     entry = load_hyperparams(algo, args.task, args.multi_step)
     hyperparams = {**entry["hyperparams"], **parse_assignments(args.hp, "--hp")}
     config = RunConfig(
@@ -94,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
         policy=entry.get("policy", "MlpPolicy"),
         hyperparams=hyperparams,
         env_options=parse_assignments(args.env_option, "--env-option"),
-        obs_noise=str(Path(args.obs_noise).resolve()) if args.obs_noise else None,
+        obs_noise=obs_noise,
         randomize_cable=args.randomize_cable,
         eval_freq=args.eval_freq,
         eval_episodes=args.eval_episodes,

@@ -67,6 +67,21 @@ def packaged_noise_model_path() -> Path:
     return Path(str(resources.files("dyndlo_vision").joinpath("data", PACKAGED_MODEL_NAME)))
 
 
+def resolve_noise_model_path(value: str | None, option: str = "--obs-noise") -> str | None:
+    """Absolute path of a noise-model file given on the command line; ``"packaged"`` names the shipped one.
+
+    Raises:
+        FileNotFoundError: If ``value`` names no file.
+    """
+    if value is None:
+        return None
+    if value == "packaged":
+        return str(packaged_noise_model_path())
+    if not Path(value).is_file():
+        raise FileNotFoundError(f"{option} {value}: no such file (expected a noise-model JSON or 'packaged')")
+    return str(Path(value).resolve())
+
+
 def _vector3(value: Any, name: str, nonnegative: bool = False) -> tuple[float, float, float]:
     try:
         arr = np.asarray(value, dtype=np.float64)

@@ -403,3 +403,14 @@ def test_cable_randomization_draws_new_cables_deterministically() -> None:
     assert lengths(3) == first
     with pytest.raises(ValueError, match="cannot randomise"):
         CableRandomization(gym.make("DynDLO/TipControl-v0"), ranges={"num_segments": (1, 2)})
+
+
+def test_noise_model_paths_from_the_command_line(tmp_path) -> None:
+    from dyndlo_vision.control.noise_model import packaged_noise_model_path, resolve_noise_model_path
+
+    assert resolve_noise_model_path(None) is None
+    assert resolve_noise_model_path("packaged") == str(packaged_noise_model_path())
+    ObservationNoiseModel().save(tmp_path / "m.json")
+    assert resolve_noise_model_path(str(tmp_path / "m.json")) == str((tmp_path / "m.json").resolve())
+    with pytest.raises(FileNotFoundError, match="missing.json: no such file"):
+        resolve_noise_model_path(str(tmp_path / "missing.json"))
