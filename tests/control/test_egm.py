@@ -18,26 +18,16 @@ from dyndlo_vision.control.kinematics import (  # noqa: E402
 )
 from dyndlo_vision.control.protocols import Robot, Setpoints  # noqa: E402
 from dyndlo_vision.control.robots import EgmRobot, FakeEgmController  # noqa: E402
-from dyndlo_vision.tasks.tip_control import TCP_HOME_M, TipControl  # noqa: E402
+from dyndlo_vision.tasks.tip_control import TCP_HOME_M  # noqa: E402
 from dyndlo_vision.trajectory import BSplineTrajectory  # noqa: E402
 
-# A gentle multi-point tip-control action (normalised): +5 cm in x per point, z down-flat-up, 0.45 s apart.
-GENTLE_ACTION = np.array([0.2, -0.2, 0.2, 0.0, 0.2, 0.2, 0.75, 0.75, 0.75])
-# The same action space at its extremes: 25 cm jumps 0.1 s apart, far beyond the GoFa's joint accelerations.
-VIOLENT_ACTION = np.array([1.0, -1.0, -1.0, 1.0, 1.0, -1.0, -1.0, -1.0, -1.0])
-TIMEOUT_S = 30.0  # generous: only reached when something is broken
-
-
-def tip_control_setpoints(
-    action: np.ndarray, t0: float, rate_hz: float = 100.0
-) -> tuple[Setpoints, np.ndarray]:
-    """Setpoints of the tip-control plan for ``action`` from the TCP home at time t0, and the plan's end."""
-    points, times = TipControl(planar=True).action_spec().decode(action, TCP_HOME_M, t0)
-    plan = BSplineTrajectory(points, times)
-    t = np.arange(times[0], times[-1] + 1e-9, 1.0 / rate_hz)
-    t[-1] = times[-1]
-    position, velocity = plan.position(t), plan.velocity(t)
-    return Setpoints(t=t, position=position[:, None, :], velocity=velocity[:, None, :]), points[-1]
+from .robot_plans import (  # noqa: E402
+    GENTLE_ACTION,
+    TIMEOUT_S,
+    VIOLENT_ACTION,
+    send_from_now,
+    tip_control_setpoints,
+)
 
 
 @pytest.fixture
@@ -54,19 +44,6 @@ def setup() -> Iterator[tuple[EgmRobot, FakeEgmController, ArmKinematics, np.nda
     assert fake.error is None
 
 
-def _send_from_now(
-    robot: EgmRobot, fake: FakeEgmController, action: np.ndarray
-) -> tuple[Setpoints, np.ndarray]:
-    # Hold the controller's clock while planning and checking, so the plan cannot start in the past.
-    fake.hang()
-    try:
-        setpoints, end = tip_control_setpoints(action, robot.commanded_state().t + 0.02)
-        robot.send(setpoints)
-    finally:
-        fake.resume()
-    return setpoints, end
-
-
 def _received_trajectory(fake: FakeEgmController) -> tuple[np.ndarray, np.ndarray]:
     received = fake.received
     return np.array([r.t for r in received]), np.array([r.q for r in received])
@@ -80,7 +57,7 @@ def test_driver_is_a_robot(setup) -> None:
 
 def test_moves_the_fake_robot_along_a_tip_control_plan(setup) -> None:
     robot, fake, kin, _ = setup
-    setpoints, end = _send_from_now(robot, fake, GENTLE_ACTION)
+    setpoints, end = send_from_now(robot, fake, GENTLE_ACTION)
     assert fake.wait_until(setpoints.t[-1] + 0.3, TIMEOUT_S)
     q_end = kin.ik(end, fake.q).q
     np.testing.assert_allclose(fake.q, q_end, atol=1e-4)
@@ -104,7 +81,7 @@ def test_refuses_a_plan_that_breaks_a_joint_limit(setup, caplog: pytest.LogCaptu
         caplog.at_level(logging.ERROR),
         pytest.raises(JointLimitError, match=r"joint axis_\d \w+ [+-][\d.]+") as err,
     ):
-        _send_from_now(robot, fake, VIOLENT_ACTION)
+        send_from_now(robot, fake, VIOLENT_ACTION)
     assert any(v.quantity == "acceleration" for v in err.value.report.violations)
     assert "EGM: refusing setpoints, nothing of them sent" in caplog.text
     assert robot.wait_cycles(50, TIMEOUT_S)
@@ -118,7 +95,7 @@ def test_refuses_a_plan_that_breaks_a_joint_limit(setup, caplog: pytest.LogCaptu
 
 def test_stop_brakes_within_the_joint_limits(setup) -> None:
     robot, fake, kin, _ = setup
-    setpoints, _ = _send_from_now(robot, fake, GENTLE_ACTION)
+    setpoints, _ = send_from_now(robot, fake, GENTLE_ACTION)
     assert fake.wait_until(setpoints.t[0] + 0.6, TIMEOUT_S)
     robot.stop()
     assert robot.wait_cycles(100, TIMEOUT_S)
@@ -175,7 +152,7 @@ def test_setpoints_for_two_grippers_are_rejected(setup) -> None:
 def test_replanning_mid_motion_from_the_commanded_state(setup) -> None:
     """The closed loop's use: replace a running plan by one that starts from the commanded state."""
     robot, fake, kin, _ = setup
-    first, _ = _send_from_now(robot, fake, GENTLE_ACTION)
+    first, _ = send_from_now(robot, fake, GENTLE_ACTION)
     assert fake.wait_until(first.t[0] + 0.5, TIMEOUT_S)
     fake.hang()
     try:

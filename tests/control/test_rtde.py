@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from dyndlo_vision.control.kinematics import ArmKinematics, JointLimitError, check_joint_limits, ur5e
-from dyndlo_vision.control.protocols import Robot, Setpoints
+from dyndlo_vision.control.protocols import Robot
 from dyndlo_vision.control.robots import FakeRtdeController, RtdeRobot
 from dyndlo_vision.control.robots.rtde import (
     COMMAND_SERVO,
@@ -26,24 +26,9 @@ from dyndlo_vision.control.robots.rtde import (
     servo_script,
     unpack_values,
 )
-from dyndlo_vision.tasks.tip_control import TCP_HOME_M, TipControl
-from dyndlo_vision.trajectory import BSplineTrajectory
+from dyndlo_vision.tasks.tip_control import TCP_HOME_M
 
-GENTLE_ACTION = np.array([0.2, -0.2, 0.2, 0.0, 0.2, 0.2, 0.75, 0.75, 0.75])  # see test_egm.py
-VIOLENT_ACTION = np.array([1.0, -1.0, -1.0, 1.0, 1.0, -1.0, -1.0, -1.0, -1.0])
-TIMEOUT_S = 30.0  # generous: only reached when something is broken
-
-
-def tip_control_setpoints(
-    action: np.ndarray, t0: float, rate_hz: float = 100.0
-) -> tuple[Setpoints, np.ndarray]:
-    """Setpoints of the tip-control plan for ``action`` from the TCP home at time t0, and the plan's end."""
-    points, times = TipControl(planar=True).action_spec().decode(action, TCP_HOME_M, t0)
-    plan = BSplineTrajectory(points, times)
-    t = np.arange(times[0], times[-1] + 1e-9, 1.0 / rate_hz)
-    t[-1] = times[-1]
-    position, velocity = plan.position(t), plan.velocity(t)
-    return Setpoints(t=t, position=position[:, None, :], velocity=velocity[:, None, :]), points[-1]
+from .robot_plans import GENTLE_ACTION, TIMEOUT_S, VIOLENT_ACTION, send_from_now, tip_control_setpoints
 
 
 @pytest.fixture
@@ -62,18 +47,6 @@ def setup() -> Iterator[tuple[RtdeRobot, FakeRtdeController, ArmKinematics, np.n
     assert fake.error is None
 
 
-def _send_from_now(
-    robot: RtdeRobot, fake: FakeRtdeController, action: np.ndarray
-) -> tuple[Setpoints, np.ndarray]:
-    fake.hang()  # hold the controller's clock while planning, so the plan cannot start in the past
-    try:
-        setpoints, end = tip_control_setpoints(action, robot.commanded_state().t + 0.02)
-        robot.send(setpoints)
-    finally:
-        fake.resume()
-    return setpoints, end
-
-
 def test_connect_uploads_the_servo_program(setup) -> None:
     robot, fake, _, _ = setup
     assert isinstance(robot, Robot)
@@ -87,7 +60,7 @@ def test_connect_uploads_the_servo_program(setup) -> None:
 
 def test_moves_the_fake_robot_along_a_tip_control_plan(setup) -> None:
     robot, fake, kin, _ = setup
-    setpoints, end = _send_from_now(robot, fake, GENTLE_ACTION)
+    setpoints, end = send_from_now(robot, fake, GENTLE_ACTION)
     assert fake.wait_until(setpoints.t[-1] + 0.3, TIMEOUT_S)
     np.testing.assert_allclose(fake.q, kin.ik(end, fake.q).q, atol=1e-4)
     np.testing.assert_allclose(kin.fk(fake.q)[0], end, atol=1e-4)
@@ -104,7 +77,7 @@ def test_refuses_a_plan_that_breaks_a_joint_limit(setup, caplog: pytest.LogCaptu
         caplog.at_level(logging.ERROR),
         pytest.raises(JointLimitError, match=r"joint \w+ \w+ [+-][\d.]+") as err,
     ):
-        _send_from_now(robot, fake, VIOLENT_ACTION)
+        send_from_now(robot, fake, VIOLENT_ACTION)
     assert any(v.quantity == "acceleration" for v in err.value.report.violations)
     assert "RTDE: refusing setpoints, nothing of them sent" in caplog.text
     assert robot.wait_cycles(50, TIMEOUT_S)
