@@ -26,6 +26,11 @@ class PhysicsOptions:
         solver: ``"Newton"`` or ``"CG"`` (PGS does not support flexes).
         iterations: Maximum constraint-solver iterations.
         tolerance: Solver early-termination tolerance.
+        twist_armature_kg_m2: Armature (added rotational inertia) of the rod's per-edge twist hinges. MuJoCo
+            gives them bodies of 1e-9 kg m^2, stiff in torsion: the explicit integrators diverge on them
+            (``Euler`` at 1 ms in 7 of 20 random tip-control episodes). 1e-6 removes that (0 of 20) without
+            changing planar motion, whose twist stays zero (benchmarks/twist_armature.py, docs/RESULTS.md).
+            0 (default): MuJoCo's own.
     """
 
     timestep_s: float = 0.001
@@ -33,6 +38,7 @@ class PhysicsOptions:
     solver: str = "Newton"
     iterations: int = 50
     tolerance: float = 1e-8
+    twist_armature_kg_m2: float = 0.0
 
     def __post_init__(self) -> None:
         if self.integrator not in _INTEGRATORS:
@@ -46,6 +52,8 @@ class PhysicsOptions:
             raise ValueError(f"timestep_s={self.timestep_s} is outside [1e-5, 0.01] s")
         if self.iterations < 1:
             raise ValueError(f"iterations={self.iterations} must be >= 1")
+        if not 0.0 <= self.twist_armature_kg_m2 <= 1e-3:
+            raise ValueError(f"twist_armature_kg_m2={self.twist_armature_kg_m2} is outside [0, 1e-3] kg m^2")
 
     def to_mjcf(self) -> str:
         """Return the ``<option .../>`` attributes as an MJCF string."""

@@ -282,8 +282,12 @@ class Scene:
             self.model = build_spec(config).compile()
         except ValueError as exc:  # MuJoCo reports compile errors as ValueError
             raise ValueError(f"the scene does not compile: {exc}") from exc
-        self.data = mujoco.MjData(self.model)
         m = self.model
+        if config.physics.twist_armature_kg_m2 > 0:
+            twist = m.jnt_dofadr[m.jnt_type == mujoco.mjtJoint.mjJNT_HINGE]
+            m.dof_armature[twist] = config.physics.twist_armature_kg_m2
+            mujoco.mj_setConst(m, mujoco.MjData(m))  # the mass matrix of simple bodies is precomputed
+        self.data = mujoco.MjData(m)
         self._tcp_qpos = np.array(
             [[m.joint(f"{gripper_name(i)}_{a}").qposadr[0] for a in "xyz"] for i in range(self.num_grippers)]
         )
