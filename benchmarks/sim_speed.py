@@ -1,6 +1,6 @@
-"""Simulation speed of tip control on one core: sim-s per wall-s, env steps/s, episodes/s, cost per segment.
+"""Simulation speed of a task on one core: sim-s per wall-s, env steps/s, episodes/s, cost per segment.
 
-    python benchmarks/sim_speed.py [--episodes 20] [--compare-paths]
+    python benchmarks/sim_speed.py [--episodes 20] [--compare-paths] [--task tip-control|time-oscillation]
 
 ``--compare-paths`` also times 20 segments with the environment's Python step loop instead of MuJoCo's C
 rollout (the two give the same episodes to solver tolerance; tests/tasks/test_envs.py checks it).
@@ -22,9 +22,13 @@ import dyndlo_vision  # noqa: E402,F401
 from dyndlo_vision.sim import CableParams  # noqa: E402
 
 
-def measure(segments: int, multi_step: bool, episodes: int, c_rollout: bool = True) -> dict[str, float]:
+ENV_IDS = {"tip-control": "DynDLO/TipControl-v0", "time-oscillation": "DynDLO/TimeOscillation-v0"}
+
+
+def measure(segments: int, multi_step: bool, episodes: int, c_rollout: bool = True,
+            task: str = "tip-control") -> dict[str, float]:
     cable = CableParams(num_segments=segments)
-    env = gym.make("DynDLO/TipControl-v0", multi_step=multi_step, cable=cable).unwrapped
+    env = gym.make(ENV_IDS[task], multi_step=multi_step, cable=cable).unwrapped
     env._batch_monitor = c_rollout  # noqa: SLF001  (benchmark switch between the two simulation paths)
     rng = np.random.default_rng(0)
     sim_s = wall = 0.0
@@ -47,15 +51,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--episodes", type=int, default=20)
     parser.add_argument("--compare-paths", action="store_true", help="also time the Python step loop")
+    parser.add_argument("--task", choices=sorted(ENV_IDS), default="tip-control")
     args = parser.parse_args()
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})  # one core
-    print(f"# {platform.machine()}, {os.cpu_count()} cpus, one process; random actions; default physics")
+    print(f"# {platform.machine()}, {os.cpu_count()} cpus, one process; {args.task}, random actions; "
+          "default physics")
     print("| segments | mode | sim-s / wall-s | env steps/s | episodes/s | us per physics step |")
     print("|---|---|---|---|---|---|")
     for segments in (20, 40, 60):
         for multi_step in (False, True):
-            r = measure(segments, multi_step, args.episodes)
+            r = measure(segments, multi_step, args.episodes, task=args.task)
             mode = "multi-step" if multi_step else "single-step"
             print(f"| {segments} | {mode} | {r['sim_rate']:.1f} | {r['steps_per_s']:.1f} | "
                   f"{r['episodes_per_s']:.2f} | {r['us_per_physics_step']:.0f} |", flush=True)
@@ -63,8 +69,8 @@ def main() -> None:
         print("\n| 20 segments | C rollout sim-s/wall-s | Python stepping sim-s/wall-s | ratio |")
         print("|---|---|---|---|")
         for multi_step in (False, True):
-            fast = measure(20, multi_step, args.episodes, True)["sim_rate"]
-            slow = measure(20, multi_step, args.episodes, False)["sim_rate"]
+            fast = measure(20, multi_step, args.episodes, True, args.task)["sim_rate"]
+            slow = measure(20, multi_step, args.episodes, False, args.task)["sim_rate"]
             mode = "multi-step" if multi_step else "single-step"
             print(f"| {mode} | {fast:.1f} | {slow:.1f} | {fast / slow:.2f} |", flush=True)
 
