@@ -21,7 +21,6 @@ import numpy as np  # noqa: E402
 import dyndlo_vision  # noqa: E402,F401
 from dyndlo_vision.sim import CableParams  # noqa: E402
 
-
 ENV_IDS = {"tip-control": "DynDLO/TipControl-v0", "time-oscillation": "DynDLO/TimeOscillation-v0"}
 
 
