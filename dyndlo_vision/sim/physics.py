@@ -28,9 +28,9 @@ class PhysicsOptions:
         tolerance: Solver early-termination tolerance.
         twist_armature_kg_m2: Armature (added rotational inertia) of the rod's per-edge twist hinges. MuJoCo
             gives them bodies of 1e-9 kg m^2, stiff in torsion: the explicit integrators diverge on them
-            (``Euler`` at 1 ms in 7 of 20 random tip-control episodes). 1e-6 removes that (0 of 20) without
-            changing planar motion, whose twist stays zero (benchmarks/twist_armature.py, docs/RESULTS.md).
-            0 (default): MuJoCo's own.
+            (``Euler`` at 1 ms in 7 of 20 random tip-control episodes). 1e-8 removes that (0 of 20) and
+            leaves planar motion unchanged; 3D motion changes a little (benchmarks/twist_armature.py,
+            docs/RESULTS.md). 0 (default): MuJoCo's own.
     """
 
     timestep_s: float = 0.001
