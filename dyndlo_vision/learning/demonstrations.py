@@ -24,6 +24,8 @@ from dyndlo_vision.learning.config import RunConfig
 GEOMETRIC_TIME_RANGE_S = (1.0, 2.0)
 #: Standard deviations of the noise added to a demonstration's normalised action, one drawn per episode.
 NOISE_SCALES = (0.0, 0.05, 0.15)
+
+
 def geometric_demonstration(env: Any, obs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """One perturbed geometric-lift action for a single-step task IV environment."""
     from dyndlo_vision.tasks.baselines import GeometricLift
