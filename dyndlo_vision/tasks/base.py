@@ -264,6 +264,9 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
             from dyndlo_vision.sim.rendering import make_renderer
 
             self._renderer = make_renderer(self.scene.model, *self.scene.config.image_size[::-1])
+        # Bring what is drawn up to the state: after a C rollout the positions MuJoCo last computed are one
+        # step old and place the target marker where the rollout's scratch state had it (the body's default).
+        mujoco.mj_forward(self.scene.model, self.scene.data)
         self._renderer.update_scene(self.scene.data, camera=self.render_camera)
         return np.asarray(self._renderer.render(), dtype=np.uint8)
 

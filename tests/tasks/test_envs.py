@@ -193,6 +193,16 @@ def test_c_rollout_matches_python_stepping(
         np.testing.assert_allclose(a[3], b[3], atol=1e-4)  # 0.1 mm, 0.1 ms: solver tolerance
 
 
+def test_rendered_target_marker_is_at_the_goal_after_c_rollouts() -> None:
+    """A rendered frame shows the target where the goal is (was: the marker body's default position)."""
+    env = gym.make("DynDLO/TimeOscillation-v0", layout="diagonal", render_mode="rgb_array").unwrapped
+    env.reset(seed=0)
+    env.step(np.zeros(env.action_space.shape, np.float32))
+    env.render()
+    np.testing.assert_allclose(env.data.geom_xpos[env.model.geom("target_geom").id], env.goal, atol=1e-12)
+    env.close()
+
+
 def test_target_marker_stays_at_the_goal_through_c_rollouts() -> None:
     env = gym.make("DynDLO/TipControl-v0").unwrapped
     env.reset(seed=2)
