@@ -14,7 +14,9 @@ def test_both_tip_control_modes_are_shipped() -> None:
     assert {"tip-control-single-step", "tip-control-multi-step"} <= set(policies.available())
     for name in policies.available():
         meta = policies.metadata(name)
-        assert meta["task"] == "tip-control" and meta["algo"] in ("ppo", "sac")
+        assert meta["algo"] in ("ppo", "sac")
+        if meta["task"] != "tip-control":
+            continue
         assert meta["multi_step"] == name.endswith("multi-step")
         evaluation = meta["evaluation"]
         assert evaluation["episodes"] == 100 and evaluation["success_rate"] >= 0.9
@@ -38,3 +40,30 @@ def test_shipped_policy_hits_unseen_targets(name: str) -> None:
             obs, _, done, _, info = env.step(action)
         hits += bool(info["is_success"])
     assert hits >= 18, f"{name}: {hits}/20"
+
+
+@pytest.mark.parametrize("name", [n for n in policies.available() if n.startswith("time-oscillation")])
+def test_shipped_task_iv_policy_beats_the_geometric_lift_at_equal_time(name: str) -> None:
+    """Task IV is deterministic: one episode is the policy. The geometric lift gets the same planned time."""
+    import numpy as np
+
+    from dyndlo_vision.tasks.baselines import GeometricLift
+
+    meta = policies.metadata(name)
+    env = gym.make(env_id(meta["task"]), **meta["env_options"])
+    model = policies.load(name, env=env)
+    obs, _ = env.reset(seed=0)
+    action, _ = model.predict(obs, deterministic=True)
+    base = env.unwrapped
+    _, times = base.spec_actions.decode(
+        action.astype(float), base.scene.gripper_home[0], 0.0, base.task.final_point(base.goal)
+    )
+    _, _, _, _, learned = env.step(action)
+    obs, _ = env.reset(seed=0)
+    _, _, _, _, geometric = env.step(GeometricLift(env, float(times[-1]))(obs))
+    assert learned["is_success"] and not any(learned["avoid"].values())
+    assert learned["residual_oscillation_m"] < geometric["residual_oscillation_m"]
+    assert learned["residual_oscillation_m"] == pytest.approx(
+        meta["evaluation"]["residual_oscillation_m"], abs=1e-3
+    )
+    assert np.isclose(times[-1], meta["evaluation"]["planned_time_s"], atol=1e-3)
