@@ -1,8 +1,8 @@
 """Learning curves (the paper's Fig. 3): success rate and mean episode reward against timesteps.
 
-Runs are read from their ``eval/evaluations.npz`` (written by the EvalCallback during training). Runs with the
-same task, mode and algorithm form one group: each run is drawn thin, the group's mean thick, and the spread
-(min to max over runs) shaded, on a common grid of timesteps.
+Runs are read from their ``eval/evaluations.npz`` (written by the EvalCallback during training). Runs whose
+configurations differ only in the seed form one group: each run is drawn thin, the group's mean thick, and the
+spread (min to max over runs) shaded, on a common grid of timesteps.
 """
 
 from __future__ import annotations
@@ -26,6 +26,20 @@ class Curve:
     reward: NDArray[np.float64]
 
 
+def group_name(config: dict) -> str:
+    """A run configuration without its seed, as a legend label: task, mode, algorithm, what else was set."""
+    mode = "multi-step" if config.get("multi_step") else "single-step"
+    parts = [str(config.get("task")), mode, str(config.get("algo", "")).upper()]
+    parts += [f"{k}={v}" for k, v in sorted((config.get("env_options") or {}).items())]
+    if config.get("demonstrations"):
+        parts.append(f"+{config['demonstrations']} demos")
+    if config.get("obs_noise"):
+        parts.append("noisy obs")
+    if config.get("randomize_cable"):
+        parts.append("random cable")
+    return " ".join(parts)
+
+
 def load_curve(run: Path) -> Curve:
     """Read a run folder's evaluations, with a clear error if it has none."""
     run = Path(run)
@@ -44,8 +58,7 @@ def load_curve(run: Path) -> Curve:
     config_file = run / "config.json"
     if config_file.is_file():
         config = json.loads(config_file.read_text())
-        mode = "multi-step" if config.get("multi_step") else "single-step"
-        group = f"{config.get('task')} {mode} {str(config.get('algo', '')).upper()}"
+        group = group_name(config)
     return Curve(
         label=run.name,
         group=group,

@@ -185,6 +185,19 @@ def test_plot_draws_runs(tmp_path: Path) -> None:
     assert image is not None and image.shape[0] > 200 and image.shape[1] > 400
 
 
+def test_runs_group_by_everything_but_the_seed() -> None:
+    from dataclasses import asdict
+
+    from dyndlo_vision.learning.plots import group_name
+
+    plain = asdict(RunConfig(task="time-oscillation", multi_step=False, algo="sac", timesteps=10, seed=1,
+                             env_options={"target": "up"}))
+    label = "time-oscillation single-step SAC target=up"
+    assert group_name(plain) == group_name({**plain, "seed": 2}) == label
+    assert group_name({**plain, "demonstrations": 500}).endswith("+500 demos")
+    assert group_name({**plain, "env_options": {"target": "down"}}) != group_name(plain)
+
+
 def test_training_with_the_fitted_observation_noise_and_cable_randomization(tmp_path: Path) -> None:
     from dyndlo_vision.control.noise_model import packaged_noise_model_path
     from dyndlo_vision.learning.envs import make_env
