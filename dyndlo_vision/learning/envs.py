@@ -19,8 +19,12 @@ def make_env(
     monitor_file: Path | None = None,
     render_mode: str | None = None,
     randomize: bool | None = None,
+    append_monitor: bool = False,
 ) -> gym.Env[Any, Any]:
-    """One environment of the run: the task, optional cable randomisation and observation noise, a Monitor."""
+    """One environment of the run: the task, optional cable randomisation and observation noise, a Monitor.
+
+    ``append_monitor`` continues an existing monitor file (a resumed run) instead of starting it afresh.
+    """
     from stable_baselines3.common.monitor import Monitor
 
     import dyndlo_vision  # noqa: F401  (registers the ids in subprocesses too)
@@ -35,16 +39,17 @@ def make_env(
         from dyndlo_vision.control.wrappers import NoisyObservation
 
         env = NoisyObservation(env, ObservationNoiseModel.load(Path(config.obs_noise)))
-    return Monitor(env, str(monitor_file) if monitor_file else None, info_keywords=MONITOR_KEYWORDS)
+    return Monitor(env, str(monitor_file) if monitor_file else None, info_keywords=MONITOR_KEYWORDS,
+                   override_existing=not append_monitor)
 
 
 def env_factory(
-    config: RunConfig, monitor_file: Path | None, randomize: bool | None = None
+    config: RunConfig, monitor_file: Path | None, randomize: bool | None = None, append_monitor: bool = False
 ) -> Callable[[], gym.Env[Any, Any]]:
     """A picklable thunk for SubprocVecEnv."""
 
     def thunk() -> gym.Env[Any, Any]:
-        return make_env(config, monitor_file, randomize=randomize)
+        return make_env(config, monitor_file, randomize=randomize, append_monitor=append_monitor)
 
     return thunk
 
@@ -56,12 +61,15 @@ def make_vec_env(
     monitor_dir: Path | None,
     kind: str,
     randomize: bool | None = None,
+    append_monitor: bool = False,
 ) -> Any:
     """``n_envs`` environments in a DummyVecEnv or SubprocVecEnv, seeded ``seed, seed + 1, ...``."""
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
     thunks = [
-        env_factory(config, monitor_dir / f"env{rank}" if monitor_dir is not None else None, randomize)
+        env_factory(
+            config, monitor_dir / f"env{rank}" if monitor_dir is not None else None, randomize, append_monitor
+        )
         for rank in range(n_envs)
     ]
     vec = (

@@ -166,6 +166,7 @@ def train(config: RunConfig, out: Path, resume: bool = False, progress_bar: bool
         config.seed + (_steps_done(ckpt) if resume else 0),
         out / "monitor",
         config.vec_env,
+        append_monitor=resume,  # a resumed run continues its episode log
     )
     cls = algo_class(config.algo)
     try:

@@ -63,6 +63,9 @@ def test_train_then_resume(tmp_path: Path, algo: str) -> None:
     train(_config(algo, 96), out, resume=True, progress_bar=False)
     state = json.loads((out / "checkpoint" / "state.json").read_text())
     assert state["num_timesteps"] >= 96
+    monitor = (out / "monitor" / "env0.monitor.csv").read_text().splitlines()
+    assert len(monitor) - 2 >= 96  # the resumed run appended to the episode log (header lines: 2)
+    assert sum(line.startswith("#") for line in monitor) == 1
     after = np.load(out / "eval" / "evaluations.npz")["timesteps"].tolist()
     assert after[: len(before)] == before and len(after) > len(before)  # the curve continues
     model = policies.load(out / "model.zip")
