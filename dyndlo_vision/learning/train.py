@@ -194,6 +194,7 @@ def train(config: RunConfig, out: Path, resume: bool = False, progress_bar: bool
                 state["wall_s"] = demo["wall_s"]  # the run's wall time includes them
                 text = json.dumps(demo, indent=2)
                 write_atomic(out / DEMONSTRATIONS_FILE, lambda p: Path(p).write_text(text))
+                save_checkpoint(model, out, demo["wall_s"])  # resumable from here, demonstrations included
                 log.info("replay buffer seeded with %s", demo)
         callbacks = _RunCallbacks.build(config, out, state, progress_bar) + [_eval_callback(config, out)]
         remaining = config.timesteps - int(model.num_timesteps)

@@ -232,6 +232,7 @@ def test_demonstrations_seed_the_replay_buffer_with_baseline_episodes(tmp_path: 
     model.load_replay_buffer(out / "checkpoint" / "replay_buffer.pkl")
     buffer = model.replay_buffer
     assert buffer.size() == 3 + 4  # the demonstrations, then the run's own steps
+    assert (out / "checkpoint" / "state.json").is_file()
     assert np.all(buffer.dones[:7, 0] == 1.0)  # single-step: every transition ends its episode
     # The stored rewards are the environment's for the stored actions: replay the first demonstration.
     env = gym.make("DynDLO/TimeOscillation-v0", layout="diagonal")
