@@ -232,7 +232,6 @@ def test_demonstrations_seed_the_replay_buffer_with_baseline_episodes(tmp_path: 
     model.load_replay_buffer(out / "checkpoint" / "replay_buffer.pkl")
     buffer = model.replay_buffer
     assert buffer.size() == 3 + 4  # the demonstrations, then the run's own steps
-    assert (out / "checkpoint" / "state.json").is_file()
     assert np.all(buffer.dones[:7, 0] == 1.0)  # single-step: every transition ends its episode
     # The stored rewards are the environment's for the stored actions: replay the first demonstration.
     env = gym.make("DynDLO/TimeOscillation-v0", layout="diagonal")
@@ -241,6 +240,30 @@ def test_demonstrations_seed_the_replay_buffer_with_baseline_episodes(tmp_path: 
     assert reward == pytest.approx(float(buffer.rewards[0, 0]), abs=1e-6)
     episodes = sum(len(f.read_text().splitlines()) - 2 for f in (out / "monitor").glob("*.csv"))
     assert episodes == 3 + 4  # the demonstrations are real episodes, logged with the run's
+
+
+def test_a_crash_after_the_demonstrations_resumes_with_them(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from stable_baselines3 import SAC
+
+    def crash(self: object, *args: object, **kwargs: object) -> None:
+        raise RuntimeError("simulated crash")
+
+    config = RunConfig(
+        task="time-oscillation", multi_step=False, algo="sac", timesteps=3, seed=1, n_envs=1, vec_env="dummy",
+        hyperparams={"learning_starts": 1, "batch_size": 2}, env_options={"layout": "diagonal"},
+        eval_freq=100, eval_episodes=1, checkpoint_freq=100, demonstrations=2,
+    )
+    out = tmp_path / "run"
+    monkeypatch.setattr(SAC, "learn", crash)
+    with pytest.raises(RuntimeError, match="simulated crash"):
+        train(config, out, progress_bar=False)
+    monkeypatch.undo()
+    train(config, out, resume=True, progress_bar=False)
+    model = SAC.load(out / "checkpoint" / "model.zip")
+    model.load_replay_buffer(out / "checkpoint" / "replay_buffer.pkl")
+    assert model.replay_buffer.size() == 2 + 3  # the demonstrations survived the crash
 
 
 @pytest.mark.parametrize(
