@@ -284,7 +284,9 @@ class Scene:
             raise ValueError(f"the scene does not compile: {exc}") from exc
         m = self.model
         if config.physics.twist_armature_kg_m2 > 0:
-            twist = m.jnt_dofadr[m.jnt_type == mujoco.mjtJoint.mjJNT_HINGE]
+            # MuJoCo names the rod's per-edge twist hinges <flex name>_twist_<edge>.
+            prefix = f"{CABLE_NAME}_twist"
+            twist = [m.jnt_dofadr[j] for j in range(m.njnt) if m.joint(j).name.startswith(prefix)]
             m.dof_armature[twist] = config.physics.twist_armature_kg_m2
             mujoco.mj_setConst(m, mujoco.MjData(m))  # the mass matrix of simple bodies is precomputed
         self.data = mujoco.MjData(m)
