@@ -13,6 +13,7 @@ mode down. This script measures, per configuration:
   task IV and hooking, and the peak TCP speed of the diverged ones.
 
     python benchmarks/twist_armature.py [--episodes 20]
+    taskset -c 0 python benchmarks/twist_armature.py --timing-only   # clean speed A/B on an idle core
 """
 
 from __future__ import annotations
@@ -103,10 +104,30 @@ def robustness(
     return diverged, speeds, sim_s / (time.process_time() - start)
 
 
+TIMING = ("discrete 1 ms (default)", "Euler 1 ms, armature 1e-8", "Euler 2 ms, armature 1e-6")
+
+
+def timing(repeats: int = 3) -> None:
+    """CPU time per physics step, alternating the configurations; median over planar and 3D whips."""
+    costs: dict[str, list[float]] = {name: [] for name in TIMING}
+    for _ in range(repeats):
+        for name in TIMING:
+            for planar in (True, False):
+                costs[name].append(whip(CONFIGS[name], planar)[1])
+    for name, values in costs.items():
+        per_step = float(np.median(values))
+        print(f"{name}: median {per_step * 1e6:.1f} CPU-us per step over {len(values)} whips, "
+              f"{CONFIGS[name].timestep_s / per_step:.1f} simulated s per CPU s")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--episodes", type=int, default=20, help="random-action episodes per task")
+    parser.add_argument("--timing-only", action="store_true", help="only the alternating speed A/B")
     args = parser.parse_args()
+    if args.timing_only:
+        timing()
+        return
     print(f"# {platform.machine()}, {os.cpu_count()} cpus, python {platform.python_version()}; "
           f"command: python benchmarks/twist_armature.py --episodes {args.episodes}")
     reference = {planar: whip(PhysicsOptions(timestep_s=0.000125), planar)[0] for planar in (True, False)}
