@@ -31,7 +31,7 @@ import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
-from integrator_choice import whip_reference  # noqa: E402
+from integrator_choice import follow_reference, whip_reference  # noqa: E402
 
 import dyndlo_vision  # noqa: E402,F401
 from dyndlo_vision.sim import CableParams, PhysicsOptions, Scene, SceneConfig  # noqa: E402
@@ -69,16 +69,8 @@ def whip(physics: PhysicsOptions, planar: bool, duration_s: float = 1.0) -> tupl
         pos[:, 1] = 0.06 * np.sin(2 * w * t) * np.clip(t / 0.4, 0, 1)
         vel[:, 1] = np.gradient(pos[:, 1], t)
     pos = pos + scene.gripper_home[0]
-    every = max(1, int(round(0.01 / dt)))
-    tips = []
-    start = time.process_time()
-    for k in range(n):
-        scene.set_tcp_reference(pos[k], vel[k])
-        scene.step()
-        if (k + 1) % every == 0:
-            tips.append(scene.cable_nodes()[-1].copy())
-    cpu = time.process_time() - start
-    return np.array(tips), cpu / n
+    tips, _, cpu = follow_reference(scene, pos, vel)
+    return tips, cpu / n
 
 
 def robustness(
