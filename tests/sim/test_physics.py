@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -78,19 +79,24 @@ def test_cantilever_static_deflection() -> None:
     assert deflection == pytest.approx(expected, rel=0.08), (deflection, expected)
 
 
+def _whip_steps(scene: Scene, duration_s: float) -> Iterator[int]:
+    """Whip the TCP along x at 1.5 Hz with peak speed 1.8 m/s (v_max), yielding each step's index after it."""
+    home = scene.gripper_home[0]
+    w = 2 * math.pi * 1.5
+    amp = 1.8 / w
+    for k in range(int(round(duration_s / scene.timestep))):
+        t = k * scene.timestep
+        scene.set_tcp_reference(home + [amp * math.sin(w * t), 0, 0], [amp * w * math.cos(w * t), 0, 0])
+        scene.step()
+        yield k
+
+
 def test_inextensible_under_whip() -> None:
     """Edge constraints keep the cable's length within 1.5% while it is whipped at the velocity limit."""
     scene = Scene(SceneConfig(settle_s=0.3))
     scene.reset()
-    home = scene.gripper_home[0]
-    dt = scene.timestep
-    w = 2 * math.pi * 1.5
-    amp = 1.8 / w
     lengths = []
-    for k in range(int(1.5 / dt)):
-        t = k * dt
-        scene.set_tcp_reference(home + [amp * math.sin(w * t), 0, 0], [amp * w * math.cos(w * t), 0, 0])
-        scene.step()
+    for k in _whip_steps(scene, 1.5):
         if k % 10 == 0:
             lengths.append(np.linalg.norm(np.diff(scene.cable_nodes(), axis=0), axis=1).sum())
     assert scene.is_finite()
@@ -151,16 +157,7 @@ def test_unstable_cable_parameters_get_a_clear_error() -> None:
 def _planar_whip_tips(physics: PhysicsOptions, duration_s: float = 0.5) -> np.ndarray:
     scene = Scene(SceneConfig(settle_s=0.2, physics=physics))
     scene.reset()
-    home = scene.gripper_home[0]
-    w = 2 * math.pi * 1.5
-    amp = 1.8 / w
-    tips = []
-    for k in range(int(round(duration_s / scene.timestep))):
-        t = k * scene.timestep
-        scene.set_tcp_reference(home + [amp * math.sin(w * t), 0, 0], [amp * w * math.cos(w * t), 0, 0])
-        scene.step()
-        tips.append(scene.cable_nodes()[-1])
-    return np.array(tips)
+    return np.array([scene.cable_nodes()[-1] for _ in _whip_steps(scene, duration_s)])
 
 
 def test_twist_armature_leaves_planar_motion_unchanged() -> None:
