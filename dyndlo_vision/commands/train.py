@@ -78,12 +78,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Resolve the configuration, then train."""
+    from dyndlo_vision.control.noise_model import resolve_noise_model_path
     from dyndlo_vision.learning.config import RunConfig, load_hyperparams
     from dyndlo_vision.learning.train import train
 
     algo = args.algo or ("sac" if args.task == "time-oscillation" else "ppo")
-    from dyndlo_vision.control.noise_model import resolve_noise_model_path
-
     obs_noise = resolve_noise_model_path(args.obs_noise)
     entry = load_hyperparams(algo, args.task, args.multi_step)
     hyperparams = {**entry["hyperparams"], **parse_assignments(args.hp, "--hp")}
