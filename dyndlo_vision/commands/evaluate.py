@@ -40,6 +40,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=1.35,
         help="trajectory time of the geometric baseline in s (default 1.35)",
     )
+    p.add_argument(
+        "--randomize-cable",
+        action="store_true",
+        help="a new cable (length, mass, E, damping; training's --randomize-cable ranges) every episode, "
+        "drawn from the episode's seed: success under cable variation, also for tasks with a fixed start",
+    )
     p.add_argument("--out", default=None, help="JSON report path (default: print only)")
     p.add_argument("--video", default=None, help="MP4 of the first --video-episodes episodes")
     p.add_argument("--video-episodes", type=int, default=3)
@@ -47,8 +53,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Load the policy, run the episodes, print and write the report."""
-    import gymnasium as gym
-
     import dyndlo_vision  # noqa: F401
     from dyndlo_vision import policies
     from dyndlo_vision.commands.train import parse_assignments
@@ -66,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"{args.policy} has no metadata naming its task: pass --task")
     multi_step = args.multi_step if args.multi_step is not None else bool(meta.get("multi_step", False))
     options = {**meta.get("env_options", {}), **options}
-    env = gym.make(env_id(task), multi_step=multi_step, **options)
+    env = _make_env(env_id(task), multi_step, options, args.randomize_cable)
     if args.policy == "geometric":
         from dyndlo_vision.tasks.baselines import GeometricLift
 
@@ -78,7 +82,13 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"output folder {Path(path).parent} does not exist")
     report, records = evaluate(policy, env, args.episodes, args.seed)
     report.update(
-        {"policy": str(args.policy), "task": task, "multi_step": multi_step, "env_options": options}
+        {
+            "policy": str(args.policy),
+            "task": task,
+            "multi_step": multi_step,
+            "env_options": options,
+            "randomize_cable": bool(args.randomize_cable),
+        }
     )
     print(json.dumps({k: v for k, v in report.items() if k != "episodes_detail"}, indent=2))
     if args.out:
@@ -87,28 +97,60 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {args.out}")
     if args.video:
         _write_video(
-            Path(args.video), env_id(task), multi_step, options, policy, args.seed, args.video_episodes
+            Path(args.video),
+            env_id(task),
+            multi_step,
+            options,
+            policy,
+            args.seed,
+            args.video_episodes,
+            args.randomize_cable,
         )
         print(f"wrote {args.video}")
     return 0
 
 
-def _write_video(
-    path: Path, gym_id: str, multi_step: bool, options: dict[str, Any], policy: Any, seed: int, episodes: int
-) -> None:
-    """Render episodes at 25 Hz of simulated time to an MP4, atomically."""
+def _make_env(
+    gym_id: str,
+    multi_step: bool,
+    options: dict[str, Any],
+    randomize_cable: bool,
+    render_mode: str | None = None,
+) -> Any:
+    """The evaluated environment; with ``randomize_cable`` a new cable every episode, drawn from its seed."""
     import gymnasium as gym
+
+    env = gym.make(gym_id, multi_step=multi_step, render_mode=render_mode, **options)
+    if randomize_cable:
+        from dyndlo_vision.control.wrappers import CableRandomization
+
+        env = CableRandomization(env, every_episodes=1)
+    return env
+
+
+def _write_video(
+    path: Path,
+    gym_id: str,
+    multi_step: bool,
+    options: dict[str, Any],
+    policy: Any,
+    seed: int,
+    episodes: int,
+    randomize_cable: bool = False,
+) -> None:
+    """Render episodes at 25 Hz of simulated time to an MP4, atomically (the same cables as evaluated)."""
     import numpy as np
 
     from dyndlo_vision.learning.evaluate import as_action_fn
 
-    env = gym.make(gym_id, multi_step=multi_step, render_mode="rgb_array", **options)
+    env = _make_env(gym_id, multi_step, options, randomize_cable, render_mode="rgb_array")
     base = env.unwrapped
     act = as_action_fn(policy)
     frames: list[np.ndarray] = []
-    base.frame_hook = lambda e: frames.append(e.render())  # every 40 ms of simulated time
     for i in range(episodes):
         obs, _ = env.reset(seed=seed + i)
+        # Set after reset: a new cable rebuilds the environment, which clears the hook.
+        base.frame_hook = lambda e: frames.append(e.render())  # every 40 ms of simulated time
         frames.append(base.render())
         done = False
         while not done:

@@ -40,6 +40,7 @@ class EpisodeRecord:
     terms: dict[str, float] = field(default_factory=dict)
     avoid: dict[str, bool] = field(default_factory=dict)
     extras: dict[str, float] = field(default_factory=dict)
+    cable: dict[str, float] = field(default_factory=dict)
 
 
 def as_action_fn(policy: Any) -> Callable[[np.ndarray], np.ndarray]:
@@ -55,7 +56,7 @@ def run_episode(
     env: Any, act: Callable[[np.ndarray], np.ndarray], seed: int, on_step: Callable[[Any], None] | None = None
 ) -> EpisodeRecord:
     """Run one episode from ``reset(seed=seed)``; reward terms are summed over the episode's steps."""
-    obs, _ = env.reset(seed=seed)
+    obs, reset_info = env.reset(seed=seed)
     if hasattr(act, "reset"):
         act.reset(env)
     terms = dict.fromkeys(REWARD_TERMS, 0.0)
@@ -82,7 +83,17 @@ def run_episode(
         terms=terms,
         avoid=dict(info.get("avoid", {})),
         extras=extras,
+        cable=_cable_summary(reset_info.get("cable")),
     )
+
+
+def _cable_summary(cable: Any) -> dict[str, float]:
+    """The randomised parameters of the episode's cable (``info["cable"]`` of ``CableRandomization``)."""
+    if cable is None:
+        return {}
+    from dyndlo_vision.control.wrappers import DEFAULT_CABLE_RANGES
+
+    return {name: float(getattr(cable, name)) for name in DEFAULT_CABLE_RANGES}
 
 
 def summarize(records: list[EpisodeRecord]) -> dict[str, Any]:

@@ -123,6 +123,32 @@ def test_evaluate_geometric_baseline_is_deterministic() -> None:
         GeometricLift(env, total_time_s=5.0)
 
 
+def test_evaluate_with_cable_randomization_draws_one_cable_per_episode_from_its_seed(tmp_path: Path) -> None:
+    from dyndlo_vision.control.wrappers import DEFAULT_CABLE_RANGES
+    from dyndlo_vision.tasks.tip_control import TipControl
+
+    nominal = TipControl().cable
+    report = tmp_path / "report.json"
+    args = ["evaluate", "tip-control-single-step", "--episodes", "3", "--seed", "7", "--randomize-cable"]
+    assert main([*args, "--out", str(report)]) == 0
+    first = json.loads(report.read_text())
+    assert first["randomize_cable"] is True
+    cables = [e["cable"] for e in first["episodes_detail"]]
+    assert len({c["length_m"] for c in cables}) == 3  # a new cable every episode
+    for cable in cables:
+        for name, (lo, hi) in DEFAULT_CABLE_RANGES.items():
+            assert lo <= cable[name] / getattr(nominal, name) <= hi, (name, cable)
+    # The cable is drawn from the episode's seed: the same seeds give the same cables and outcomes.
+    assert main([*args, "--out", str(report)]) == 0
+    again = json.loads(report.read_text())
+    assert [e["cable"] for e in again["episodes_detail"]] == cables
+    assert [e["reward"] for e in again["episodes_detail"]] == [e["reward"] for e in first["episodes_detail"]]
+    # Without the option, the nominal cable and no cable record.
+    assert main(["evaluate", "tip-control-single-step", "--episodes", "1", "--out", str(report)]) == 0
+    plain = json.loads(report.read_text())
+    assert plain["randomize_cable"] is False and plain["episodes_detail"][0]["cable"] == {}
+
+
 def test_bad_policy_files_get_clear_errors(tmp_path: Path) -> None:
     with pytest.raises(FileNotFoundError, match="neither a file nor a shipped policy"):
         policies.load(tmp_path / "missing.zip")
