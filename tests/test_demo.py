@@ -29,7 +29,14 @@ def test_demo_writes_video_plot_and_metrics(tmp_path: Path) -> None:
 
 def test_demo_rejects_bad_input_and_writes_nothing(tmp_path: Path) -> None:
     out = tmp_path / "demo"
-    for argv in (["--episodes", "0"], ["--policy", str(tmp_path / "missing.zip")]):
+    for argv in (
+        ["--episodes", "0"],
+        ["--policy", str(tmp_path / "missing.zip")],
+        ["--latency-ms", "-5"],
+        ["--latency-ms", "nan"],
+        ["--latency-ms", "300"],
+        ["--latency-ms", "40", "--observation", "true"],
+    ):
         with pytest.raises(SystemExit) as exc:
             main(["demo", "--out", str(out), *argv])
         assert exc.value.code == 2

@@ -40,6 +40,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--episodes", type=int, default=1, help="episodes to run (video of the first; default 1)")
     p.add_argument("--seed", type=int, default=100_000, help="seed of the first episode (default 100000)")
     p.add_argument("--camera", default="tracking", help="MuJoCo camera to track from (default: tracking)")
+    p.add_argument(
+        "--latency-ms",
+        type=float,
+        default=0.0,
+        help="tracked observation: the tracker sees each frame this long after it was rendered, like a real "
+        "camera pipeline; the filter predicts across it (default 0; at most 250; a multiple of the 40 ms "
+        "period is exact, other values round up to one)",
+    )
     p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
 
 
@@ -63,6 +71,10 @@ def run(args: argparse.Namespace) -> int:
 
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    if not 0.0 <= args.latency_ms <= 250.0:
+        raise ValueError(f"--latency-ms must be in [0, 250] ms, got {args.latency_ms}")
+    if args.latency_ms and args.observation != "tracked":
+        raise ValueError(f"--latency-ms applies to the tracked observation, not to {args.observation!r}")
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     name = args.policy or _default_policy()
     _, meta = policies.resolve(name)
@@ -78,7 +90,13 @@ def run(args: argparse.Namespace) -> int:
     video: list[np.ndarray] = []
     for i in range(args.episodes):
         record = run_episode(
-            env, model, args.seed + i, args.observation, args.camera, video if i == 0 else None
+            env,
+            model,
+            args.seed + i,
+            args.observation,
+            args.camera,
+            video if i == 0 else None,
+            latency_s=1e-3 * args.latency_ms,
         )
         episodes.append(record)
         print(
@@ -91,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
         "policy": str(name),
         "multi_step": multi_step,
         "observation": args.observation,
+        "latency_ms": args.latency_ms,
         "success": first["success"],
         "final_distance_m": first["final_distance_m"],
         "min_distance_m": first["min_distance_m"],
@@ -136,9 +155,21 @@ def run(args: argparse.Namespace) -> int:
 
 
 def run_episode(
-    env: Any, model: Any, seed: int, observation: str, camera_name: str, video: list[np.ndarray] | None
+    env: Any,
+    model: Any,
+    seed: int,
+    observation: str,
+    camera_name: str,
+    video: list[np.ndarray] | None,
+    latency_s: float = 0.0,
+    point_filter: Any = None,
 ) -> dict[str, Any]:
-    """One closed-loop episode; appends annotated frames to ``video`` when given."""
+    """One closed-loop episode; appends annotated frames to ``video`` when given.
+
+    ``latency_s`` and ``point_filter`` (tracked observation): the camera's delay and the tip filter (default:
+    ``tracked_state``'s). With a delay the video shows the present, with the polyline the tracker found in
+    the delayed frame.
+    """
     from dyndlo_vision.control.loop import ControlLoop
     from dyndlo_vision.control.sim_robot import SimRobot
     from dyndlo_vision.control.state_sources import TrueState
@@ -149,7 +180,7 @@ def run_episode(
     if observation == "tracked":
         from dyndlo_vision.control.sim_perception import tracked_state
 
-        source, camera = tracked_state(env, camera_name)
+        source, camera = tracked_state(env, camera_name, point_filter=point_filter, latency_s=latency_s)
     elif observation == "noisy":
         from dyndlo_vision.control.state_sources import NoisyState
 
@@ -177,7 +208,7 @@ def run_episode(
     def on_cycle(record: Any, frame: Any) -> None:
         if video is None or calib is None:
             return
-        rgb = frame.rgb if frame is not None else camera.read().rgb
+        rgb = frame.rgb if frame is not None and not latency_s else camera.read().rgb
         video.append(_annotate(rgb, record, calib, base.goal))
 
     if base.multi_step:

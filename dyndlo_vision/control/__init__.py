@@ -8,6 +8,7 @@
 """
 
 from dyndlo_vision.control.cameras import (
+    DelayedCamera,
     MujocoCamera,
     OpenCVDeviceCamera,
     RealSenseCamera,
@@ -46,6 +47,7 @@ __all__ = [
     "IKError",
     "JointLimitError",
     "LoopReport",
+    "DelayedCamera",
     "MujocoCamera",
     "NoisyObservation",
     "NoisyState",

@@ -8,6 +8,9 @@ is converted once, here, at the edge. Capture times are seconds on the source's 
 * :class:`MujocoCamera`: the simulator's time, ``data.time``.
 * :class:`VideoFileCamera`: the video's own time stamps when they are sane, else ``index / fps``.
 * :class:`OpenCVDeviceCamera` and :class:`RealSenseCamera`: ``time.monotonic()`` when the frame arrived.
+
+:class:`DelayedCamera` wraps any of them and hands frames over a fixed time after their capture, as a real
+pipeline does (exposure, transfer, decoding), so the loop can be run in simulation with a camera's latency.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ __all__ = [
     "TruncatedVideoError",
     "average_frames",
     "MujocoCamera",
+    "DelayedCamera",
     "VideoFileCamera",
     "OpenCVDeviceCamera",
     "RealSenseCamera",
@@ -240,6 +244,74 @@ class MujocoCamera(_FrameSource):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+
+class DelayedCamera(_FrameSource):
+    """Frames that arrive ``latency_s`` after they were captured: a camera pipeline's latency.
+
+    Every ``read()`` reads the wrapped camera (a :class:`MujocoCamera` renders the simulator's present) into a
+    buffer and hands over the newest frame captured at least ``latency_s`` before the newest capture, each
+    frame at most once and with its own capture time, so a filter that predicts from ``t_capture`` to the
+    controller's time compensates the delay. Until a frame is old enough ``read()`` returns None (a frame
+    that has not arrived yet); the very first read hands over the first frame at once, so a loop starts with
+    an estimate (in simulation the cable rests before an episode). Read at a fixed period, a frame's delay is
+    ``latency_s`` rounded up to a whole number of periods.
+
+    Args:
+        camera: The camera whose frames are delayed (its ``calibration``, if any, is passed through).
+        latency_s: Delay from capture to hand-over in seconds, >= 0 (0: every frame at once).
+
+    Raises:
+        ValueError: A latency that is negative, not finite or not a number.
+    """
+
+    def __init__(self, camera: Any, latency_s: float) -> None:
+        if isinstance(latency_s, bool) or not isinstance(latency_s, int | float) or not (
+            math.isfinite(latency_s) and latency_s >= 0
+        ):
+            raise ValueError(f"latency_s must be a finite number >= 0 (seconds), got {latency_s!r}")
+        self.camera = camera
+        self.latency_s = float(latency_s)
+        self._buffer: list[Frame] = []
+        self._started = False
+
+    @property
+    def calibration(self) -> Any:
+        """The wrapped camera's calibration."""
+        return self.camera.calibration
+
+    def read(self) -> Frame | None:
+        """Reads the wrapped camera; the newest frame that is ``latency_s`` old, or None if none has arrived.
+
+        None also when the wrapped camera has run out and every buffered frame has been handed over.
+        """
+        frame = self.camera.read()
+        if frame is not None:
+            self._buffer.append(frame)
+        if not self._buffer:
+            return None
+        if not self._started:
+            self._started = True
+            return self._buffer.pop(0)
+        now = self._buffer[-1].t_capture if frame is not None else math.inf
+        due = [i for i, f in enumerate(self._buffer) if now - f.t_capture >= self.latency_s - 1e-9]
+        if not due:
+            return None
+        newest = due[-1]
+        out = self._buffer[newest]
+        del self._buffer[: newest + 1]  # older frames than the one handed over are never wanted again
+        return out
+
+    def __iter__(self) -> Iterator[Frame]:
+        raise TypeError(
+            "a DelayedCamera is read at the loop's period (None means 'not arrived yet', not 'no more'); "
+            "iterate over the wrapped camera instead"
+        )
+
+    def close(self) -> None:
+        """Closes the wrapped camera and drops the buffer."""
+        self._buffer.clear()
+        self.camera.close()
 
 
 # ---------------------------------------------------------------------------------------------- files

@@ -8,15 +8,17 @@ segmentation by its projected position, and the projected TCP marks the held end
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
-from dyndlo_vision.control.cameras import MujocoCamera
+from dyndlo_vision.control.cameras import DelayedCamera, MujocoCamera
 from dyndlo_vision.control.state_sources import TrackedState
 from dyndlo_vision.sim.scene import CABLE_NAME
+from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
 from dyndlo_vision.tracking import BackgroundSegmenter, CableTracker, Plane, PointFilter
 
 #: Planar tip control moves in the x-z plane through the origin.
@@ -27,6 +29,9 @@ GRIPPER_MASK_RADIUS_M = 0.03  # the 2 cm gripper sphere plus a margin
 # the measurements and bridges missed frames (12.7 mm). Measured with the single-step SAC policy, seeds
 # 100000-100003, tracked observation.
 LOOP_SIGMA_ACCEL = 2000.0
+#: Longest simulated camera latency (s): beyond a quarter second the loop re-plans on a past the cable has
+#: long left.
+MAX_LATENCY_S = 0.25
 
 
 class GripperMaskedSegmenter:
@@ -83,11 +88,18 @@ def pixels_per_metre(camera: Any, point: NDArray[np.float64], plane: Plane = MOT
 
 
 def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFilter | None = None,
-                  width: int = 640, height: int = 480) -> tuple[TrackedState, MujocoCamera]:
+                  width: int = 640, height: int = 480,
+                  latency_s: float = 0.0) -> tuple[TrackedState, MujocoCamera]:
     """A :class:`TrackedState` on a MuJoCo camera of ``env`` (call after ``env.reset``).
 
-    The background image is rendered now, with the cable hidden, so call it at the start of an episode.
+    The background image is rendered now, with the cable hidden, so call it at the start of an episode. With
+    ``latency_s`` > 0 the tracker sees each frame that long after it was rendered (:class:`DelayedCamera`)
+    and the filter predicts across the delay. The camera returned renders the present (for videos).
     """
+    if isinstance(latency_s, bool) or not isinstance(latency_s, int | float) or not (
+        math.isfinite(latency_s) and 0 <= latency_s <= MAX_LATENCY_S
+    ):
+        raise ValueError(f"latency_s must be a number of seconds in [0, {MAX_LATENCY_S}], got {latency_s!r}")
     base = env.unwrapped
     mujoco.mj_forward(base.model, base.data)
     camera = MujocoCamera(base.model, base.data, camera_name, width=width, height=height)
@@ -108,6 +120,11 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
         segmenter.center_uv = uv
         return uv
 
-    point_filter = point_filter or PointFilter(sigma_accel=LOOP_SIGMA_ACCEL)
-    source = TrackedState(camera, tracker, point_filter, point_index=-1, project=project)
+    # The newest measurement is always at least the latency old, so the filter's coasting limit and the
+    # frames the camera may miss in a row (the first ones have not arrived yet) grow with it.
+    point_filter = point_filter or PointFilter(sigma_accel=LOOP_SIGMA_ACCEL, max_coast_s=0.3 + latency_s)
+    frames = DelayedCamera(camera, latency_s) if latency_s > 0 else camera
+    not_yet_arrived = math.ceil(latency_s / CONTROL_PERIOD_S - 1e-9)
+    source = TrackedState(frames, tracker, point_filter, point_index=-1, project=project,
+                          max_missing_frames=3 + not_yet_arrived)
     return source, camera

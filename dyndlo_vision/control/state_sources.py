@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -17,6 +18,10 @@ from numpy.typing import NDArray
 from dyndlo_vision.control.protocols import Camera, TcpState
 
 log = logging.getLogger(__name__)
+
+#: TCP states a :class:`TrackedState` keeps to find the gripper at a delayed frame's capture time (at 25 Hz,
+#: 2.5 s: longer than any sensible camera latency).
+TCP_HISTORY_LENGTH = 64
 
 
 @dataclass
@@ -98,6 +103,9 @@ class TrackedState:
         point_index: Centreline node of P_DLO (-1: the free tip).
         project: Optional ``world (3,) -> pixel (2,)`` map used to give the tracker the held end's pixel (the
             gripper position projected into the image), which fixes the cable's orientation in every frame.
+            The gripper position used is the one at the frame's capture time, interpolated in the TCP states
+            the source was read with, when the capture time lies among them (a delayed camera); otherwise
+            the current one.
         max_missing_frames: Consecutive frames the camera may fail to deliver before the source reports lost.
     """
 
@@ -118,16 +126,32 @@ class TrackedState:
         self.max_missing_frames = max_missing_frames
         self.missing_frames = 0
         self.last_frame: Any = None
+        self._tcp_history: deque[tuple[float, NDArray[np.float64]]] = deque(maxlen=TCP_HISTORY_LENGTH)
 
     def reset(self) -> None:
         """Forget the cable and the filter state."""
         self.tracker.reset()
         self.filter.reset()
         self.missing_frames = 0
+        self._tcp_history.clear()
+
+    def _tcp_position_at(self, t: float) -> NDArray[np.float64]:
+        """The held end at time ``t``, interpolated in the recorded TCP states (else the latest one)."""
+        times = np.array([h[0] for h in self._tcp_history])
+        if times.size < 2 or not times[0] <= t <= times[-1]:
+            return self._tcp_history[-1][1]
+        k = int(np.searchsorted(times, t))
+        if times[k] == t:
+            return self._tcp_history[k][1]
+        w = (t - times[k - 1]) / (times[k] - times[k - 1])
+        return (1.0 - w) * self._tcp_history[k - 1][1] + w * self._tcp_history[k][1]
 
     def read(self, t_now: float, tcp: TcpState) -> PDloReading:
         """Grab a frame, track, update the filter at the capture time, and predict to ``t_now``."""
         stage: dict[str, float] = {}
+        if self._tcp_history and tcp.t <= self._tcp_history[-1][0]:
+            self._tcp_history.clear()  # time went back: a new episode
+        self._tcp_history.append((float(tcp.t), np.array(tcp.position, dtype=float)[0]))
         t0 = time.perf_counter()
         frame = self.camera.read()
         stage["camera"] = 1e3 * (time.perf_counter() - t0)
@@ -141,7 +165,7 @@ class TrackedState:
             self.missing_frames = 0
             self.last_frame = frame
             t1 = time.perf_counter()
-            anchor = None if self.project is None else self.project(np.asarray(tcp.position)[0])
+            anchor = None if self.project is None else self.project(self._tcp_position_at(frame.t_capture))
             meas = self.tracker.process(frame.rgb, frame.t_capture, depth=frame.depth, anchor_uv=anchor)
             point = meas.point(self.point_index)
             polyline = np.where(meas.visible[:, None], meas.nodes_uv, np.nan)

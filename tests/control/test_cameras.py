@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from dyndlo_vision.control.cameras import (
+    DelayedCamera,
     MujocoCamera,
     OpenCVDeviceCamera,
     RealSenseCamera,
@@ -18,9 +19,63 @@ from dyndlo_vision.control.cameras import (
     VideoFileCamera,
     average_frames,
 )
-from dyndlo_vision.control.protocols import Camera
+from dyndlo_vision.control.protocols import Camera, Frame
 from dyndlo_vision.sim.scene import BoxProp, Scene, SceneConfig
 from dyndlo_vision.tracking.tracker import lift_with_depth
+
+# ----------------------------------------------------------------------------------------------- latency
+
+
+class ClockCamera:
+    """Frames captured every ``period`` s (t = index * period), ``frames`` of them, then None."""
+
+    def __init__(self, period: float = 0.04, frames: int = 100) -> None:
+        self.period, self.frames, self.index, self.closed = period, frames, 0, False
+
+    def read(self) -> Frame | None:
+        if self.index >= self.frames:
+            return None
+        frame = Frame(np.full((2, 2, 3), self.index, np.uint8), self.index * self.period, self.index)
+        self.index += 1
+        return frame
+
+    def close(self) -> None:
+        self.closed = True
+
+
+@pytest.mark.parametrize(
+    ("latency_s", "delay_periods"), [(0.0, 0), (0.04, 1), (0.08, 2), (0.05, 2), (0.12, 3)]
+)
+def test_delayed_camera_hands_each_frame_over_once_after_the_latency(
+    latency_s: float, delay_periods: int
+) -> None:
+    cam = DelayedCamera(ClockCamera(), latency_s)
+    assert isinstance(cam, Camera)
+    got = [cam.read() for _ in range(12)]
+    assert got[0] is not None and got[0].index == 0  # the first frame at once: the loop starts with one
+    # Frames 1, 2, ... arrive delay_periods reads after their capture; the reads in between get nothing yet.
+    assert all(f is None for f in got[1 : 1 + delay_periods])
+    delivered = got[1 + delay_periods :]
+    assert [f.index for f in delivered] == list(range(1, 12 - delay_periods))
+    # Capture times are the frames' own (a filter can predict across the delay).
+    for read, frame in enumerate(got[1 + delay_periods :], start=1 + delay_periods):
+        assert frame.t_capture == pytest.approx((read - delay_periods) * 0.04)
+
+
+def test_delayed_camera_at_the_end_of_its_source_and_on_bad_input() -> None:
+    source = ClockCamera(frames=4)
+    cam = DelayedCamera(source, 0.08)
+    got = [cam.read() for _ in range(6)]
+    # read 0: frame 0; reads 1-2: not yet; read 3: frame 1; read 4: the source is out, the newest left (3).
+    assert [None if f is None else f.index for f in got] == [0, None, None, 1, 3, None]
+    with pytest.raises(TypeError, match="iterate over the wrapped camera"):
+        iter(cam)
+    cam.close()
+    assert source.closed
+    for bad in (-0.01, float("nan"), float("inf"), "40ms", True):
+        with pytest.raises(ValueError, match="latency_s must be a finite number >= 0"):
+            DelayedCamera(ClockCamera(), bad)  # type: ignore[arg-type]
+
 
 # ------------------------------------------------------------------------------------------------ MuJoCo
 

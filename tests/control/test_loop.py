@@ -100,22 +100,25 @@ def test_finish_plan_ends_the_episode_as_the_environment_does() -> None:
 
 
 @pytest.mark.slow
-def test_tracked_state_follows_the_tip_in_simulation() -> None:
+@pytest.mark.parametrize(("latency_s", "median_error_m"), [(0.0, 0.01), (0.08, 0.04)])
+def test_tracked_state_follows_the_tip_in_simulation(latency_s: float, median_error_m: float) -> None:
     from dyndlo_vision.control.sim_perception import tracked_state
 
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
     env.reset(seed=4)
-    source, camera = tracked_state(env)
+    source, camera = tracked_state(env, latency_s=latency_s)
     action = np.zeros(env.action_space.shape, np.float32)
     action[0] = 0.5  # a moderate sideways swing
     loop, _ = _loop(env, source, lambda obs: action)
     report = loop.run(duration_s=0.8)
     camera.close()
     errors = report.estimate_errors()
-    assert len(errors) == 20
-    assert sum(c.measured for c in report.cycles) >= 18
-    # Measured on this episode: median 3 mm; 1 cm leaves room for renderer differences.
-    assert np.median(errors) < 0.01
+    assert report.stop_reason == "duration" and len(errors) == 20
+    # Behind an 80 ms camera the second and third frames have not arrived when they are due.
+    assert sum(c.measured for c in report.cycles) >= 18 - 2 * (latency_s > 0)
+    # Measured on this episode: median 3.3 mm without latency, 17.3 mm at 80 ms (the loop's sigma_accel is
+    # set for no latency; docs/RESULTS.md has the sweep). The bounds leave room for renderer differences.
+    assert np.median(errors) < median_error_m
 
 
 class StoppingCamera:
@@ -176,6 +179,80 @@ def test_camera_that_stops_makes_the_loop_predict_then_stop(caplog: pytest.LogCa
     assert "camera delivered no frame" in caplog.text and "estimate lost" in caplog.text
     with pytest.raises(RuntimeError, match="stopped"):
         robot.send(Setpoints(np.array([env.unwrapped.scene.time]), np.zeros((1, 1, 3)), np.zeros((1, 1, 3))))
+
+
+class RecordingCamera:
+    """Simulator frames that remember the true tip and the gripper at their capture time."""
+
+    def __init__(self, env: gym.Env) -> None:
+        self.env = env.unwrapped
+        self.tip: dict[float, np.ndarray] = {}
+        self.tcp: dict[float, np.ndarray] = {}
+
+    def read(self) -> Frame:
+        t = self.env.scene.time
+        self.tip[t] = self.env.p_dlo().copy()
+        self.tcp[t] = self.env.scene.tcp_positions()[0].copy()
+        return Frame(np.zeros((4, 4, 3), np.uint8), t)
+
+    def close(self) -> None:
+        pass
+
+
+class TipAtCapture:
+    """A 'tracker' that measures the true tip at the frame's capture time and records the anchors it gets."""
+
+    def __init__(self, camera: RecordingCamera) -> None:
+        self.camera = camera
+        self.anchors: list[tuple[float, np.ndarray]] = []
+
+    def reset(self) -> None:
+        pass
+
+    def process(self, rgb: np.ndarray, t: float, depth: object = None, anchor_uv: object = None) -> object:
+        self.anchors.append((t, np.asarray(anchor_uv)))
+        tip = self.camera.tip[t]
+
+        class Meas:
+            visible = np.ones(1, bool)
+            nodes_uv = np.zeros((1, 2))
+
+            @staticmethod
+            def point(index: int) -> np.ndarray:
+                return tip
+
+        return Meas()
+
+
+def test_a_delayed_camera_is_tracked_with_the_gripper_where_it_was_and_predicted_to_now() -> None:
+    from dyndlo_vision.control.cameras import DelayedCamera
+    from dyndlo_vision.tracking import PointFilter
+
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    action = np.full(env.action_space.shape, 0.4, np.float32)  # the gripper moves: anchors must follow it
+    errors = {}
+    for latency in (0.0, 0.08):
+        env.reset(seed=2)
+        camera = RecordingCamera(env)
+        tracker = TipAtCapture(camera)
+        source = TrackedState(DelayedCamera(camera, latency), tracker, PointFilter(sigma_accel=200.0),
+                              project=lambda p: np.array(p, dtype=float), max_missing_frames=5)
+        loop, _ = _loop(env, source, lambda obs: action)
+        report = loop.run(duration_s=0.6)
+        assert report.stop_reason == "duration"
+        # Every frame was tracked with the gripper at that frame's capture time, not at the loop's time.
+        assert len(tracker.anchors) == len(report.cycles) - 2 * (latency > 0)
+        for t, anchor in tracker.anchors:
+            np.testing.assert_allclose(anchor, camera.tcp[t], atol=1e-12)
+        moved = max(np.linalg.norm(camera.tcp[t] - camera.tcp[0.0]) for t in camera.tcp)
+        assert moved > 0.05
+        errors[latency] = report.estimate_errors()
+    assert np.all(errors[0.0] < 1e-4)  # exact measurements without delay: the filter stays on them
+    # 80 ms (two frames) late: the filter's prediction to the loop's time is much closer to the truth than
+    # the newest measurement is. Measured: median 5.9 mm against 23.7 mm.
+    times = sorted(camera.tip)
+    stale = [np.linalg.norm(camera.tip[times[i]] - camera.tip[times[i - 2]]) for i in range(2, len(times))]
+    assert np.median(errors[0.08][2:]) < 0.5 * np.median(stale)
 
 
 def test_missed_deadline_is_reported(caplog: pytest.LogCaptureFixture) -> None:
