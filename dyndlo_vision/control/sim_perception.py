@@ -29,6 +29,10 @@ GRIPPER_MASK_RADIUS_M = 0.03  # the 2 cm gripper sphere plus a margin
 # the measurements and bridges missed frames (12.7 mm). Measured with the single-step SAC policy, seeds
 # 100000-100003, tracked observation.
 LOOP_SIGMA_ACCEL = 2000.0
+# Behind a camera latency the filter must predict across it, and a constant-velocity model predicts a whip
+# badly: at sigma_accel 2000 the estimate's p95 error per episode is 168 mm (40 ms) and 551 mm (80 ms), at
+# 20 it is 93 and 160 mm with the lowest medians too (benchmarks/camera_latency.py, 20 episodes per row).
+LATENT_LOOP_SIGMA_ACCEL = 20.0
 #: Longest simulated camera latency (s): beyond a quarter second the loop re-plans on a past the cable has
 #: long left.
 MAX_LATENCY_S = 0.25
@@ -122,7 +126,8 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
 
     # The newest measurement is always at least the latency old, so the filter's coasting limit and the
     # frames the camera may miss in a row (the first ones have not arrived yet) grow with it.
-    point_filter = point_filter or PointFilter(sigma_accel=LOOP_SIGMA_ACCEL, max_coast_s=0.3 + latency_s)
+    sigma_accel = LOOP_SIGMA_ACCEL if latency_s == 0 else LATENT_LOOP_SIGMA_ACCEL
+    point_filter = point_filter or PointFilter(sigma_accel=sigma_accel, max_coast_s=0.3 + latency_s)
     frames = DelayedCamera(camera, latency_s) if latency_s > 0 else camera
     not_yet_arrived = math.ceil(latency_s / CONTROL_PERIOD_S - 1e-9)
     source = TrackedState(frames, tracker, point_filter, point_index=-1, project=project,

@@ -116,8 +116,8 @@ def test_tracked_state_follows_the_tip_in_simulation(latency_s: float, median_er
     assert report.stop_reason == "duration" and len(errors) == 20
     # Behind an 80 ms camera the second and third frames have not arrived when they are due.
     assert sum(c.measured for c in report.cycles) >= 18 - 2 * (latency_s > 0)
-    # Measured on this episode: median 3.3 mm without latency, 17.3 mm at 80 ms (the loop's sigma_accel is
-    # set for no latency; docs/RESULTS.md has the sweep). The bounds leave room for renderer differences.
+    # Measured on this episode: median 3.3 mm without latency, 10.3 mm at 80 ms (17.3 mm with the filter
+    # setting for no latency; docs/RESULTS.md has the sweep). The bounds leave room for renderer differences.
     assert np.median(errors) < median_error_m
 
 
