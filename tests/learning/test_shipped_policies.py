@@ -67,3 +67,20 @@ def test_shipped_task_iv_policy_beats_the_geometric_lift_at_equal_time(name: str
         meta["evaluation"]["residual_oscillation_m"], abs=1e-3
     )
     assert np.isclose(times[-1], meta["evaluation"]["planned_time_s"], atol=1e-3)
+
+
+@pytest.mark.slow
+def test_shipped_hooking_policy_hooks_on_the_nominal_cable_and_on_cables_it_never_saw() -> None:
+    """Hooking starts from one fixed state; cable variation is what tells (100/100 in its metadata)."""
+    from dyndlo_vision.control.wrappers import CableRandomization
+
+    meta = policies.metadata("hooking")
+    assert meta["evaluation"]["success_rate"] >= 0.9
+    env = gym.make(env_id("hooking"))
+    model = policies.load("hooking", env=env)
+    for episode_env in (env, CableRandomization(gym.make(env_id("hooking")), every_episodes=1)):
+        for seed in range(100_000, 100_003):
+            obs, start = episode_env.reset(seed=seed)
+            action, _ = model.predict(obs, deterministic=True)
+            _, _, _, _, info = episode_env.step(action)
+            assert info["is_success"] and not any(info["avoid"].values()), (seed, start.get("cable"))
