@@ -16,11 +16,31 @@ OBSTACLE_SIZE_M = (0.04, 0.08, 0.14)  # section III-A: a 4 x 8 x 14 cm box (x th
 OBSTACLE_CENTRE_M = (0.65, 0.0, 0.07)
 TCP_HOME_M = (0.40, 0.0, 0.25)  # below M = 0.3 m (table V), so the cable must be thrown, not carried
 SUPPORT_M = (0.50, 0.0, 0.01)
-# The cable hangs from the TCP to the floor and lies there in a loop that ends at the support, all on the
-# robot's side of the obstacle.
-INITIAL_PATH_M = (
-    TCP_HOME_M, (0.40, 0.0, 0.01), (0.40, -0.28, 0.01), (0.50, -0.28, 0.01), (0.50, -0.02, 0.01), SUPPORT_M,
-)
+LOOP_X_M = (0.40, 0.50)  # the loop on the floor runs out at x = 0.40 (below the TCP) and back at 0.50
+FLOOR_Z_M = 0.01
+
+
+def initial_path(length_m: float) -> tuple[tuple[float, float, float], ...]:
+    """The cable hangs from the TCP to the floor and lies there in a loop that ends at the support, all on
+    the robot's side of the obstacle; the loop is as deep as it must be for the path to be ``length_m`` long
+    (0.28 m for the paper's 90 cm), so a cable of any length starts laid out and attached at the support.
+
+    Raises:
+        ValueError: A cable too short to reach the floor and the support.
+    """
+    x_out, x_back = LOOP_X_M
+    drop = TCP_HOME_M[2] - FLOOR_Z_M
+    back_y = SUPPORT_M[1] - 0.02
+    # drop + depth + across + (depth + back_y) + 0.02 to the support = length
+    depth = (length_m - drop - (x_back - x_out) - 0.02 - back_y) / 2
+    if depth <= 0.05:
+        shortest = drop + (x_back - x_out) + 0.02 + back_y + 0.1
+        raise ValueError(
+            f"a {length_m:.3f} m cable is too short for the vaulting scene (it needs a loop on the floor "
+            f"between the TCP and the support; at least {shortest:.3f} m)"
+        )
+    return (TCP_HOME_M, (x_out, 0.0, FLOOR_Z_M), (x_out, -depth, FLOOR_Z_M), (x_back, -depth, FLOOR_Z_M),
+            (x_back, back_y, FLOOR_Z_M), SUPPORT_M)
 
 
 class Vaulting(Task):
@@ -44,7 +64,8 @@ class Vaulting(Task):
 
     def scene_config(self) -> SceneConfig:
         return SceneConfig(cable=self.cable, grippers_m=(TCP_HOME_M,), far_end="support", support_m=SUPPORT_M,
-                           initial_path_m=INITIAL_PATH_M, settle_s=1.5, physics=self.physics,
+                           initial_path_m=initial_path(self.cable.length_m), settle_s=1.5,
+                           physics=self.physics,
                            boxes=(BoxProp("obstacle", OBSTACLE_CENTRE_M, OBSTACLE_SIZE_M),))
 
     def action_spec(self) -> ActionSpec:

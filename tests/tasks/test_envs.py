@@ -223,3 +223,37 @@ def test_geometric_lift_oscillation_by_layout(layout: str) -> None:
         assert info["residual_oscillation_m"] < 1e-5  # measured 2.4e-7 m: round-off, not a swing
     else:
         assert info["residual_oscillation_m"] > 0.01  # measured 5.5 cm
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("length_factor", [0.9, 1.1])
+def test_every_task_takes_the_randomised_cable_lengths(env_id: str, length_factor: float) -> None:
+    """`--randomize-cable` draws lengths of 0.9-1.1x; every scene must lay such a cable out and settle it."""
+    from dyndlo_vision.control.wrappers import CableRandomization
+
+    env = CableRandomization(gym.make(env_id), ranges={"length_m": (length_factor, length_factor)})
+    obs, info = env.reset(seed=0)
+    base = env.unwrapped
+    assert info["cable"].length_m == pytest.approx(length_factor * env.nominal.length_m)
+    assert np.all(np.isfinite(obs))
+    nodes = base.cable_nodes()
+    arc = np.linalg.norm(np.diff(nodes, axis=0), axis=1).sum()
+    assert arc == pytest.approx(info["cable"].length_m, rel=0.02)  # laid out, not stretched or bunched
+    if base.scene.config.far_end == "support":  # vaulting: the far end starts attached at the support
+        np.testing.assert_allclose(nodes[-1], base.scene.config.support_m, atol=5e-3)
+    _, _, _, _, step_info = env.step(np.zeros(env.action_space.shape, np.float32))
+    assert np.isfinite(step_info["r_distance"])
+
+
+def test_vaulting_loop_fits_the_cable_and_keeps_the_papers_layout() -> None:
+    from dyndlo_vision.tasks.vaulting import SUPPORT_M, TCP_HOME_M, initial_path
+
+    for length in (0.6, 0.9, 1.2):
+        path = np.array(initial_path(length))
+        assert np.linalg.norm(np.diff(path, axis=0), axis=1).sum() == pytest.approx(length, abs=1e-12)
+        np.testing.assert_array_equal(path[0], TCP_HOME_M)
+        np.testing.assert_array_equal(path[-1], SUPPORT_M)
+    # The paper's 90 cm cable lies in a 28 cm deep loop, as before the loop was sized to the cable.
+    assert initial_path(0.9)[2] == pytest.approx((0.40, -0.28, 0.01), abs=1e-12)
+    with pytest.raises(ValueError, match="too short for the vaulting scene"):
+        initial_path(0.4)
