@@ -43,11 +43,35 @@ def initial_path(length_m: float) -> tuple[tuple[float, float, float], ...]:
             (x_back, back_y, FLOOR_Z_M), SUPPORT_M)
 
 
+def crosses_over_obstacle(nodes: NDArray[np.float64], tolerance_m: float = 0.01) -> bool:
+    """Whether the cable crosses the obstacle's mid-plane (x = its centre), and only at the obstacle's height.
+
+    Every crossing must lie no lower than the box's top, less ``tolerance_m``: a cable that went over the box
+    rests on it or on the floor beyond; one dragged along the floor past the box's side face crosses it at
+    floor height, which is not a vault. A cable that never crosses has not gone over.
+    """
+    x_mid = OBSTACLE_CENTRE_M[0]
+    top = OBSTACLE_CENTRE_M[2] + OBSTACLE_SIZE_M[2] / 2
+    p = np.asarray(nodes, dtype=float)
+    side = np.sign(p[:, 0] - x_mid)
+    crossings = np.flatnonzero(side[:-1] * side[1:] <= 0)
+    if crossings.size == 0:
+        return False
+    for i in crossings:
+        a, b = p[i], p[i + 1]
+        w = 0.0 if b[0] == a[0] else (x_mid - a[0]) / (b[0] - a[0])
+        if a[2] + w * (b[2] - a[2]) < top - tolerance_m:
+            return False
+    return True
+
+
 class Vaulting(Task):
     """Make the cable's middle land beyond the obstacle (P_DLO is the middle node; P* the obstacle).
 
-    Success at the end of the episode: the middle node lies beyond the far face of the box. The cable rests
-    on the floor by design, so cable-floor contact is not an avoid condition here.
+    Success at the end of the episode: the middle node lies beyond the far face of the box, and the cable
+    crosses the box's mid-plane only over the box (:func:`crosses_over_obstacle`; dragging it around the
+    box's side is not a vault). The cable rests on the floor by design, so cable-floor contact is not an
+    avoid condition here.
     """
 
     name = "Vaulting"
@@ -82,9 +106,11 @@ class Vaulting(Task):
         return np.asarray(OBSTACLE_CENTRE_M, dtype=float)
 
     def landed_beyond(self, scene: Scene) -> bool:
-        """Whether the middle node is past the far face of the obstacle."""
-        middle = scene.cable_nodes()[self.p_dlo_node(scene)]
-        return bool(middle[0] > OBSTACLE_CENTRE_M[0] + OBSTACLE_SIZE_M[0] / 2)
+        """Whether the middle node is past the far face of the obstacle, the cable over it (not around)."""
+        nodes = scene.cable_nodes()
+        middle = nodes[self.p_dlo_node(scene)]
+        beyond = bool(middle[0] > OBSTACLE_CENTRE_M[0] + OBSTACLE_SIZE_M[0] / 2)
+        return beyond and crosses_over_obstacle(nodes)
 
     def evaluate(self, scene: Scene, goal: NDArray[np.float64], monitor: EpisodeMonitor,
                  final: bool) -> tuple[dict[str, float], bool, dict[str, Any]]:

@@ -257,3 +257,21 @@ def test_vaulting_loop_fits_the_cable_and_keeps_the_papers_layout() -> None:
     assert initial_path(0.9)[2] == pytest.approx((0.40, -0.28, 0.01), abs=1e-12)
     with pytest.raises(ValueError, match="too short for the vaulting scene"):
         initial_path(0.4)
+
+
+def test_vaulting_success_needs_the_cable_over_the_box_not_around_it() -> None:
+    from dyndlo_vision.tasks.vaulting import OBSTACLE_CENTRE_M, SUPPORT_M, crosses_over_obstacle
+
+    x0, top = OBSTACLE_CENTRE_M[0], OBSTACLE_CENTRE_M[2] + 0.07
+    support = np.array(SUPPORT_M)
+    on_top = top + 0.002
+    draped = np.array([support, [x0 - 0.02, 0.0, on_top], [x0 + 0.02, 0.0, on_top], [0.85, 0.0, 0.01]])
+    assert crosses_over_obstacle(draped)
+    # The same landing reached by dragging the cable along the floor past the box's side face (what a policy
+    # learned under the first success test, which looked only at the middle node).
+    around = np.array([support, [x0 - 0.02, -0.045, 0.002], [x0 + 0.02, -0.045, 0.002], [0.85, 0.0, 0.01]])
+    assert not crosses_over_obstacle(around)
+    # Over the box and back (the TCP returned to the robot's side): both crossings are over it.
+    there_and_back = np.vstack([draped, draped[::-1][1:] + [0.0, 0.0, 0.01]])
+    assert crosses_over_obstacle(there_and_back)
+    assert not crosses_over_obstacle(np.array([support, [0.55, 0.0, 0.01]]))  # never reached the box
