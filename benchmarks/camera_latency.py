@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import os
 import platform
 import sys
@@ -23,8 +22,8 @@ from typing import Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
+from loop_latency import pinned_demo_policy  # noqa: E402
 
 import dyndlo_vision  # noqa: E402,F401
 
@@ -59,20 +58,10 @@ def main() -> int:
     parser.add_argument("--policy", default=None, help="policy (default: the demo's)")
     parser.add_argument("--out", default=None)
     args = parser.parse_args()
-    if hasattr(os, "sched_setaffinity"):
-        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-    import torch
-
-    torch.set_num_threads(1)
-    logging.disable(logging.WARNING)
-    from dyndlo_vision import policies
-    from dyndlo_vision.commands.demo import _default_policy, run_episode
+    from dyndlo_vision.commands.demo import run_episode
     from dyndlo_vision.tracking import PointFilter
 
-    name = args.policy or _default_policy()
-    _, meta = policies.resolve(name)
-    env = gym.make("DynDLO/TipControl-v0", multi_step=bool(meta.get("multi_step", False)))
-    model = policies.load(name, env=env)
+    name, env, model = pinned_demo_policy(args.policy)
     rows = []
     print(f"# {platform.machine()}, {os.cpu_count()} cpus, pinned to one core; policy {name}; "
           f"{args.episodes} episodes per row, seeds {args.seed}+")

@@ -16,6 +16,7 @@ import logging
 import os
 import platform
 import sys
+from typing import Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
@@ -25,13 +26,11 @@ import numpy as np  # noqa: E402
 import dyndlo_vision  # noqa: E402,F401
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--episodes", type=int, default=10)
-    parser.add_argument("--seed", type=int, default=200_000)
-    parser.add_argument("--policy", default=None, help="policy (default: the demo's)")
-    parser.add_argument("--out", default=None)
-    args = parser.parse_args()
+def pinned_demo_policy(policy: str | None) -> tuple[str, Any, Any]:
+    """One core, one torch thread, no warnings; the tip-control env and the policy (default: the demo's).
+
+    Returns the policy's name, the environment in the policy's mode and the loaded model.
+    """
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     import torch
@@ -39,12 +38,24 @@ def main() -> int:
     torch.set_num_threads(1)
     logging.disable(logging.WARNING)
     from dyndlo_vision import policies
-    from dyndlo_vision.commands.demo import _default_policy, run_episode
+    from dyndlo_vision.commands.demo import _default_policy
 
-    name = args.policy or _default_policy()
+    name = policy or _default_policy()
     _, meta = policies.resolve(name)
     env = gym.make("DynDLO/TipControl-v0", multi_step=bool(meta.get("multi_step", False)))
-    model = policies.load(name, env=env)
+    return str(name), env, policies.load(name, env=env)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--episodes", type=int, default=10)
+    parser.add_argument("--seed", type=int, default=200_000)
+    parser.add_argument("--policy", default=None, help="policy (default: the demo's)")
+    parser.add_argument("--out", default=None)
+    args = parser.parse_args()
+    from dyndlo_vision.commands.demo import run_episode
+
+    name, env, model = pinned_demo_policy(args.policy)
     stages: dict[str, list[float]] = {}
     cycle: list[float] = []
     misses = cycles = 0
