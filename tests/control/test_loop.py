@@ -138,6 +138,20 @@ class StoppingCamera:
         pass
 
 
+def _tip_measurement(tip: np.ndarray) -> object:
+    """A one-node tracker measurement whose tracked point is ``tip``."""
+
+    class Meas:
+        visible = np.ones(1, bool)
+        nodes_uv = np.zeros((1, 2))
+
+        @staticmethod
+        def point(index: int) -> np.ndarray:
+            return tip
+
+    return Meas()
+
+
 class TipFromTruth:
     """A 'tracker' that measures the true tip (so only the camera's failure matters)."""
 
@@ -148,17 +162,7 @@ class TipFromTruth:
         pass
 
     def process(self, rgb: np.ndarray, t: float, depth: object = None, anchor_uv: object = None) -> object:
-        tip = self.env.p_dlo()
-
-        class Meas:
-            visible = np.ones(1, bool)
-            nodes_uv = np.zeros((1, 2))
-
-            @staticmethod
-            def point(index: int) -> np.ndarray:
-                return tip
-
-        return Meas()
+        return _tip_measurement(self.env.p_dlo())
 
 
 def test_camera_that_stops_makes_the_loop_predict_then_stop(caplog: pytest.LogCaptureFixture) -> None:
@@ -211,17 +215,7 @@ class TipAtCapture:
 
     def process(self, rgb: np.ndarray, t: float, depth: object = None, anchor_uv: object = None) -> object:
         self.anchors.append((t, np.asarray(anchor_uv)))
-        tip = self.camera.tip[t]
-
-        class Meas:
-            visible = np.ones(1, bool)
-            nodes_uv = np.zeros((1, 2))
-
-            @staticmethod
-            def point(index: int) -> np.ndarray:
-                return tip
-
-        return Meas()
+        return _tip_measurement(self.camera.tip[t])
 
 
 def test_a_delayed_camera_is_tracked_with_the_gripper_where_it_was_and_predicted_to_now() -> None:
