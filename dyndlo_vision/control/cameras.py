@@ -246,6 +246,15 @@ class MujocoCamera(_FrameSource):
             self._renderer = None
 
 
+def checked_latency_s(latency_s: Any) -> float:
+    """``latency_s`` as a float, or a ValueError naming it unless it is a finite number >= 0 (seconds)."""
+    if isinstance(latency_s, bool) or not isinstance(latency_s, int | float) or not (
+        math.isfinite(latency_s) and latency_s >= 0
+    ):
+        raise ValueError(f"latency_s must be a finite number >= 0 (seconds), got {latency_s!r}")
+    return float(latency_s)
+
+
 class DelayedCamera(_FrameSource):
     """Frames that arrive ``latency_s`` after they were captured: a camera pipeline's latency.
 
@@ -266,12 +275,8 @@ class DelayedCamera(_FrameSource):
     """
 
     def __init__(self, camera: Any, latency_s: float) -> None:
-        if isinstance(latency_s, bool) or not isinstance(latency_s, int | float) or not (
-            math.isfinite(latency_s) and latency_s >= 0
-        ):
-            raise ValueError(f"latency_s must be a finite number >= 0 (seconds), got {latency_s!r}")
         self.camera = camera
-        self.latency_s = float(latency_s)
+        self.latency_s = checked_latency_s(latency_s)
         self._buffer: list[Frame] = []
         self._started = False
 

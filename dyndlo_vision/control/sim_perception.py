@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
-from dyndlo_vision.control.cameras import DelayedCamera, MujocoCamera
+from dyndlo_vision.control.cameras import DelayedCamera, MujocoCamera, checked_latency_s
 from dyndlo_vision.control.state_sources import TrackedState
 from dyndlo_vision.sim.scene import CABLE_NAME
 from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
@@ -100,10 +100,8 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
     ``latency_s`` > 0 the tracker sees each frame that long after it was rendered (:class:`DelayedCamera`)
     and the filter predicts across the delay. The camera returned renders the present (for videos).
     """
-    if isinstance(latency_s, bool) or not isinstance(latency_s, int | float) or not (
-        math.isfinite(latency_s) and 0 <= latency_s <= MAX_LATENCY_S
-    ):
-        raise ValueError(f"latency_s must be a number of seconds in [0, {MAX_LATENCY_S}], got {latency_s!r}")
+    if checked_latency_s(latency_s) > MAX_LATENCY_S:
+        raise ValueError(f"latency_s must be at most {MAX_LATENCY_S} s, got {latency_s!r}")
     base = env.unwrapped
     mujoco.mj_forward(base.model, base.data)
     camera = MujocoCamera(base.model, base.data, camera_name, width=width, height=height)

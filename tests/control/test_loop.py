@@ -343,3 +343,13 @@ def test_loop_keeps_the_period_on_a_wall_clock_robot() -> None:
     # Paced at 40 ms: at most 11 cycles in 0.4 s of wall-clock robot time (unpaced it would be hundreds);
     # fewer when the machine is slow, since a late cycle is not made up for.
     assert 1 <= len(report.cycles) <= 11
+
+
+def test_tracked_state_refuses_latencies_it_cannot_bridge() -> None:
+    from dyndlo_vision.control.sim_perception import tracked_state
+
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    env.reset(seed=0)
+    for bad, match in ((0.3, "at most 0.25 s"), (-0.01, ">= 0"), (float("nan"), ">= 0"), ("40ms", ">= 0")):
+        with pytest.raises(ValueError, match=match):
+            tracked_state(env, latency_s=bad)  # type: ignore[arg-type]
