@@ -71,8 +71,10 @@ def run(args: argparse.Namespace) -> int:
 
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
-    if not 0.0 <= args.latency_ms <= 250.0:
-        raise ValueError(f"--latency-ms must be in [0, 250] ms, got {args.latency_ms}")
+    from dyndlo_vision.control.sim_perception import MAX_LATENCY_S
+
+    if not 0.0 <= args.latency_ms <= 1000.0 * MAX_LATENCY_S:
+        raise ValueError(f"--latency-ms must be in [0, {1000.0 * MAX_LATENCY_S:g}] ms, got {args.latency_ms}")
     if args.latency_ms and args.observation != "tracked":
         raise ValueError(f"--latency-ms applies to the tracked observation, not to {args.observation!r}")
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
