@@ -16,6 +16,7 @@ from dyndlo_vision.control.cameras import (
     VideoFileCamera,
     average_frames,
 )
+from dyndlo_vision.control.clocks import ClockSync
 from dyndlo_vision.control.kinematics import (
     TOOL_DOWN,
     ArmKinematics,
@@ -41,6 +42,7 @@ __all__ = [
     "CableRandomization",
     "Camera",
     "ClampedRobot",
+    "ClockSync",
     "ControlLoop",
     "CycleRecord",
     "Frame",

@@ -9,6 +9,9 @@ is converted once, here, at the edge. Capture times are seconds on the source's 
 * :class:`VideoFileCamera`: the video's own time stamps when they are sane, else ``index / fps``.
 * :class:`OpenCVDeviceCamera` and :class:`RealSenseCamera`: ``time.monotonic()`` when the frame arrived.
 
+Each says so in its ``clock`` attribute; :class:`~dyndlo_vision.control.state_sources.TrackedState` maps a
+``"monotonic"`` camera's times onto the robot's clock (:mod:`dyndlo_vision.control.clocks`).
+
 :class:`DelayedCamera` wraps any of them and hands frames over a fixed time after their capture, as a real
 pipeline does (exposure, transfer, decoding), so the loop can be run in simulation with a camera's latency.
 """
@@ -137,6 +140,9 @@ class MujocoCamera(_FrameSource):
             frame = cam.read()
             tracker = CableTracker(cam.calibration)
     """
+
+    #: Frames are stamped with the simulator's time (see :mod:`dyndlo_vision.control.clocks`).
+    clock = "simulation"
 
     def __init__(
         self,
@@ -285,6 +291,11 @@ class DelayedCamera(_FrameSource):
         """The wrapped camera's calibration."""
         return self.camera.calibration
 
+    @property
+    def clock(self) -> str | None:
+        """The wrapped camera's clock (capture times are passed through unchanged)."""
+        return getattr(self.camera, "clock", None)
+
     def read(self) -> Frame | None:
         """Reads the wrapped camera; the newest frame that is ``latency_s`` old, or None if none has arrived.
 
@@ -367,6 +378,9 @@ class VideoFileCamera(_FrameSource):
         frame_count: Frames promised by the header (video) or image files found (folder); None if unknown.
         width, height: Frame size in pixels.
     """
+
+    #: Frames are stamped on the video's own time line.
+    clock = "video"
 
     def __init__(self, path: str | os.PathLike[str], fps: float | None = None, strict: bool = True) -> None:
         """Opens the video or lists the folder and reads its first frame's size.
@@ -532,6 +546,9 @@ class OpenCVDeviceCamera(_FrameSource):
     ended); the caller decides whether that is the end or a fault.
     """
 
+    #: Frames are stamped with ``time.monotonic()``.
+    clock = "monotonic"
+
     def __init__(
         self,
         index_or_url: int | str,
@@ -595,6 +612,9 @@ class RealSenseCamera(_FrameSource):
     missing-package error is exercised by the tests. ``t_capture`` is ``time.monotonic()`` when the frame set
     arrived. The camera's frame is the world frame of :attr:`calibration` (R = I, t = 0).
     """
+
+    #: Frames are stamped with ``time.monotonic()``.
+    clock = "monotonic"
 
     def __init__(self, width: int = 640, height: int = 480, fps: int = 30, serial: str | None = None) -> None:
         """Starts colour and depth streams.

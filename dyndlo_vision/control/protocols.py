@@ -3,7 +3,9 @@
 The loop (``dyndlo_vision.control.loop``) depends only on these: a :class:`Camera` that yields time-stamped
 :class:`Frame` objects and a :class:`Robot` that reports its TCP state and follows Cartesian setpoints. The
 same loop therefore runs in simulation (MuJoCo camera, simulated TCP) and on hardware (a video device, a robot
-driver). Times are seconds on the source's own clock; in simulation that clock is the simulator's time.
+driver). Times are seconds on the source's own clock; in simulation that clock is the simulator's time. A
+camera may name its clock in a ``clock`` attribute (``"monotonic"`` for live cameras), and the tracked state
+source then maps its frames onto the robot's clock (:mod:`dyndlo_vision.control.clocks`).
 """
 
 from __future__ import annotations

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from dyndlo_vision.control.clocks import ClockSync
 from dyndlo_vision.control.protocols import Camera, TcpState
 
 log = logging.getLogger(__name__)
@@ -107,6 +108,14 @@ class TrackedState:
             the source was read with, when the capture time lies among them (a delayed camera); otherwise
             the current one.
         max_missing_frames: Consecutive frames the camera may fail to deliver before the source reports lost.
+        clock_sync: Maps the camera's capture times onto the robot's clock (the TCP states' ``t``), so the
+            filter updates and predicts on one clock. ``"auto"`` (default): a :class:`~dyndlo_vision.control.
+            clocks.ClockSync` on ``time.monotonic()`` when the camera's ``clock`` is ``"monotonic"`` (a live
+            camera beside a robot driver), else none (a simulated camera stamps with the simulator's time,
+            which is the simulated robot's clock). ``None``: capture times are used as they are.
+
+    Raises:
+        ValueError: ``clock_sync`` neither ``"auto"``, None nor a ``ClockSync``.
     """
 
     def __init__(
@@ -117,7 +126,13 @@ class TrackedState:
         point_index: int = -1,
         project: Any = None,
         max_missing_frames: int = 3,
+        clock_sync: ClockSync | str | None = "auto",
     ) -> None:
+        if clock_sync == "auto":
+            clock_sync = ClockSync() if getattr(camera, "clock", None) == "monotonic" else None
+        if clock_sync is not None and not isinstance(clock_sync, ClockSync):
+            raise ValueError(f"clock_sync must be 'auto', None or a ClockSync, got {clock_sync!r}")
+        self.clock_sync = clock_sync
         self.camera = camera
         self.tracker = tracker
         self.filter = point_filter
@@ -134,6 +149,8 @@ class TrackedState:
         self.filter.reset()
         self.missing_frames = 0
         self._tcp_history.clear()
+        if self.clock_sync is not None:
+            self.clock_sync.reset()
 
     def _tcp_position_at(self, t: float) -> NDArray[np.float64]:
         """The held end at time ``t``, interpolated in the recorded TCP states (else the latest one)."""
@@ -152,6 +169,8 @@ class TrackedState:
         if self._tcp_history and tcp.t <= self._tcp_history[-1][0]:
             self._tcp_history.clear()  # time went back: a new episode
         self._tcp_history.append((float(tcp.t), np.array(tcp.position, dtype=float)[0]))
+        if self.clock_sync is not None:
+            self.clock_sync.observe(float(tcp.t))
         t0 = time.perf_counter()
         frame = self.camera.read()
         stage["camera"] = 1e3 * (time.perf_counter() - t0)
@@ -165,15 +184,19 @@ class TrackedState:
             self.missing_frames = 0
             self.last_frame = frame
             t1 = time.perf_counter()
-            anchor = None if self.project is None else self.project(self._tcp_position_at(frame.t_capture))
-            meas = self.tracker.process(frame.rgb, frame.t_capture, depth=frame.depth, anchor_uv=anchor)
+            # The capture time on the robot's clock: the clock of the TCP history, the filter and ``t_now``.
+            t_capture = frame.t_capture
+            if self.clock_sync is not None:
+                t_capture = self.clock_sync.to_robot(t_capture)
+            anchor = None if self.project is None else self.project(self._tcp_position_at(t_capture))
+            meas = self.tracker.process(frame.rgb, t_capture, depth=frame.depth, anchor_uv=anchor)
             point = meas.point(self.point_index)
             polyline = np.where(meas.visible[:, None], meas.nodes_uv, np.nan)
             if point is not None:
                 pixel = meas.nodes_uv[self.point_index]
             t2 = time.perf_counter()
             stage["track"] = 1e3 * (t2 - t1)
-            measured = self.filter.update(point, frame.t_capture)
+            measured = self.filter.update(point, t_capture)
             stage["filter"] = 1e3 * (time.perf_counter() - t2)
         t3 = time.perf_counter()
         est = self.filter.estimate(t_now)

@@ -332,8 +332,10 @@ class PointFilter(_ReplayMixin):
         return bool(self._replay_update(zz, float(t_capture), Rm))
 
     def is_lost_at(self, t: float) -> bool:
-        """Whether the filter is lost at time ``t`` (never initialised or coasted too long)."""
-        return (not self.initialized) or (t - self.t_state > self.max_coast_s)
+        """Whether the filter is lost at time ``t``: never initialised, or ``t`` more than ``max_coast_s``
+        from the last accepted measurement (after it: coasted too long; before it: a time on another
+        clock)."""
+        return (not self.initialized) or (abs(t - self.t_state) > self.max_coast_s)
 
     @property
     def is_lost(self) -> bool:
@@ -547,8 +549,8 @@ class MultiPointFilter(_ReplayMixin):
         return np.zeros(self.n, dtype=bool) if res is None else res
 
     def is_lost_at(self, t: float) -> NDArray[np.bool_]:
-        """(N,) whether each node is lost at time ``t``."""
-        return (~self.initialized) | (t - self.t_state > self.max_coast_s)
+        """(N,) whether each node is lost at time ``t`` (as :meth:`PointFilter.is_lost_at`, node by node)."""
+        return (~self.initialized) | (np.abs(t - self.t_state) > self.max_coast_s)
 
     @property
     def is_lost(self) -> NDArray[np.bool_]:

@@ -249,6 +249,69 @@ def test_a_delayed_camera_is_tracked_with_the_gripper_where_it_was_and_predicted
     assert np.median(errors[0.08][2:]) < 0.5 * np.median(stale)
 
 
+class LiveCamera(RecordingCamera):
+    """Simulator frames stamped like a live camera's: on a local clock far from the robot's."""
+
+    clock = "monotonic"
+
+    def __init__(self, env: gym.Env, offset_s: float) -> None:
+        super().__init__(env)
+        self.offset_s = offset_s
+
+    def local_time(self) -> float:
+        return self.env.scene.time + self.offset_s
+
+    def read(self) -> Frame:
+        self.last_tip = self.env.p_dlo().copy()
+        return Frame(np.zeros((4, 4, 3), np.uint8), self.local_time())
+
+
+class TipOfLatestFrame(TipAtCapture):
+    """Measures the true tip at the capture of the frame just read, whatever clock the time is on."""
+
+    def process(self, rgb: np.ndarray, t: float, depth: object = None, anchor_uv: object = None) -> object:
+        return _tip_measurement(self.camera.last_tip)
+
+
+@pytest.mark.parametrize("offset_s", [53_000.0, -53_000.0])
+def test_a_live_camera_clock_is_put_on_the_robot_clock(offset_s: float) -> None:
+    """A live camera stamps with time.monotonic(), a robot driver with the controller's clock. The source maps
+    one onto the other; without that the filter predicts across the gap between the clocks."""
+    from dyndlo_vision.control.clocks import ClockSync
+    from dyndlo_vision.tracking import PointFilter
+
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    action = np.full(env.action_space.shape, 0.4, np.float32)
+    errors = {}
+    for synced in (True, False):
+        env.reset(seed=2)
+        camera = LiveCamera(env, offset_s)
+        sync = ClockSync(clock=camera.local_time) if synced else None
+        source = TrackedState(camera, TipOfLatestFrame(camera), PointFilter(sigma_accel=200.0),
+                              clock_sync=sync)
+        loop, _ = _loop(env, source, lambda obs: action)
+        report = loop.run(duration_s=0.6)
+        errors[synced] = (report.stop_reason, report.estimate_errors())
+    stop, synced_errors = errors[True]
+    assert stop == "duration" and np.all(synced_errors < 1e-4)  # as good as a camera on the robot's clock
+    stop, raw_errors = errors[False]
+    assert stop == "lost" or np.nanmax(raw_errors) > 1.0  # lost at once, or predicted across 53 000 s
+
+
+def test_tracked_state_syncs_a_monotonic_camera_by_itself() -> None:
+    from dyndlo_vision.control.clocks import ClockSync
+    from dyndlo_vision.tracking import PointFilter
+
+    env = gym.make("DynDLO/TipControl-v0")
+    env.reset(seed=0)
+    live, sim = LiveCamera(env, 1.0), RecordingCamera(env)
+    assert isinstance(TrackedState(live, None, PointFilter()).clock_sync, ClockSync)
+    assert TrackedState(live, None, PointFilter(), clock_sync=None).clock_sync is None
+    assert TrackedState(sim, None, PointFilter()).clock_sync is None
+    with pytest.raises(ValueError, match="clock_sync"):
+        TrackedState(sim, None, PointFilter(), clock_sync="monotonic")
+
+
 def test_missed_deadline_is_reported(caplog: pytest.LogCaptureFixture) -> None:
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
     env.reset(seed=1)

@@ -126,6 +126,20 @@ def test_missed_detections_coast_then_lost_then_reacquire() -> None:
     assert not f.is_lost
 
 
+def test_a_query_far_before_the_last_measurement_is_lost() -> None:
+    """A query time more than max_coast_s before the state is no reading of the past but a time on another
+    clock (a robot's against a camera's): the estimate says lost instead of predicting back across the gap."""
+    t = np.arange(10) / FPS
+    truth = _constant_velocity(t)
+    single, multi = PointFilter(max_coast_s=0.2), MultiPointFilter(2, max_coast_s=0.2)
+    for k in range(10):
+        single.update(truth[k], t[k])
+        multi.update(np.stack([truth[k], truth[k]]), t[k])
+    assert not single.estimate(t[9] - 0.1).lost and not multi.estimate(t[9] - 0.1).lost.any()
+    assert single.estimate(t[9] - 0.3).lost and multi.estimate(t[9] - 0.3).lost.all()
+    assert single.estimate(t[9] - 5e4).lost
+
+
 def test_estimate_does_not_mutate() -> None:
     rng = np.random.default_rng(2)
     t = np.arange(20) / FPS
