@@ -15,32 +15,33 @@ from dyndlo_vision.trajectory import ActionSpec
 OBSTACLE_SIZE_M = (0.04, 0.08, 0.14)  # section III-A: a 4 x 8 x 14 cm box (x thickness, y width, height)
 OBSTACLE_CENTRE_M = (0.65, 0.0, 0.07)
 TCP_HOME_M = (0.40, 0.0, 0.25)  # below M = 0.3 m (table V), so the cable must be thrown, not carried
-SUPPORT_M = (0.50, 0.0, 0.01)
-LOOP_X_M = (0.40, 0.50)  # the loop on the floor runs out at x = 0.40 (below the TCP) and back at 0.50
+SUPPORT_M = (0.85, 0.0, 0.01)  # beyond the obstacle: the fixed end (fixed-endpoint vaulting as in [15])
 FLOOR_Z_M = 0.01
+#: The cable passes the box's side at least this far from its mid-plane (half its 8 cm width plus 2 cm).
+MIN_SIDE_OFFSET_M = 0.06
 
 
 def initial_path(length_m: float) -> tuple[tuple[float, float, float], ...]:
-    """The cable hangs from the TCP to the floor and lies there in a loop that ends at the support, all on
-    the robot's side of the obstacle; the loop is as deep as it must be for the path to be ``length_m`` long
-    (0.28 m for the paper's 90 cm), so a cable of any length starts laid out and attached at the support.
+    """The cable hangs from the TCP to the floor and runs along the floor *past the side* of the obstacle to
+    the support beyond it: a U in the floor plane, as deep as it must be for the path to be ``length_m`` long
+    (10.5 cm off the box's mid-plane for the paper's 90 cm), so a cable of any length starts laid out and
+    attached at the support, going around the box, not over it.
 
     Raises:
-        ValueError: A cable too short to reach the floor and the support.
+        ValueError: A cable too short to pass the box's side on the way to the support.
     """
-    x_out, x_back = LOOP_X_M
+    x_tcp, x_support = TCP_HOME_M[0], SUPPORT_M[0]
     drop = TCP_HOME_M[2] - FLOOR_Z_M
-    back_y = SUPPORT_M[1] - 0.02
-    # drop + depth + across + (depth + back_y) + 0.02 to the support = length
-    depth = (length_m - drop - (x_back - x_out) - 0.02 - back_y) / 2
-    if depth <= 0.05:
-        shortest = drop + (x_back - x_out) + 0.02 + back_y + 0.1
+    # drop + offset + (x_support - x_tcp) + offset = length
+    offset = (length_m - drop - (x_support - x_tcp)) / 2
+    if offset < MIN_SIDE_OFFSET_M - 1e-12:
+        shortest = drop + (x_support - x_tcp) + 2 * MIN_SIDE_OFFSET_M
         raise ValueError(
-            f"a {length_m:.3f} m cable is too short for the vaulting scene (it needs a loop on the floor "
-            f"between the TCP and the support; at least {shortest:.3f} m)"
+            f"a {length_m:.3f} m cable is too short for the vaulting scene (it must pass the box's side on "
+            f"the floor on its way to the support; at least {shortest:.3f} m)"
         )
-    return (TCP_HOME_M, (x_out, 0.0, FLOOR_Z_M), (x_out, -depth, FLOOR_Z_M), (x_back, -depth, FLOOR_Z_M),
-            (x_back, back_y, FLOOR_Z_M), SUPPORT_M)
+    return (TCP_HOME_M, (x_tcp, 0.0, FLOOR_Z_M), (x_tcp, -offset, FLOOR_Z_M), (x_support, -offset, FLOOR_Z_M),
+            SUPPORT_M)
 
 
 def crosses_over_obstacle(nodes: NDArray[np.float64], tolerance_m: float = 0.01) -> bool:
@@ -65,13 +66,22 @@ def crosses_over_obstacle(nodes: NDArray[np.float64], tolerance_m: float = 0.01)
     return True
 
 
+def middle_landed_beyond(middle: NDArray[np.float64]) -> bool:
+    """Whether a point lies beyond the obstacle's far face and below its top (landed on the far side)."""
+    beyond = middle[0] > OBSTACLE_CENTRE_M[0] + OBSTACLE_SIZE_M[0] / 2
+    below_top = middle[2] < OBSTACLE_CENTRE_M[2] + OBSTACLE_SIZE_M[2] / 2
+    return bool(beyond and below_top)
+
+
 class Vaulting(Task):
     """Make the cable's middle land beyond the obstacle (P_DLO is the middle node; P* the obstacle).
 
-    Success at the end of the episode: the middle node lies beyond the far face of the box, and the cable
-    crosses the box's mid-plane only over the box (:func:`crosses_over_obstacle`; dragging it around the
-    box's side is not a vault). The cable rests on the floor by design, so cable-floor contact is not an
-    avoid condition here.
+    The cable starts on the floor, from below the TCP past the box's side to a support beyond the box.
+    Success at the end of the episode (:meth:`landed_beyond`): the middle node has landed beyond the far face
+    of the box (below the box's top: resting there, not held up in the air by the TCP), and the cable crosses
+    the box's mid-plane only over the box (:func:`crosses_over_obstacle`; around its side, as it starts, is
+    not a vault). The cable rests on the floor by design, so cable-floor contact is not an avoid condition
+    here.
     """
 
     name = "Vaulting"
@@ -106,11 +116,9 @@ class Vaulting(Task):
         return np.asarray(OBSTACLE_CENTRE_M, dtype=float)
 
     def landed_beyond(self, scene: Scene) -> bool:
-        """Whether the middle node is past the far face of the obstacle, the cable over it (not around)."""
+        """Whether the middle node has landed past the far face of the obstacle, the cable over it."""
         nodes = scene.cable_nodes()
-        middle = nodes[self.p_dlo_node(scene)]
-        beyond = bool(middle[0] > OBSTACLE_CENTRE_M[0] + OBSTACLE_SIZE_M[0] / 2)
-        return beyond and crosses_over_obstacle(nodes)
+        return middle_landed_beyond(nodes[self.p_dlo_node(scene)]) and crosses_over_obstacle(nodes)
 
     def evaluate(self, scene: Scene, goal: NDArray[np.float64], monitor: EpisodeMonitor,
                  final: bool) -> tuple[dict[str, float], bool, dict[str, Any]]:

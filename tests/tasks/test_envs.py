@@ -245,33 +245,67 @@ def test_every_task_takes_the_randomised_cable_lengths(env_id: str, length_facto
     assert np.isfinite(step_info["r_distance"])
 
 
-def test_vaulting_loop_fits_the_cable_and_keeps_the_papers_layout() -> None:
-    from dyndlo_vision.tasks.vaulting import SUPPORT_M, TCP_HOME_M, initial_path
+def test_vaulting_cable_starts_around_the_box_to_a_support_beyond_it() -> None:
+    from dyndlo_vision.tasks.vaulting import (
+        MIN_SIDE_OFFSET_M,
+        OBSTACLE_CENTRE_M,
+        OBSTACLE_SIZE_M,
+        SUPPORT_M,
+        TCP_HOME_M,
+        initial_path,
+    )
 
-    for length in (0.6, 0.9, 1.2):
+    assert SUPPORT_M[0] > OBSTACLE_CENTRE_M[0] + OBSTACLE_SIZE_M[0] / 2 > TCP_HOME_M[0]  # box between them
+    for length in (0.81, 0.9, 0.99, 1.2):  # 0.9-1.1x of the paper's cable, and longer
         path = np.array(initial_path(length))
         assert np.linalg.norm(np.diff(path, axis=0), axis=1).sum() == pytest.approx(length, abs=1e-12)
         np.testing.assert_array_equal(path[0], TCP_HOME_M)
         np.testing.assert_array_equal(path[-1], SUPPORT_M)
-    # The paper's 90 cm cable lies in a 28 cm deep loop, as before the loop was sized to the cable.
-    assert initial_path(0.9)[2] == pytest.approx((0.40, -0.28, 0.01), abs=1e-12)
+        # It passes the box on the floor, beside it: clear of the box's side face by 2 cm or more.
+        assert path[2, 1] == path[3, 1] <= -MIN_SIDE_OFFSET_M + 1e-12
+        assert np.all(path[1:, 2] <= 0.01)
+    assert initial_path(0.9)[2] == pytest.approx((0.40, -0.105, 0.01), abs=1e-12)
     with pytest.raises(ValueError, match="too short for the vaulting scene"):
-        initial_path(0.4)
+        initial_path(0.75)
 
 
-def test_vaulting_success_needs_the_cable_over_the_box_not_around_it() -> None:
-    from dyndlo_vision.tasks.vaulting import OBSTACLE_CENTRE_M, SUPPORT_M, crosses_over_obstacle
+def test_vaulting_success_needs_the_middle_landed_beyond_and_the_cable_over_the_box() -> None:
+    from dyndlo_vision.tasks.vaulting import (
+        OBSTACLE_CENTRE_M,
+        SUPPORT_M,
+        crosses_over_obstacle,
+        initial_path,
+        middle_landed_beyond,
+    )
 
     x0, top = OBSTACLE_CENTRE_M[0], OBSTACLE_CENTRE_M[2] + 0.07
     support = np.array(SUPPORT_M)
     on_top = top + 0.002
-    draped = np.array([support, [x0 - 0.02, 0.0, on_top], [x0 + 0.02, 0.0, on_top], [0.85, 0.0, 0.01]])
-    assert crosses_over_obstacle(draped)
-    # The same landing reached by dragging the cable along the floor past the box's side face (what a policy
-    # learned under the first success test, which looked only at the middle node).
-    around = np.array([support, [x0 - 0.02, -0.045, 0.002], [x0 + 0.02, -0.045, 0.002], [0.85, 0.0, 0.01]])
+    # TCP on the robot's side, the cable draped over the box, its middle on the floor beyond, the support.
+    draped = np.array([[0.45, 0.0, 0.25], [x0 - 0.02, 0.0, on_top], [x0 + 0.02, 0.0, on_top],
+                       [0.75, 0.0, 0.01], support])
+    assert crosses_over_obstacle(draped) and middle_landed_beyond(draped[3])
+    # As it starts: along the floor past the box's side (crossing at floor height); and what a policy learned
+    # under the first success test (dragging the cable past the side face, 4.5 cm off its mid-plane).
+    assert not crosses_over_obstacle(np.array(initial_path(0.9)))
+    around = np.array([[0.45, 0.0, 0.25], [x0 - 0.02, -0.045, 0.002], [x0 + 0.02, -0.045, 0.002], support])
     assert not crosses_over_obstacle(around)
-    # Over the box and back (the TCP returned to the robot's side): both crossings are over it.
-    there_and_back = np.vstack([draped, draped[::-1][1:] + [0.0, 0.0, 0.01]])
+    # Over the box and back (the TCP carried on beyond it and returned): both crossings are over it.
+    there_and_back = np.vstack([draped[:3], draped[:3][::-1][1:] + [0.0, 0.0, 0.01]])
     assert crosses_over_obstacle(there_and_back)
-    assert not crosses_over_obstacle(np.array([support, [0.55, 0.0, 0.01]]))  # never reached the box
+    never_reached = np.array([[0.45, 0.0, 0.25], [0.55, 0.0, 0.01]])
+    assert not crosses_over_obstacle(never_reached)
+    # The middle must have landed: beyond the far face and below the box's top, not held up in the air.
+    assert not middle_landed_beyond(np.array([0.75, 0.0, 0.30]))  # hanging from a TCP carried over the box
+    assert not middle_landed_beyond(np.array([0.60, 0.0, 0.01]))  # on the robot's side
+    assert not middle_landed_beyond(np.array([0.66, 0.0, on_top]))  # on top of the box
+
+
+def test_vaulting_does_not_start_as_a_success() -> None:
+    env = gym.make("DynDLO/Vaulting-v0")
+    env.reset(seed=0)
+    base = env.unwrapped
+    assert not base.task.landed_beyond(base.scene)
+    nodes = base.cable_nodes()
+    assert nodes[:, 2].max() == pytest.approx(0.25, abs=0.01)  # only the TCP's end is off the floor
+    assert np.all(nodes[20:, 2] < 0.03)  # past the 24 cm drop (16 of 60 segments) it lies on the floor
