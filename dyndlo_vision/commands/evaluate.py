@@ -9,7 +9,7 @@ from typing import Any
 
 from dyndlo_vision._atomic import write_atomic, write_video_atomic
 
-HELP = "evaluate a policy (shipped name, .zip, or 'geometric' for task IV) over N episodes"
+HELP = "evaluate a policy (shipped name, .zip, 'geometric' for task IV, or 'random') over N episodes"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -17,7 +17,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from dyndlo_vision.learning.config import TASK_NAMES
 
     p.add_argument(
-        "policy", help="shipped policy name, path to a stable-baselines3 .zip, or 'geometric' (task IV)"
+        "policy",
+        help="shipped policy name, path to a stable-baselines3 .zip, 'geometric' (task IV's baseline) or "
+        "'random' (uniform actions seeded by --seed: the task's chance level; needs --task)",
     )
     p.add_argument(
         "--task",
@@ -63,11 +65,11 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
     options = parse_assignments(args.env_option, "--env-option")
     meta: dict[str, Any] = {}
-    if args.policy != "geometric":
+    if args.policy not in ("geometric", "random"):
         _, meta = policies.resolve(args.policy)
     task = args.task or meta.get("task") or ("time-oscillation" if args.policy == "geometric" else None)
     if task is None:
-        raise ValueError(f"{args.policy} has no metadata naming its task: pass --task")
+        raise ValueError(f"{args.policy!r} has no metadata naming its task: pass --task")
     multi_step = args.multi_step if args.multi_step is not None else bool(meta.get("multi_step", False))
     options = {**meta.get("env_options", {}), **options}
     env = _make_env(env_id(task), multi_step, options, args.randomize_cable)
@@ -75,6 +77,10 @@ def run(args: argparse.Namespace) -> int:
         from dyndlo_vision.tasks.baselines import GeometricLift
 
         policy: Any = GeometricLift(env, args.geometric_time)
+    elif args.policy == "random":
+        from dyndlo_vision.tasks.baselines import RandomActions
+
+        policy = RandomActions(env, seed=args.seed)
     else:
         policy = policies.load(args.policy, env=env, algo=meta.get("algo"))
     for path in (args.out, args.video):
@@ -96,6 +102,8 @@ def run(args: argparse.Namespace) -> int:
         write_atomic(Path(args.out), lambda p: Path(p).write_text(json.dumps(full, indent=2)))
         print(f"wrote {args.out}")
     if args.video:
+        if args.policy == "random":
+            policy = RandomActions(env, seed=args.seed)  # the video replays the evaluated episodes' actions
         _write_video(
             Path(args.video),
             env_id(task),

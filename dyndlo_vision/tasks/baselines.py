@@ -1,5 +1,8 @@
 """Scripted policies to compare learned ones with.
 
+:class:`RandomActions` draws every action uniformly from the action space: the chance level of a task, what
+a learner's exploration starts from.
+
 :class:`GeometricLift` is the paper's baseline for task IV (section V-B): a linear path that brings the TCP
 20 cm below the goal (or to z = 0.55 m if that would be too close to the floor), then a fast upward move to
 the goal, with a total trajectory time chosen to equal the learned policy's. The paper does not say how the
@@ -77,3 +80,22 @@ class GeometricLift:
         goal = np.asarray(obs[-3:], dtype=float)
         points, times = self.plan(start, goal)
         return self.spec.encode(points, times).astype(np.float32)
+
+
+class RandomActions:
+    """Uniformly random normalised actions, ``obs -> action``, for any DynDLO environment and mode.
+
+    Args:
+        env: The environment (for its action space).
+        seed: Seed of the action stream: the same seed gives the same actions in the same order.
+    """
+
+    def __init__(self, env: Any, seed: int | None = None) -> None:
+        space = env.action_space
+        self.shape = space.shape
+        self.low, self.high = space.low, space.high
+        self.rng = np.random.default_rng(seed)
+
+    def __call__(self, obs: NDArray[Any]) -> NDArray[np.float32]:
+        """One random action (the observation is ignored)."""
+        return self.rng.uniform(self.low, self.high, size=self.shape).astype(np.float32)

@@ -123,6 +123,22 @@ def test_evaluate_geometric_baseline_is_deterministic() -> None:
         GeometricLift(env, total_time_s=5.0)
 
 
+def test_evaluate_random_actions_gives_a_seeded_chance_level(tmp_path: Path) -> None:
+    report = tmp_path / "random.json"
+    args = ["evaluate", "random", "--task", "tip-control", "--episodes", "3", "--seed", "11"]
+    assert main([*args, "--out", str(report)]) == 0
+    first = json.loads(report.read_text())
+    assert first["policy"] == "random" and first["task"] == "tip-control" and first["episodes"] == 3
+    rewards = [e["reward"] for e in first["episodes_detail"]]
+    assert main([*args, "--out", str(report)]) == 0  # the same seed: the same actions, the same episodes
+    assert [e["reward"] for e in json.loads(report.read_text())["episodes_detail"]] == rewards
+    assert main([*args[:-1], "12", "--out", str(report)]) == 0  # another seed: other actions
+    assert [e["reward"] for e in json.loads(report.read_text())["episodes_detail"]] != rewards
+    with pytest.raises(SystemExit) as exc:
+        main(["evaluate", "random", "--episodes", "1"])  # no task to draw actions for
+    assert exc.value.code == 2
+
+
 def test_evaluate_with_cable_randomization_draws_one_cable_per_episode_from_its_seed(tmp_path: Path) -> None:
     from dyndlo_vision.control.wrappers import DEFAULT_CABLE_RANGES
     from dyndlo_vision.tasks.tip_control import TipControl
