@@ -15,7 +15,7 @@ from dyndlo_vision.trajectory import ActionSpec
 OBSTACLE_SIZE_M = (0.04, 0.08, 0.14)  # section III-A: a 4 x 8 x 14 cm box (x thickness, y width, height)
 OBSTACLE_CENTRE_M = (0.65, 0.0, 0.07)
 TCP_HOME_M = (0.40, 0.0, 0.25)  # below M = 0.3 m (table V), so the cable must be thrown, not carried
-SUPPORT_M = (0.85, 0.0, 0.01)  # beyond the obstacle: the fixed end (fixed-endpoint vaulting as in [15])
+SUPPORT_M = (0.85, 0.0, 0.01)  # beyond the obstacle: the fixed end (the paper gives no layout; ours)
 FLOOR_Z_M = 0.01
 #: The cable passes the box's side at least this far from its mid-plane (half its 8 cm width plus 2 cm).
 MIN_SIDE_OFFSET_M = 0.06
