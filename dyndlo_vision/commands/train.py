@@ -64,8 +64,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="draw a new cable (length, mass, E, damping) every 10 training episodes")
     p.add_argument(
         "--demonstrations", type=int, default=0, metavar="N",
-        help="task IV, SAC: seed the replay buffer with N perturbed geometric-lift episodes before learning "
-             "(default 0, as in the paper)",
+        help="SAC, single-step task IV or vaulting: seed the replay buffer with N perturbed episodes of "
+             "the task's scripted baseline (geometric lift; scripted vault) before learning (default 0, as "
+             "in the paper)",
     )
     p.add_argument("--eval-freq", type=int, default=2000, help="evaluate every N steps (default 2000)")
     p.add_argument("--eval-episodes", type=int, default=20)

@@ -24,7 +24,7 @@ TASK_NAMES: dict[str, str] = {
 }
 ALGOS = ("ppo", "sac")
 #: Tasks with a scripted baseline whose episodes can seed SAC's replay buffer (``learning.demonstrations``).
-DEMONSTRABLE_TASKS = ("time-oscillation",)
+DEMONSTRABLE_TASKS = ("time-oscillation", "vaulting")
 HYPERPARAMS_VERSION = 1
 
 

@@ -5,14 +5,16 @@ picture of the good region of the action space before its own exploration starts
 demonstrations"). The demonstrations are real episodes of the training environments: they appear in the
 run's monitor files, and a run reports how many it used next to its own steps.
 
-Only task IV has a scripted baseline (the geometric lift of section V-B). Its demonstrations draw the
-trajectory time uniformly from ``GEOMETRIC_TIME_RANGE_S`` and add Gaussian noise of a per-episode scale drawn
+Two tasks have a scripted baseline (:data:`DEMONSTRATORS`): task IV the geometric lift of section V-B, whose
+demonstrations draw the trajectory time uniformly from ``GEOMETRIC_TIME_RANGE_S``, and task II the scripted
+vault :class:`~dyndlo_vision.tasks.baselines.FlickVault`. Both add Gaussian noise of a per-episode scale drawn
 from ``NOISE_SCALES`` to the normalised action, so the buffer covers the baseline family and its
 neighbourhood, not one point.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import gymnasium as gym
@@ -26,14 +28,31 @@ GEOMETRIC_TIME_RANGE_S = (1.0, 2.0)
 NOISE_SCALES = (0.0, 0.05, 0.15)
 
 
+def _perturbed(action: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    scale = NOISE_SCALES[rng.integers(len(NOISE_SCALES))]
+    return np.clip(action + scale * rng.standard_normal(action.shape), -1.0, 1.0).astype(np.float32)
+
+
 def geometric_demonstration(env: Any, obs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """One perturbed geometric-lift action for a single-step task IV environment."""
     from dyndlo_vision.tasks.baselines import GeometricLift
 
     total_time_s = rng.uniform(*GEOMETRIC_TIME_RANGE_S)
-    action = GeometricLift(env, total_time_s)(obs)
-    scale = NOISE_SCALES[rng.integers(len(NOISE_SCALES))]
-    return np.clip(action + scale * rng.standard_normal(action.shape), -1.0, 1.0).astype(np.float32)
+    return _perturbed(GeometricLift(env, total_time_s)(obs), rng)
+
+
+def vault_demonstration(env: Any, obs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """One perturbed scripted-vault action for a single-step task II environment."""
+    from dyndlo_vision.tasks.baselines import FlickVault
+
+    return _perturbed(FlickVault(env)(obs), rng)
+
+
+#: The demonstrator of each task that has one: ``(env, obs, rng) -> action``.
+DEMONSTRATORS: dict[str, Callable[[Any, np.ndarray, np.random.Generator], np.ndarray]] = {
+    "time-oscillation": geometric_demonstration,
+    "vaulting": vault_demonstration,
+}
 
 
 def seed_replay_buffer(model: Any, vec: Any, config: RunConfig, episodes: int, seed: int) -> dict[str, Any]:
@@ -41,6 +60,7 @@ def seed_replay_buffer(model: Any, vec: Any, config: RunConfig, episodes: int, s
 
     Returns the demonstrations' figures: episodes, mean reward, successes.
     """
+    demonstrate = DEMONSTRATORS[config.task]
     rng = np.random.default_rng([seed, 0x44454D4F])
     # A local environment of the same task supplies the action encoding; the episodes run in ``vec``.
     planner = gym.make(config.env_id, multi_step=False, **config.env_options).unwrapped
@@ -48,7 +68,7 @@ def seed_replay_buffer(model: Any, vec: Any, config: RunConfig, episodes: int, s
     rewards: list[float] = []
     successes = 0
     while len(rewards) < episodes:
-        actions = np.stack([geometric_demonstration(planner, o, rng) for o in obs])
+        actions = np.stack([demonstrate(planner, o, rng) for o in obs])
         next_obs, reward, done, infos = vec.step(actions)
         final_obs = next_obs.copy()
         for i, info in enumerate(infos):

@@ -1,5 +1,10 @@
 """Scripted policies to compare learned ones with.
 
+:class:`FlickVault` is a scripted vault for task II (not in the paper): a quick dip towards the box, a
+flick up and forward that throws a wave along the cable over the box, and a step back. Its shape was found
+by searching the single action (random actions, then Gaussian perturbations of the best); it is the
+demonstrator of ``dyndlo-vision train --task vaulting --demonstrations N``.
+
 :class:`RandomActions` draws every action uniformly from the action space: the chance level of a task, what
 a learner's exploration starts from.
 
@@ -79,6 +84,31 @@ class GeometricLift:
         start = np.asarray(obs[:3], dtype=float)
         goal = np.asarray(obs[-3:], dtype=float)
         points, times = self.plan(start, goal)
+        return self.spec.encode(points, times).astype(np.float32)
+
+
+class FlickVault:
+    """Task II scripted vault as a single-step policy ``obs -> action`` for ``DynDLO/Vaulting-v0``.
+
+    Via points are offsets from the TCP's position in the observation, each interval a fixed duration:
+    :attr:`OFFSETS_M` and :attr:`INTERVALS_S` (the best of a search; reward 10 on the nominal cable).
+    """
+
+    OFFSETS_M = ((0.063, 0.0, -0.125), (0.238, 0.0, 0.030), (0.125, 0.0, -0.020))
+    INTERVALS_S = (0.137, 0.175, 0.196)
+
+    def __init__(self, env: Any) -> None:
+        base = env.unwrapped
+        if base.multi_step:
+            raise ValueError("FlickVault plans once: use a single-step environment (multi_step=False)")
+        if base.task.name != "Vaulting":
+            raise ValueError(f"FlickVault vaults in DynDLO/Vaulting-v0, not in the {base.task.name} task")
+        self.spec = base.spec_actions
+
+    def __call__(self, obs: NDArray[np.float32]) -> NDArray[np.float32]:
+        start = np.asarray(obs[:3], dtype=float)
+        points = np.vstack([start, start + np.asarray(self.OFFSETS_M)])
+        times = np.concatenate([[0.0], np.cumsum(self.INTERVALS_S)])
         return self.spec.encode(points, times).astype(np.float32)
 
 

@@ -284,6 +284,26 @@ def test_demonstrations_seed_the_replay_buffer_with_baseline_episodes(tmp_path: 
     assert episodes == 3 + 4  # the demonstrations are real episodes, logged with the run's
 
 
+def test_vaulting_demonstrations_are_scripted_vaults(tmp_path: Path) -> None:
+    from dyndlo_vision.tasks.baselines import FlickVault
+
+    env = gym.make("DynDLO/Vaulting-v0")
+    obs, _ = env.reset(seed=0)
+    _, reward, _, _, info = env.step(FlickVault(env)(obs))
+    assert info["is_success"] and reward == pytest.approx(10.0)  # a vault, TCP below M, no avoid condition
+    with pytest.raises(ValueError, match="Vaulting"):
+        FlickVault(gym.make("DynDLO/Hooking-v0"))
+    with pytest.raises(ValueError, match="single-step"):
+        FlickVault(gym.make("DynDLO/Vaulting-v0", multi_step=True))
+    config = RunConfig(
+        task="vaulting", multi_step=False, algo="sac", timesteps=2, seed=1, n_envs=1, vec_env="dummy",
+        hyperparams={"learning_starts": 1, "batch_size": 2}, eval_freq=100, eval_episodes=1,
+        checkpoint_freq=100, demonstrations=2,
+    )
+    train(config, tmp_path / "run", progress_bar=False)
+    assert json.loads((tmp_path / "run" / "demonstrations.json").read_text())["episodes"] == 2
+
+
 def test_a_crash_after_the_demonstrations_resumes_with_them(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
