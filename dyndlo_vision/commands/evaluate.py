@@ -9,7 +9,11 @@ from typing import Any
 
 from dyndlo_vision._atomic import write_atomic, write_video_atomic
 
-HELP = "evaluate a policy (shipped name, .zip, 'geometric' for task IV, or 'random') over N episodes"
+HELP = "evaluate a policy (shipped name, .zip, 'geometric', 'flick-vault' or 'random') over N episodes"
+
+
+#: Scripted policies ``evaluate`` takes by name, with the task each belongs to (None: any task).
+SCRIPTED = {"geometric": "time-oscillation", "flick-vault": "vaulting", "random": None}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -18,8 +22,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     p.add_argument(
         "policy",
-        help="shipped policy name, path to a stable-baselines3 .zip, 'geometric' (task IV's baseline) or "
-        "'random' (uniform actions seeded by --seed: the task's chance level; needs --task)",
+        help="shipped policy name, path to a stable-baselines3 .zip, 'geometric' (task IV's baseline), "
+        "'flick-vault' (the scripted vault of task II) or 'random' (uniform actions seeded by --seed: the "
+        "task's chance level; needs --task)",
     )
     p.add_argument(
         "--task",
@@ -65,9 +70,9 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
     options = parse_assignments(args.env_option, "--env-option")
     meta: dict[str, Any] = {}
-    if args.policy not in ("geometric", "random"):
+    if args.policy not in SCRIPTED:
         _, meta = policies.resolve(args.policy)
-    task = args.task or meta.get("task") or ("time-oscillation" if args.policy == "geometric" else None)
+    task = args.task or meta.get("task") or SCRIPTED.get(args.policy)
     if task is None:
         raise ValueError(f"{args.policy!r} has no metadata naming its task: pass --task")
     multi_step = args.multi_step if args.multi_step is not None else bool(meta.get("multi_step", False))
@@ -77,6 +82,10 @@ def run(args: argparse.Namespace) -> int:
         from dyndlo_vision.tasks.baselines import GeometricLift
 
         policy: Any = GeometricLift(env, args.geometric_time)
+    elif args.policy == "flick-vault":
+        from dyndlo_vision.tasks.baselines import FlickVault
+
+        policy = FlickVault(env)
     elif args.policy == "random":
         from dyndlo_vision.tasks.baselines import RandomActions
 

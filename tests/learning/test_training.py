@@ -123,7 +123,7 @@ def test_evaluate_geometric_baseline_is_deterministic() -> None:
         GeometricLift(env, total_time_s=5.0)
 
 
-def test_evaluate_random_actions_gives_a_seeded_chance_level(tmp_path: Path) -> None:
+def test_evaluate_random_actions_and_the_scripted_vault_by_name(tmp_path: Path) -> None:
     report = tmp_path / "random.json"
     args = ["evaluate", "random", "--task", "tip-control", "--episodes", "3", "--seed", "11"]
     assert main([*args, "--out", str(report)]) == 0
@@ -137,6 +137,10 @@ def test_evaluate_random_actions_gives_a_seeded_chance_level(tmp_path: Path) -> 
     with pytest.raises(SystemExit) as exc:
         main(["evaluate", "random", "--episodes", "1"])  # no task to draw actions for
     assert exc.value.code == 2
+    # The scripted vault by name: its task is known, and it vaults on the nominal cable.
+    assert main(["evaluate", "flick-vault", "--episodes", "1", "--out", str(report)]) == 0
+    flick = json.loads(report.read_text())
+    assert flick["task"] == "vaulting" and flick["successes"] == 1
 
 
 def test_evaluate_with_cable_randomization_draws_one_cable_per_episode_from_its_seed(tmp_path: Path) -> None:
