@@ -84,3 +84,28 @@ def test_shipped_hooking_policy_hooks_on_the_nominal_cable_and_on_cables_it_neve
             action, _ = model.predict(obs, deterministic=True)
             _, _, _, _, info = episode_env.step(action)
             assert info["is_success"] and not any(info["avoid"].values()), (seed, start.get("cable"))
+
+
+@pytest.mark.slow
+def test_shipped_vaulting_policy_vaults_and_replays_its_recorded_cables() -> None:
+    """Vaulting starts from one fixed state: the nominal cable is one episode. On random cables the policy
+    succeeds only on some (stiff cables need another throw); the first recorded episodes must replay."""
+    from dyndlo_vision.control.wrappers import CableRandomization
+
+    meta = policies.metadata("vaulting")
+    env = gym.make(env_id("vaulting"))
+    model = policies.load("vaulting", env=env)
+    obs, _ = env.reset(seed=0)
+    _, reward, _, _, info = env.step(model.predict(obs, deterministic=True)[0])
+    assert info["is_success"] and not any(info["avoid"].values())
+    assert reward == pytest.approx(meta["evaluation"]["nominal_cable"]["reward"])
+    random_cables = CableRandomization(gym.make(env_id("vaulting")), every_episodes=1)
+    recorded = meta["evaluation"]["first_episodes"]
+    successes = [seed for seed, ok in recorded.items() if ok][:2]
+    failures = [seed for seed, ok in recorded.items() if not ok][:1]
+    assert successes and failures  # the replay must be able to tell one from the other
+    for seed in successes + failures:
+        success = recorded[seed]
+        obs, _ = random_cables.reset(seed=int(seed))
+        _, _, _, _, info = random_cables.step(model.predict(obs, deterministic=True)[0])
+        assert info["is_success"] == success, seed
