@@ -1,4 +1,10 @@
-"""Shared test configuration: headless rendering and the optional external data."""
+"""Shared test configuration: headless rendering, the optional external data, and no silent skips in CI.
+
+Under CI (the environment variable ``CI`` set, as ``.ci/run`` is run), a test that skips is reported as a
+failure: CI installs everything the tests need (OSMesa, the driver client libraries) and has ../shared beside
+the clone, so a skip there can only hide a failure. A test whose skip is a fact about the machine rather than
+a missing piece carries ``@pytest.mark.ci_may_skip(reason)``.
+"""
 
 from __future__ import annotations
 
@@ -18,3 +24,21 @@ def external_data() -> Path:
     if not EXTERNAL_DATA.is_dir():
         pytest.skip(f"external data not found at {EXTERNAL_DATA}")
     return EXTERNAL_DATA
+
+
+def _in_ci() -> bool:
+    return os.environ.get("CI", "").lower() not in ("", "0", "false", "no")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line("markers", "ci_may_skip(reason): this test may skip under CI, for the reason given")
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]):  # type: ignore[no-untyped-def]
+    outcome = yield
+    report = outcome.get_result()
+    if report.skipped and _in_ci() and item.get_closest_marker("ci_may_skip") is None:
+        reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
+        report.outcome = "failed"
+        report.longrepr = f"skipped under CI, where nothing may be missing: {reason}"
