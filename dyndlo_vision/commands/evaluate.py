@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -62,6 +64,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="evaluated episodes the video shows, 1 to --episodes (default: 3, or --episodes if fewer)",
     )
+    p.add_argument("--quiet", action="store_true", help="no progress bars on stderr")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -96,7 +99,8 @@ def run(args: argparse.Namespace) -> int:
         policy = RandomActions(env, seed=args.seed)
     else:
         policy = policies.load(args.policy, env=env, algo=meta.get("algo"))
-    report, records = evaluate(policy, env, args.episodes, args.seed)
+    with _progress_bar(args.episodes, f"evaluate {args.policy}", args.quiet) as bar:
+        report, records = evaluate(policy, env, args.episodes, args.seed, on_episode=_counting(bar))
     report.update(
         {
             "policy": str(args.policy),
@@ -123,6 +127,7 @@ def run(args: argparse.Namespace) -> int:
             args.seed,
             video_episodes,
             args.randomize_cable,
+            progress=not args.quiet,
         )
         print(f"wrote {args.video}")
     return 0
@@ -185,6 +190,26 @@ def policy_task(policy: str, task: str | None, meta: dict[str, Any]) -> str:
     return chosen
 
 
+def _progress_bar(total: int, desc: str, quiet: bool) -> Any:
+    """A progress bar over episodes on stderr (none with ``quiet``)."""
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="episode", file=sys.stderr, disable=quiet, dynamic_ncols=True)
+
+
+def _counting(bar: Any) -> Callable[[Any], None]:
+    """``on_episode`` callback: advance ``bar`` and show the successes so far."""
+    successes = 0
+
+    def on_episode(record: Any) -> None:
+        nonlocal successes
+        successes += bool(record.success)
+        bar.set_postfix(successes=successes, refresh=False)
+        bar.update(1)
+
+    return on_episode
+
+
 def _make_env(
     gym_id: str,
     multi_step: bool,
@@ -212,6 +237,7 @@ def _write_video(
     seed: int,
     episodes: int,
     randomize_cable: bool = False,
+    progress: bool = False,
 ) -> None:
     """Render episodes at 25 Hz of simulated time to an MP4, atomically (the same cables as evaluated)."""
     import numpy as np
@@ -222,14 +248,16 @@ def _write_video(
     base = env.unwrapped
     act = as_action_fn(policy)
     frames: list[np.ndarray] = []
-    for i in range(episodes):
-        obs, _ = env.reset(seed=seed + i)
-        # Set after reset: a new cable rebuilds the environment, which clears the hook.
-        base.frame_hook = lambda e: frames.append(e.render())  # every 40 ms of simulated time
-        frames.append(base.render())
-        done = False
-        while not done:
-            obs, _, terminated, truncated, _ = env.step(act(obs))
-            done = terminated or truncated
+    with _progress_bar(episodes, f"video {path.name}", not progress) as bar:
+        for i in range(episodes):
+            obs, _ = env.reset(seed=seed + i)
+            # Set after reset: a new cable rebuilds the environment, which clears the hook.
+            base.frame_hook = lambda e: frames.append(e.render())  # every 40 ms of simulated time
+            frames.append(base.render())
+            done = False
+            while not done:
+                obs, _, terminated, truncated, _ = env.step(act(obs))
+                done = terminated or truncated
+            bar.update(1)
     env.close()
     write_video_atomic(path, frames)

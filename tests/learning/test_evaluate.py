@@ -1,4 +1,4 @@
-"""``evaluate``: options checked before any episode, the policy's own task.
+"""``evaluate``: options checked before any episode, the policy's own task, progress on stderr.
 
 (End-to-end evaluations of shipped and scripted policies are in test_training.py.)
 """
@@ -10,11 +10,13 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from dyndlo_vision import policies
 from dyndlo_vision.cli import main
 from dyndlo_vision.learning import evaluate as evaluate_module
+from dyndlo_vision.learning.evaluate import EpisodeRecord, evaluate
 
 
 @pytest.fixture
@@ -91,7 +93,7 @@ def test_video_episodes_default_fits_the_evaluated_episodes(
 
     monkeypatch.setattr(command, "_write_video", write_video)
     video = str(tmp_path / "v.mp4")
-    base = ["evaluate", "random", "--task", "tip-control", "--video", video]
+    base = ["evaluate", "random", "--task", "tip-control", "--video", video, "--quiet"]
     assert main([*base, "--episodes", "1"]) == 0
     assert main([*base, "--episodes", "2", "--video-episodes", "2"]) == 0
     assert shown == [1, 2]
@@ -138,8 +140,40 @@ def test_repeating_the_policys_own_task_is_fine(tmp_path: Path) -> None:
         "vaulting",
         "--episodes",
         "1",
+        "--quiet",
         "--out",
         str(report),
     ]
     assert main(argv) == 0
     assert json.loads(report.read_text())["task"] == "vaulting"
+
+
+def test_progress_bar_on_stderr_unless_quiet(capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["evaluate", "random", "--task", "tip-control", "--episodes", "2", "--seed", "3"]
+    assert main(argv) == 0
+    captured = capsys.readouterr()
+    assert "2/2" in captured.err and "episode" in captured.err
+    assert json.loads(captured.out)["episodes"] == 2  # the report alone on stdout
+    assert main([*argv, "--quiet"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == "" and json.loads(captured.out)["episodes"] == 2
+
+
+class _CountingEnv:
+    """A stand-in environment: episode ``seed`` lasts two steps and succeeds for even seeds."""
+
+    def reset(self, seed: int) -> tuple[np.ndarray, dict[str, Any]]:
+        self.seed, self.steps = seed, 0
+        return np.zeros(2), {}
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        self.steps += 1
+        done = self.steps == 2
+        return np.zeros(2), 1.0, done, False, {"is_success": done and self.seed % 2 == 0}
+
+
+def test_evaluate_reports_each_episode_as_it_ends() -> None:
+    seen: list[EpisodeRecord] = []
+    report, records = evaluate(lambda obs: obs, _CountingEnv(), episodes=3, seed=10, on_episode=seen.append)
+    assert seen == records and [r.seed for r in seen] == [10, 11, 12]
+    assert [r.success for r in seen] == [True, False, True] and report["successes"] == 2
