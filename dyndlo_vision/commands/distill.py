@@ -17,7 +17,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--teacher",
         default="tip-control-single-step",
-        help="shipped name or .zip of the single-step policy (default: tip-control-single-step)",
+        help="shipped name or .zip of a single-step tip-control policy (default: tip-control-single-step)",
     )
     p.add_argument(
         "--rounds",
@@ -72,7 +72,12 @@ def run(args: argparse.Namespace) -> int:
     try:
         history = distill(config, out, resume=args.resume)
     except KeyboardInterrupt:
-        print(f"interrupted; resume with: dyndlo-vision distill --resume --out {out} (and the same options)")
+        if (out / "config.json").is_file():
+            print(
+                f"interrupted; resume with: dyndlo-vision distill --resume --out {out} (and the same options)"
+            )
+        else:  # stopped while the run was being set up: there is nothing to resume
+            print("interrupted before the run started")
         return 130
     print(json.dumps(history[-1], indent=2))
     print(f"wrote {out / 'model.zip'}")

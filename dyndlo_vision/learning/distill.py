@@ -24,7 +24,7 @@ from __future__ import annotations
 import json
 import shutil
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from multiprocessing import get_context
@@ -37,7 +37,10 @@ from scipy.optimize import least_squares
 
 from dyndlo_vision.trajectory import ActionSpec, BSplineTrajectory
 
-__all__ = ["PlanFollowingExpert", "DistillConfig", "collect", "fit_student", "distill"]
+__all__ = ["PlanFollowingExpert", "DistillConfig", "check_teacher", "collect", "fit_student", "distill"]
+
+#: The task a teacher must be a single-step policy of: the expert follows one tip-control plan from t = 0.
+TEACHER_TASK = "tip-control"
 
 
 class PlanFollowingExpert:
@@ -223,6 +226,42 @@ def make_distill_env(task_options: dict[str, Any], noise_model: str | None) -> A
 
         env = NoisyObservation(env, noise_model)
     return env
+
+
+def check_teacher(teacher: str, task_options: dict[str, Any] | None = None) -> None:
+    """Refuse a teacher whose plans the expert cannot follow, before any work or output.
+
+    The expert re-plans *one* single-step tip-control plan (the teacher's action at t = 0 from the tip-control
+    environment's observation), so the teacher must be a single-step tip-control policy. The task and mode
+    come from its metadata; a file without metadata is only checked for the single-step tip-control spaces
+    (a policy of another single-arm task has the same shapes and cannot be told apart).
+
+    Raises:
+        FileNotFoundError: ``teacher`` is neither a file nor a shipped policy.
+        ValueError: Its metadata names another task or the multi-step mode, or its spaces do not match.
+    """
+    import gymnasium as gym
+
+    import dyndlo_vision  # noqa: F401  (registers the environment ids)
+    from dyndlo_vision import policies
+
+    _, meta = policies.resolve(teacher)
+    task = meta.get("task")
+    if task is not None and task != TEACHER_TASK:
+        raise ValueError(
+            f"teacher {teacher!r} is a {task!r} policy; distill needs a single-step {TEACHER_TASK!r} policy "
+            "(e.g. tip-control-single-step): the expert follows tip-control plans"
+        )
+    if meta.get("multi_step"):
+        raise ValueError(
+            f"teacher {teacher!r} is a multi-step policy; distill needs a single-step {TEACHER_TASK!r} "
+            "policy, whose one plan the expert follows (e.g. tip-control-single-step)"
+        )
+    env = gym.make("DynDLO/TipControl-v0", multi_step=False, **(task_options or {}))
+    try:
+        policies.load(teacher, env=env)  # a corrupt file or other spaces: refused here, not in a worker
+    finally:
+        env.close()
 
 
 def _collect_chunk(job: dict[str, Any]) -> Episodes:
@@ -433,7 +472,12 @@ class DistillConfig:
         return {**self.__dict__, "net_arch": list(self.net_arch)}
 
 
-def distill(config: DistillConfig, out: Path, resume: bool = False, log: Any = print) -> list[dict[str, Any]]:
+def distill(
+    config: DistillConfig,
+    out: Path,
+    resume: bool = False,
+    log: Callable[[str], Any] = print,
+) -> list[dict[str, Any]]:
     """Run DAgger rounds into ``out``.
 
     Each finished round leaves ``round<r>.npz``, ``model.zip`` (also kept as ``model_round<r>.zip``),
@@ -441,7 +485,25 @@ def distill(config: DistillConfig, out: Path, resume: bool = False, log: Any = p
 
     An interrupted run resumes (``resume=True``) after its last finished round, reusing the data of a round
     that was collected but not yet trained on; a finished run resumed with more ``rounds`` goes on.
-    Returns the per-round history (also ``history.json``).
+
+    The options, ``out`` and the teacher are checked before anything is written: a refused run leaves no
+    folder. A new run that fails (other than by KeyboardInterrupt) before it saved any round data removes the
+    ``config.json`` it wrote (and the folder, if it made it), so that the same command can simply be run
+    again; an interrupted one keeps it for ``resume``.
+
+    Args:
+        config: The run's configuration (stored as ``config.json``).
+        out: The run folder: new or empty, or with ``resume`` the folder of the same configuration.
+        resume: Continue the run in ``out``.
+        log: Called with a line at the start and end of every round.
+
+    Returns:
+        The per-round history (also ``history.json``).
+
+    Raises:
+        ValueError: ``out`` is not empty (without ``resume``) or holds another configuration, or the teacher
+            cannot be distilled (see :func:`check_teacher`).
+        FileNotFoundError: Nothing to resume in ``out``, or no such teacher.
     """
     import torch
 
@@ -450,6 +512,7 @@ def distill(config: DistillConfig, out: Path, resume: bool = False, log: Any = p
 
     out = Path(out)
     config_file, history_file = out / "config.json", out / "history.json"
+    # Everything that can refuse the run comes before the first write into ``out``.
     if resume:
         if not config_file.is_file():
             raise FileNotFoundError(f"nothing to resume: {config_file} does not exist")
@@ -462,68 +525,85 @@ def distill(config: DistillConfig, out: Path, resume: bool = False, log: Any = p
                 f"{config_file} holds another configuration ({stored}); resume with the same options "
                 "(only --rounds may change)"
             )
-        write_atomic(config_file, lambda tmp: Path(tmp).write_text(json.dumps(config.to_json(), indent=2)))
         history: list[dict[str, Any]] = json.loads(history_file.read_text()) if history_file.is_file() else []
     else:
+        if out.exists() and not out.is_dir():
+            raise ValueError(f"{out} is a file; expected a run folder")
         if out.exists() and any(out.iterdir()):
             raise ValueError(f"{out} exists and is not empty; use --resume or another --out")
-        out.mkdir(parents=True, exist_ok=True)
-        write_atomic(config_file, lambda tmp: Path(tmp).write_text(json.dumps(config.to_json(), indent=2)))
         history = []
+    check_teacher(config.teacher, config.task_options)
 
+    # Seeded after check_teacher, whose loading of the teacher draws from torch's generator: the student's
+    # initial weights stay those of the seed.
     torch.manual_seed(config.seed)
     env = make_distill_env(config.task_options, config.noise_model)
-    policies.resolve(config.teacher)  # fail early on a missing teacher
     model_file = out / "model.zip"
     model = (
         policies.load(model_file, env=env, algo="ppo")
         if history
         else new_student(env, config.net_arch, config.seed)
     )
-    data = [Episodes.load(out / f"round{r}.npz") for r in range(len(history))]
-    for r in range(len(history), config.rounds):
-        start = time.monotonic()
-        round_file = out / f"round{r}.npz"
-        if round_file.is_file():
-            episodes = Episodes.load(round_file)
-            log(f"round {r}: reusing {round_file} ({len(episodes.successes)} episodes)")
-        else:
-            log(f"round {r}: {'expert' if r == 0 else 'student'} acts, {len(config.round_seeds(r))} episodes")
-            episodes = collect(
-                config.round_seeds(r),
-                config.teacher,
-                str(model_file) if r else None,
-                1.0 if r == 0 else 0.0,
-                config.noise_model,
-                config.task_options,
-                config.workers,
-                r,
-                config.expert_speed_limit_m_s,
+    made_folder = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    write_atomic(config_file, lambda tmp: Path(tmp).write_text(json.dumps(config.to_json(), indent=2)))
+
+    try:
+        data = [Episodes.load(out / f"round{r}.npz") for r in range(len(history))]
+        for r in range(len(history), config.rounds):
+            start = time.monotonic()
+            round_file = out / f"round{r}.npz"
+            if round_file.is_file():
+                episodes = Episodes.load(round_file)
+                log(f"round {r}: reusing {round_file} ({len(episodes.successes)} episodes)")
+            else:
+                seeds = config.round_seeds(r)
+                log(f"round {r}: {'expert' if r == 0 else 'student'} acts, {len(seeds)} episodes")
+                episodes = collect(
+                    seeds,
+                    config.teacher,
+                    str(model_file) if r else None,
+                    1.0 if r == 0 else 0.0,
+                    config.noise_model,
+                    config.task_options,
+                    config.workers,
+                    r,
+                    config.expert_speed_limit_m_s,
+                )
+                episodes.save(round_file)
+            collect_s = time.monotonic() - start
+            data.append(episodes)
+            losses = fit_student(
+                model, Episodes.concatenate(data), epochs=config.epochs, seed=config.seed + r
             )
-            episodes.save(round_file)
-        collect_s = time.monotonic() - start
-        data.append(episodes)
-        losses = fit_student(model, Episodes.concatenate(data), epochs=config.epochs, seed=config.seed + r)
-        model.save(model_file)
-        shutil.copyfile(model_file, out / f"model_round{r}.zip")  # every round's student stays selectable
-        entry = {
-            "round": r,
-            "acting": "expert" if r == 0 else f"student of round {r - 1}",
-            "episodes": int(len(episodes.successes)),
-            "samples": int(len(episodes.actions)),
-            "total_samples": int(sum(len(d.actions) for d in data)),
-            "success_rate": float(np.mean(episodes.successes)),
-            "avoid_rate": float(np.mean(episodes.avoided)),
-            "expert_fit_rms_mm": float(1000 * np.median(episodes.fit_rms_m)),
-            **losses,
-            "collect_s": round(collect_s, 1),
-            "wall_s": round(time.monotonic() - start, 1),
-        }
-        history.append(entry)
-        write_atomic(history_file, lambda tmp: Path(tmp).write_text(json.dumps(history, indent=2)))
-        _write_metadata(out, config, history)
-        log(json.dumps(entry))
-    env.close()
+            model.save(model_file)
+            shutil.copyfile(model_file, out / f"model_round{r}.zip")  # every round's student stays selectable
+            entry = {
+                "round": r,
+                "acting": "expert" if r == 0 else f"student of round {r - 1}",
+                "episodes": int(len(episodes.successes)),
+                "samples": int(len(episodes.actions)),
+                "total_samples": int(sum(len(d.actions) for d in data)),
+                "success_rate": float(np.mean(episodes.successes)),
+                "avoid_rate": float(np.mean(episodes.avoided)),
+                "expert_fit_rms_mm": float(1000 * np.median(episodes.fit_rms_m)),
+                **losses,
+                "collect_s": round(collect_s, 1),
+                "wall_s": round(time.monotonic() - start, 1),
+            }
+            history.append(entry)
+            write_atomic(history_file, lambda tmp: Path(tmp).write_text(json.dumps(history, indent=2)))
+            _write_metadata(out, config, history)
+            log(json.dumps(entry))
+    except Exception:
+        # A new run that saved nothing but its config would block the same command ("not empty"): undo it.
+        if not resume and out.is_dir() and {p.name for p in out.iterdir()} == {config_file.name}:
+            config_file.unlink()
+            if made_folder:
+                out.rmdir()
+        raise
+    finally:
+        env.close()
     return history
 
 
