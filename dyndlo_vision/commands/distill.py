@@ -49,6 +49,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--out", default=None, help="run folder (default: runs/tip-control-multi-step-distill-s<seed>)"
     )
     p.add_argument("--resume", action="store_true", help="continue the run in --out after its last round")
+    p.add_argument("--quiet", action="store_true", help="no progress bars on stderr")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -70,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
     )
     out = Path(args.out or f"runs/tip-control-multi-step-distill-s{args.seed}")
     try:
-        history = distill(config, out, resume=args.resume)
+        history = distill(config, out, resume=args.resume, progress=not args.quiet)
     except KeyboardInterrupt:
         if (out / "config.json").is_file():
             print(

@@ -21,11 +21,14 @@ student sees the corrupted P_DLO (and learns to act on it), the expert is unaffe
 
 from __future__ import annotations
 
+import contextlib
 import json
+import queue as queue_module
 import shutil
+import sys
 import time
-from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from multiprocessing import get_context
 from pathlib import Path
@@ -264,8 +267,12 @@ def check_teacher(teacher: str, task_options: dict[str, Any] | None = None) -> N
         env.close()
 
 
-def _collect_chunk(job: dict[str, Any]) -> Episodes:
-    """Worker: run the episodes of ``job["seeds"]`` (see :func:`collect`)."""
+def _collect_chunk(job: dict[str, Any], on_episode: Callable[[int, bool], None] | None = None) -> Episodes:
+    """Run the episodes of ``job["seeds"]`` (see :func:`collect`), reporting each one as it ends.
+
+    Each finished episode is passed as ``(seed, success)`` to ``on_episode`` and put on ``job["progress"]``
+    (a queue shared with the parent process), when given.
+    """
     import torch
 
     from dyndlo_vision import policies
@@ -286,6 +293,10 @@ def _collect_chunk(job: dict[str, Any]) -> Episodes:
             job["beta"],
             np.random.default_rng([int(seed), job["round"]]),
         )
+        if on_episode is not None:
+            on_episode(int(seed), ep["success"])
+        if job.get("progress") is not None:
+            job["progress"].put((int(seed), ep["success"]))
         n = len(ep["actions"])
         parts.append(
             Episodes(
@@ -312,6 +323,7 @@ def collect(
     workers: int = 1,
     round_index: int = 0,
     speed_limit_m_s: float | None = None,
+    on_episode: Callable[[int, bool], None] | None = None,
 ) -> Episodes:
     """Run one DAgger round's episodes (one per seed) in ``workers`` processes.
 
@@ -325,6 +337,8 @@ def collect(
         workers: Processes (each builds its own environment).
         round_index: Mixed into the per-episode random stream that picks who acts.
         speed_limit_m_s: The expert's speed penalty threshold (None: off).
+        on_episode: Called in this process with ``(seed, success)`` of every episode as it ends, in the order
+            they end (e.g. for a progress bar). The returned data do not depend on it.
     """
     seeds = [int(s) for s in seeds]
     jobs = [
@@ -342,9 +356,34 @@ def collect(
     ]
     jobs = [j for j in jobs if j["seeds"]]
     if workers <= 1 or len(jobs) <= 1:
-        return Episodes.concatenate([_collect_chunk(j) for j in jobs])
-    with ProcessPoolExecutor(len(jobs), mp_context=get_context("forkserver")) as pool:
-        return Episodes.concatenate(list(pool.map(_collect_chunk, jobs)))
+        return Episodes.concatenate([_collect_chunk(j, on_episode) for j in jobs])
+    context = get_context("forkserver")
+    with contextlib.ExitStack() as stack:
+        # Workers report finished episodes through a manager's queue: its put() returns once the manager
+        # holds the item, so when every future is done every report can be read without waiting. (Entered
+        # before the pool, so that it shuts down after the workers.)
+        progress = stack.enter_context(context.Manager()).Queue() if on_episode is not None else None
+        pool = stack.enter_context(ProcessPoolExecutor(len(jobs), mp_context=context))
+        futures = [pool.submit(_collect_chunk, {**job, "progress": progress}) for job in jobs]
+        if on_episode is not None and progress is not None:
+            pending = set(futures)
+            while True:
+                for seed, success in _drain(progress):
+                    on_episode(seed, success)
+                if not pending:
+                    break
+                _, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
+        # In job order (not completion order): the data, and so the fit, are those of a run without progress.
+        return Episodes.concatenate([f.result() for f in futures])
+
+
+def _drain(progress: Any) -> Iterator[tuple[int, bool]]:
+    """The items now on the queue ``progress``, without waiting for more."""
+    while True:
+        try:
+            yield progress.get_nowait()
+        except queue_module.Empty:
+            return
 
 
 # ---------------------------------------------------------------------------------------------- student
@@ -364,11 +403,13 @@ def fit_student(
     lr: float = 1e-3,
     validation_fraction: float = 0.1,
     seed: int = 0,
+    on_epoch: Callable[[int, float], Any] | None = None,
 ) -> dict[str, float]:
     """Regress the PPO policy's mean action onto the expert's actions (mean squared error, Adam, cosine lr).
 
     Whole episodes (by seed) are held out for validation (none when there is only one episode). Returns the
-    final training and validation loss (NaN without validation episodes).
+    final training and validation loss (NaN without validation episodes). ``on_epoch`` is called with the
+    epoch's index and training loss after every epoch (e.g. for a progress bar).
     """
     import torch
 
@@ -392,7 +433,7 @@ def fit_student(
 
     policy.set_training_mode(True)
     train_loss = float("nan")
-    for _ in range(epochs):
+    for epoch in range(epochs):
         order = rng.permutation(train_idx)
         total = 0.0
         for start in range(0, len(order), batch_size):
@@ -404,6 +445,8 @@ def fit_student(
             schedule.step()
             total += float(loss.detach()) * len(batch)
         train_loss = total / len(order)
+        if on_epoch is not None:
+            on_epoch(epoch, train_loss)
     policy.set_training_mode(False)
     with torch.no_grad():
         val_loss = float(torch.mean((mean_action(obs[val]) - act[val]) ** 2)) if val.any() else float("nan")
@@ -477,6 +520,7 @@ def distill(
     out: Path,
     resume: bool = False,
     log: Callable[[str], Any] = print,
+    progress: bool = False,
 ) -> list[dict[str, Any]]:
     """Run DAgger rounds into ``out``.
 
@@ -496,6 +540,7 @@ def distill(
         out: The run folder: new or empty, or with ``resume`` the folder of the same configuration.
         resume: Continue the run in ``out``.
         log: Called with a line at the start and end of every round.
+        progress: Show progress bars on stderr: every round's episodes, then its regression epochs.
 
     Returns:
         The per-round history (also ``history.json``).
@@ -559,23 +604,30 @@ def distill(
             else:
                 seeds = config.round_seeds(r)
                 log(f"round {r}: {'expert' if r == 0 else 'student'} acts, {len(seeds)} episodes")
-                episodes = collect(
-                    seeds,
-                    config.teacher,
-                    str(model_file) if r else None,
-                    1.0 if r == 0 else 0.0,
-                    config.noise_model,
-                    config.task_options,
-                    config.workers,
-                    r,
-                    config.expert_speed_limit_m_s,
-                )
+                with _bar(len(seeds), f"round {r} episodes", "episode", progress) as bar:
+                    episodes = collect(
+                        seeds,
+                        config.teacher,
+                        str(model_file) if r else None,
+                        1.0 if r == 0 else 0.0,
+                        config.noise_model,
+                        config.task_options,
+                        config.workers,
+                        r,
+                        config.expert_speed_limit_m_s,
+                        on_episode=_success_counter(bar),
+                    )
                 episodes.save(round_file)
             collect_s = time.monotonic() - start
             data.append(episodes)
-            losses = fit_student(
-                model, Episodes.concatenate(data), epochs=config.epochs, seed=config.seed + r
-            )
+            with _bar(config.epochs, f"round {r} fit", "epoch", progress) as bar:
+                losses = fit_student(
+                    model,
+                    Episodes.concatenate(data),
+                    epochs=config.epochs,
+                    seed=config.seed + r,
+                    on_epoch=_loss_reporter(bar),
+                )
             model.save(model_file)
             shutil.copyfile(model_file, out / f"model_round{r}.zip")  # every round's student stays selectable
             entry = {
@@ -605,6 +657,39 @@ def distill(
     finally:
         env.close()
     return history
+
+
+def _bar(total: int, desc: str, unit: str, progress: bool) -> Any:
+    """A progress bar on stderr, left in place when done as a record of the round (none without ``progress``).
+
+    One bar at a time (no nesting): the round is in its description, and nested bars garble logs.
+    """
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, disable=not progress, dynamic_ncols=True)
+
+
+def _loss_reporter(bar: Any) -> Callable[[int, float], None]:
+    """``on_epoch`` callback of :func:`fit_student`: advance ``bar`` and show the epoch's training loss."""
+
+    def on_epoch(_epoch: int, loss: float) -> None:
+        bar.set_postfix(mse=f"{loss:.2e}", refresh=False)
+        bar.update(1)
+
+    return on_epoch
+
+
+def _success_counter(bar: Any) -> Callable[[int, bool], None]:
+    """``on_episode`` callback of :func:`collect`: advance ``bar`` and show the successes so far."""
+    successes = 0
+
+    def on_episode(_seed: int, success: bool) -> None:
+        nonlocal successes
+        successes += bool(success)
+        bar.set_postfix(successes=successes, refresh=False)
+        bar.update(1)
+
+    return on_episode
 
 
 def _write_metadata(out: Path, config: DistillConfig, history: list[dict[str, Any]]) -> None:

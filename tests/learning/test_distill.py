@@ -190,11 +190,14 @@ def test_fit_student_regresses_the_mean_action() -> None:
     assert np.isnan(fit_student(model, one, epochs=2)["validation_mse"])
 
 
-def _fake_collect(seeds, *_: Any, **__: Any) -> Episodes:
+def _fake_collect(seeds, *_: Any, on_episode=None, **__: Any) -> Episodes:
     """Stands in for :func:`collect` (no simulation): three decisions per episode, even seeds succeed."""
     rng = np.random.default_rng(len(seeds))
     n = 3 * len(seeds)
     obs = rng.uniform(-1, 1, (n, 12)).astype(np.float32)
+    for seed in seeds:
+        if on_episode is not None:
+            on_episode(seed, seed % 2 == 0)
     return Episodes(
         obs,
         obs,
@@ -275,9 +278,38 @@ def test_a_failed_first_round_does_not_block_running_again(tmp_path, monkeypatch
     assert f"--resume --out {other}" in capsys.readouterr().out
     assert sorted(p.name for p in other.iterdir()) == ["config.json"]
     monkeypatch.setattr(distill_module, "collect", _fake_collect)
-    assert main([*argv, "--out", str(other), "--resume"]) == 0
+    assert main([*argv, "--out", str(other), "--resume", "--quiet"]) == 0
     assert (other / "model.zip").is_file()
     # Interrupted while the run is set up: no folder, and no advice to resume what does not exist.
     monkeypatch.setattr(distill_module, "check_teacher", interrupt)
     assert main([*argv, "--out", str(tmp_path / "early")]) == 130
     assert "before the run started" in capsys.readouterr().out and not (tmp_path / "early").exists()
+
+
+def test_cli_distill_shows_progress_unless_quiet(tmp_path, monkeypatch, capsys) -> None:
+    monkeypatch.setattr(distill_module, "collect", _fake_collect)
+    out = tmp_path / "run"
+    argv = ["distill", "--first-round-episodes", "2", "--episodes", "3", "--workers", "1", "--epochs", "2"]
+    assert main([*argv, "--rounds", "1", "--out", str(out)]) == 0
+    lines = capsys.readouterr().err.replace("\r", "\n").splitlines()
+    assert any(
+        line.startswith("round 0 episodes") and "2/2" in line and "successes=1" in line for line in lines
+    )
+    assert any(line.startswith("round 0 fit") and "2/2" in line and "mse=" in line for line in lines), lines
+    assert main([*argv, "--rounds", "2", "--out", str(out), "--resume", "--quiet"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == "" and '"round": 1' in captured.out
+
+
+@pytest.mark.slow
+def test_collect_reports_episodes_from_worker_processes() -> None:
+    """With two workers each episode is reported as it ends; the data keep the job order of a silent run."""
+    from dyndlo_vision.learning.distill import collect
+
+    seen: list[tuple[int, bool]] = []
+    seeds = [7_000_000, 7_000_001]
+    data = collect(seeds, "tip-control-single-step", workers=2, on_episode=lambda s, ok: seen.append((s, ok)))
+    assert sorted(s for s, _ in seen) == seeds
+    assert [ok for _, ok in sorted(seen)] == list(data.successes)
+    _, first = np.unique(data.seeds, return_index=True)
+    assert list(data.seeds[np.sort(first)]) == seeds
