@@ -17,7 +17,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--teacher",
         default="tip-control-single-step",
-        help="shipped name or .zip of the single-step policy (default: tip-control-single-step)",
+        help="shipped name or .zip of a single-step tip-control policy (default: tip-control-single-step)",
     )
     p.add_argument(
         "--rounds",
@@ -49,6 +49,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--out", default=None, help="run folder (default: runs/tip-control-multi-step-distill-s<seed>)"
     )
     p.add_argument("--resume", action="store_true", help="continue the run in --out after its last round")
+    p.add_argument("--quiet", action="store_true", help="no progress bars on stderr")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -70,9 +71,14 @@ def run(args: argparse.Namespace) -> int:
     )
     out = Path(args.out or f"runs/tip-control-multi-step-distill-s{args.seed}")
     try:
-        history = distill(config, out, resume=args.resume)
+        history = distill(config, out, resume=args.resume, progress=not args.quiet)
     except KeyboardInterrupt:
-        print(f"interrupted; resume with: dyndlo-vision distill --resume --out {out} (and the same options)")
+        if (out / "config.json").is_file():
+            print(
+                f"interrupted; resume with: dyndlo-vision distill --resume --out {out} (and the same options)"
+            )
+        else:  # stopped while the run was being set up: there is nothing to resume
+            print("interrupted before the run started")
         return 130
     print(json.dumps(history[-1], indent=2))
     print(f"wrote {out / 'model.zip'}")

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -54,8 +57,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "drawn from the episode's seed: success under cable variation, also for tasks with a fixed start",
     )
     p.add_argument("--out", default=None, help="JSON report path (default: print only)")
-    p.add_argument("--video", default=None, help="MP4 of the first --video-episodes episodes")
-    p.add_argument("--video-episodes", type=int, default=3)
+    p.add_argument("--video", default=None, help="MP4 (.mp4) of the first --video-episodes episodes")
+    p.add_argument(
+        "--video-episodes",
+        type=int,
+        default=None,
+        help="evaluated episodes the video shows, 1 to --episodes (default: 3, or --episodes if fewer)",
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress bars on stderr")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -66,15 +75,13 @@ def run(args: argparse.Namespace) -> int:
     from dyndlo_vision.learning.config import env_id
     from dyndlo_vision.learning.evaluate import evaluate, records_as_dicts
 
-    if args.episodes < 1:
-        raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    # Every option is checked before any episode runs: a bad one must not cost the minutes of a long run.
+    video_episodes = check_options(args)
     options = parse_assignments(args.env_option, "--env-option")
     meta: dict[str, Any] = {}
     if args.policy not in SCRIPTED:
         _, meta = policies.resolve(args.policy)
-    task = args.task or meta.get("task") or SCRIPTED.get(args.policy)
-    if task is None:
-        raise ValueError(f"{args.policy!r} has no metadata naming its task: pass --task")
+    task = policy_task(args.policy, args.task, meta)
     multi_step = args.multi_step if args.multi_step is not None else bool(meta.get("multi_step", False))
     options = {**meta.get("env_options", {}), **options}
     env = _make_env(env_id(task), multi_step, options, args.randomize_cable)
@@ -92,10 +99,8 @@ def run(args: argparse.Namespace) -> int:
         policy = RandomActions(env, seed=args.seed)
     else:
         policy = policies.load(args.policy, env=env, algo=meta.get("algo"))
-    for path in (args.out, args.video):
-        if path is not None and not Path(path).parent.exists():
-            raise ValueError(f"output folder {Path(path).parent} does not exist")
-    report, records = evaluate(policy, env, args.episodes, args.seed)
+    with _progress_bar(args.episodes, f"evaluate {args.policy}", args.quiet) as bar:
+        report, records = evaluate(policy, env, args.episodes, args.seed, on_episode=_counting(bar))
     report.update(
         {
             "policy": str(args.policy),
@@ -120,11 +125,89 @@ def run(args: argparse.Namespace) -> int:
             options,
             policy,
             args.seed,
-            args.video_episodes,
+            video_episodes,
             args.randomize_cable,
+            progress=not args.quiet,
         )
         print(f"wrote {args.video}")
     return 0
+
+
+def check_options(args: argparse.Namespace) -> int:
+    """Check the options that are only used after the episodes (and the counts); return the video's episodes.
+
+    Raises:
+        ValueError: Naming the bad option, its value and what was expected.
+    """
+    if args.episodes < 1:
+        raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    if not (math.isfinite(args.geometric_time) and args.geometric_time > 0):
+        raise ValueError(f"--geometric-time must be a positive time in s, got {args.geometric_time}")
+    # The video replays evaluated episodes (same seeds, same cables, same random actions), so it can show
+    # at most --episodes of them; an explicit larger count is an error, the default shrinks to fit.
+    video_episodes = min(3, args.episodes) if args.video_episodes is None else args.video_episodes
+    if not 1 <= video_episodes <= args.episodes:
+        raise ValueError(
+            f"--video-episodes must be between 1 and --episodes ({args.episodes}), got {video_episodes}"
+        )
+    for option, path in (("--out", args.out), ("--video", args.video)):
+        if path is None:
+            continue
+        if Path(path).is_dir():
+            raise ValueError(f"{option} {path} is a directory; expected a file path")
+        if not Path(path).parent.is_dir():
+            raise ValueError(f"{option} {path}: output folder {Path(path).parent} does not exist")
+    if args.video is not None and Path(args.video).suffix.lower() != ".mp4":
+        raise ValueError(f"--video {args.video}: expected a .mp4 path (OpenCV picks the container by it)")
+    if (
+        args.out is not None
+        and args.video is not None
+        and Path(args.out).resolve() == Path(args.video).resolve()
+    ):
+        raise ValueError(
+            f"--out and --video are the same file {args.out}; the video would overwrite the report"
+        )
+    return video_episodes
+
+
+def policy_task(policy: str, task: str | None, meta: dict[str, Any]) -> str:
+    """The task to evaluate ``policy`` on: its own (metadata or scripted), which ``--task`` may only repeat.
+
+    Raises:
+        ValueError: ``task`` differs from the policy's own, or neither names one.
+    """
+    own = SCRIPTED.get(policy) if policy in SCRIPTED else meta.get("task")
+    if task is not None and own is not None and task != own:
+        # Observation and action shapes can agree across tasks (tip control and vaulting: 12 and 9), so the
+        # policy would run without complaint and report a meaningless success rate.
+        raise ValueError(
+            f"policy {policy!r} is a {own!r} policy but --task is {task!r}; "
+            f"leave out --task or pass --task {own}"
+        )
+    chosen = task or own
+    if chosen is None:
+        raise ValueError(f"{policy!r} has no metadata naming its task: pass --task")
+    return chosen
+
+
+def _progress_bar(total: int, desc: str, quiet: bool) -> Any:
+    """A progress bar over episodes on stderr (none with ``quiet``)."""
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="episode", file=sys.stderr, disable=quiet, dynamic_ncols=True)
+
+
+def _counting(bar: Any) -> Callable[[Any], None]:
+    """``on_episode`` callback: advance ``bar`` and show the successes so far."""
+    successes = 0
+
+    def on_episode(record: Any) -> None:
+        nonlocal successes
+        successes += bool(record.success)
+        bar.set_postfix(successes=successes, refresh=False)
+        bar.update(1)
+
+    return on_episode
 
 
 def _make_env(
@@ -154,6 +237,7 @@ def _write_video(
     seed: int,
     episodes: int,
     randomize_cable: bool = False,
+    progress: bool = False,
 ) -> None:
     """Render episodes at 25 Hz of simulated time to an MP4, atomically (the same cables as evaluated)."""
     import numpy as np
@@ -164,14 +248,16 @@ def _write_video(
     base = env.unwrapped
     act = as_action_fn(policy)
     frames: list[np.ndarray] = []
-    for i in range(episodes):
-        obs, _ = env.reset(seed=seed + i)
-        # Set after reset: a new cable rebuilds the environment, which clears the hook.
-        base.frame_hook = lambda e: frames.append(e.render())  # every 40 ms of simulated time
-        frames.append(base.render())
-        done = False
-        while not done:
-            obs, _, terminated, truncated, _ = env.step(act(obs))
-            done = terminated or truncated
+    with _progress_bar(episodes, f"video {path.name}", not progress) as bar:
+        for i in range(episodes):
+            obs, _ = env.reset(seed=seed + i)
+            # Set after reset: a new cable rebuilds the environment, which clears the hook.
+            base.frame_hook = lambda e: frames.append(e.render())  # every 40 ms of simulated time
+            frames.append(base.render())
+            done = False
+            while not done:
+                obs, _, terminated, truncated, _ = env.step(act(obs))
+                done = terminated or truncated
+            bar.update(1)
     env.close()
     write_video_atomic(path, frames)

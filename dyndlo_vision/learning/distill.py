@@ -21,11 +21,14 @@ student sees the corrupted P_DLO (and learns to act on it), the expert is unaffe
 
 from __future__ import annotations
 
+import contextlib
 import json
+import queue as queue_module
 import shutil
+import sys
 import time
-from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from multiprocessing import get_context
 from pathlib import Path
@@ -37,7 +40,10 @@ from scipy.optimize import least_squares
 
 from dyndlo_vision.trajectory import ActionSpec, BSplineTrajectory
 
-__all__ = ["PlanFollowingExpert", "DistillConfig", "collect", "fit_student", "distill"]
+__all__ = ["PlanFollowingExpert", "DistillConfig", "check_teacher", "collect", "fit_student", "distill"]
+
+#: The task a teacher must be a single-step policy of: the expert follows one tip-control plan from t = 0.
+TEACHER_TASK = "tip-control"
 
 
 class PlanFollowingExpert:
@@ -225,8 +231,48 @@ def make_distill_env(task_options: dict[str, Any], noise_model: str | None) -> A
     return env
 
 
-def _collect_chunk(job: dict[str, Any]) -> Episodes:
-    """Worker: run the episodes of ``job["seeds"]`` (see :func:`collect`)."""
+def check_teacher(teacher: str, task_options: dict[str, Any] | None = None) -> None:
+    """Refuse a teacher whose plans the expert cannot follow, before any work or output.
+
+    The expert re-plans *one* single-step tip-control plan (the teacher's action at t = 0 from the tip-control
+    environment's observation), so the teacher must be a single-step tip-control policy. The task and mode
+    come from its metadata; a file without metadata is only checked for the single-step tip-control spaces
+    (a policy of another single-arm task has the same shapes and cannot be told apart).
+
+    Raises:
+        FileNotFoundError: ``teacher`` is neither a file nor a shipped policy.
+        ValueError: Its metadata names another task or the multi-step mode, or its spaces do not match.
+    """
+    import gymnasium as gym
+
+    import dyndlo_vision  # noqa: F401  (registers the environment ids)
+    from dyndlo_vision import policies
+
+    _, meta = policies.resolve(teacher)
+    task = meta.get("task")
+    if task is not None and task != TEACHER_TASK:
+        raise ValueError(
+            f"teacher {teacher!r} is a {task!r} policy; distill needs a single-step {TEACHER_TASK!r} policy "
+            "(e.g. tip-control-single-step): the expert follows tip-control plans"
+        )
+    if meta.get("multi_step"):
+        raise ValueError(
+            f"teacher {teacher!r} is a multi-step policy; distill needs a single-step {TEACHER_TASK!r} "
+            "policy, whose one plan the expert follows (e.g. tip-control-single-step)"
+        )
+    env = gym.make("DynDLO/TipControl-v0", multi_step=False, **(task_options or {}))
+    try:
+        policies.load(teacher, env=env)  # a corrupt file or other spaces: refused here, not in a worker
+    finally:
+        env.close()
+
+
+def _collect_chunk(job: dict[str, Any], on_episode: Callable[[int, bool], None] | None = None) -> Episodes:
+    """Run the episodes of ``job["seeds"]`` (see :func:`collect`), reporting each one as it ends.
+
+    Each finished episode is passed as ``(seed, success)`` to ``on_episode`` and put on ``job["progress"]``
+    (a queue shared with the parent process), when given.
+    """
     import torch
 
     from dyndlo_vision import policies
@@ -247,6 +293,10 @@ def _collect_chunk(job: dict[str, Any]) -> Episodes:
             job["beta"],
             np.random.default_rng([int(seed), job["round"]]),
         )
+        if on_episode is not None:
+            on_episode(int(seed), ep["success"])
+        if job.get("progress") is not None:
+            job["progress"].put((int(seed), ep["success"]))
         n = len(ep["actions"])
         parts.append(
             Episodes(
@@ -273,6 +323,7 @@ def collect(
     workers: int = 1,
     round_index: int = 0,
     speed_limit_m_s: float | None = None,
+    on_episode: Callable[[int, bool], None] | None = None,
 ) -> Episodes:
     """Run one DAgger round's episodes (one per seed) in ``workers`` processes.
 
@@ -286,6 +337,8 @@ def collect(
         workers: Processes (each builds its own environment).
         round_index: Mixed into the per-episode random stream that picks who acts.
         speed_limit_m_s: The expert's speed penalty threshold (None: off).
+        on_episode: Called in this process with ``(seed, success)`` of every episode as it ends, in the order
+            they end (e.g. for a progress bar). The returned data do not depend on it.
     """
     seeds = [int(s) for s in seeds]
     jobs = [
@@ -303,9 +356,34 @@ def collect(
     ]
     jobs = [j for j in jobs if j["seeds"]]
     if workers <= 1 or len(jobs) <= 1:
-        return Episodes.concatenate([_collect_chunk(j) for j in jobs])
-    with ProcessPoolExecutor(len(jobs), mp_context=get_context("forkserver")) as pool:
-        return Episodes.concatenate(list(pool.map(_collect_chunk, jobs)))
+        return Episodes.concatenate([_collect_chunk(j, on_episode) for j in jobs])
+    context = get_context("forkserver")
+    with contextlib.ExitStack() as stack:
+        # Workers report finished episodes through a manager's queue: its put() returns once the manager
+        # holds the item, so when every future is done every report can be read without waiting. (Entered
+        # before the pool, so that it shuts down after the workers.)
+        progress = stack.enter_context(context.Manager()).Queue() if on_episode is not None else None
+        pool = stack.enter_context(ProcessPoolExecutor(len(jobs), mp_context=context))
+        futures = [pool.submit(_collect_chunk, {**job, "progress": progress}) for job in jobs]
+        if on_episode is not None and progress is not None:
+            pending = set(futures)
+            while True:
+                for seed, success in _drain(progress):
+                    on_episode(seed, success)
+                if not pending:
+                    break
+                _, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
+        # In job order (not completion order): the data, and so the fit, are those of a run without progress.
+        return Episodes.concatenate([f.result() for f in futures])
+
+
+def _drain(progress: Any) -> Iterator[tuple[int, bool]]:
+    """The items now on the queue ``progress``, without waiting for more."""
+    while True:
+        try:
+            yield progress.get_nowait()
+        except queue_module.Empty:
+            return
 
 
 # ---------------------------------------------------------------------------------------------- student
@@ -325,11 +403,13 @@ def fit_student(
     lr: float = 1e-3,
     validation_fraction: float = 0.1,
     seed: int = 0,
+    on_epoch: Callable[[int, float], Any] | None = None,
 ) -> dict[str, float]:
     """Regress the PPO policy's mean action onto the expert's actions (mean squared error, Adam, cosine lr).
 
     Whole episodes (by seed) are held out for validation (none when there is only one episode). Returns the
-    final training and validation loss (NaN without validation episodes).
+    final training and validation loss (NaN without validation episodes). ``on_epoch`` is called with the
+    epoch's index and training loss after every epoch (e.g. for a progress bar).
     """
     import torch
 
@@ -353,7 +433,7 @@ def fit_student(
 
     policy.set_training_mode(True)
     train_loss = float("nan")
-    for _ in range(epochs):
+    for epoch in range(epochs):
         order = rng.permutation(train_idx)
         total = 0.0
         for start in range(0, len(order), batch_size):
@@ -365,6 +445,8 @@ def fit_student(
             schedule.step()
             total += float(loss.detach()) * len(batch)
         train_loss = total / len(order)
+        if on_epoch is not None:
+            on_epoch(epoch, train_loss)
     policy.set_training_mode(False)
     with torch.no_grad():
         val_loss = float(torch.mean((mean_action(obs[val]) - act[val]) ** 2)) if val.any() else float("nan")
@@ -433,7 +515,13 @@ class DistillConfig:
         return {**self.__dict__, "net_arch": list(self.net_arch)}
 
 
-def distill(config: DistillConfig, out: Path, resume: bool = False, log: Any = print) -> list[dict[str, Any]]:
+def distill(
+    config: DistillConfig,
+    out: Path,
+    resume: bool = False,
+    log: Callable[[str], Any] = print,
+    progress: bool = False,
+) -> list[dict[str, Any]]:
     """Run DAgger rounds into ``out``.
 
     Each finished round leaves ``round<r>.npz``, ``model.zip`` (also kept as ``model_round<r>.zip``),
@@ -441,7 +529,26 @@ def distill(config: DistillConfig, out: Path, resume: bool = False, log: Any = p
 
     An interrupted run resumes (``resume=True``) after its last finished round, reusing the data of a round
     that was collected but not yet trained on; a finished run resumed with more ``rounds`` goes on.
-    Returns the per-round history (also ``history.json``).
+
+    The options, ``out`` and the teacher are checked before anything is written: a refused run leaves no
+    folder. A new run that fails (other than by KeyboardInterrupt) before it saved any round data removes the
+    ``config.json`` it wrote (and the folder, if it made it), so that the same command can simply be run
+    again; an interrupted one keeps it for ``resume``.
+
+    Args:
+        config: The run's configuration (stored as ``config.json``).
+        out: The run folder: new or empty, or with ``resume`` the folder of the same configuration.
+        resume: Continue the run in ``out``.
+        log: Called with a line at the start and end of every round.
+        progress: Show progress bars on stderr: every round's episodes, then its regression epochs.
+
+    Returns:
+        The per-round history (also ``history.json``).
+
+    Raises:
+        ValueError: ``out`` is not empty (without ``resume``) or holds another configuration, or the teacher
+            cannot be distilled (see :func:`check_teacher`).
+        FileNotFoundError: Nothing to resume in ``out``, or no such teacher.
     """
     import torch
 
@@ -450,6 +557,7 @@ def distill(config: DistillConfig, out: Path, resume: bool = False, log: Any = p
 
     out = Path(out)
     config_file, history_file = out / "config.json", out / "history.json"
+    # Everything that can refuse the run comes before the first write into ``out``.
     if resume:
         if not config_file.is_file():
             raise FileNotFoundError(f"nothing to resume: {config_file} does not exist")
@@ -462,69 +570,126 @@ def distill(config: DistillConfig, out: Path, resume: bool = False, log: Any = p
                 f"{config_file} holds another configuration ({stored}); resume with the same options "
                 "(only --rounds may change)"
             )
-        write_atomic(config_file, lambda tmp: Path(tmp).write_text(json.dumps(config.to_json(), indent=2)))
         history: list[dict[str, Any]] = json.loads(history_file.read_text()) if history_file.is_file() else []
     else:
+        if out.exists() and not out.is_dir():
+            raise ValueError(f"{out} is a file; expected a run folder")
         if out.exists() and any(out.iterdir()):
             raise ValueError(f"{out} exists and is not empty; use --resume or another --out")
-        out.mkdir(parents=True, exist_ok=True)
-        write_atomic(config_file, lambda tmp: Path(tmp).write_text(json.dumps(config.to_json(), indent=2)))
         history = []
+    check_teacher(config.teacher, config.task_options)
 
+    # Seeded after check_teacher, whose loading of the teacher draws from torch's generator: the student's
+    # initial weights stay those of the seed.
     torch.manual_seed(config.seed)
     env = make_distill_env(config.task_options, config.noise_model)
-    policies.resolve(config.teacher)  # fail early on a missing teacher
     model_file = out / "model.zip"
     model = (
         policies.load(model_file, env=env, algo="ppo")
         if history
         else new_student(env, config.net_arch, config.seed)
     )
-    data = [Episodes.load(out / f"round{r}.npz") for r in range(len(history))]
-    for r in range(len(history), config.rounds):
-        start = time.monotonic()
-        round_file = out / f"round{r}.npz"
-        if round_file.is_file():
-            episodes = Episodes.load(round_file)
-            log(f"round {r}: reusing {round_file} ({len(episodes.successes)} episodes)")
-        else:
-            log(f"round {r}: {'expert' if r == 0 else 'student'} acts, {len(config.round_seeds(r))} episodes")
-            episodes = collect(
-                config.round_seeds(r),
-                config.teacher,
-                str(model_file) if r else None,
-                1.0 if r == 0 else 0.0,
-                config.noise_model,
-                config.task_options,
-                config.workers,
-                r,
-                config.expert_speed_limit_m_s,
-            )
-            episodes.save(round_file)
-        collect_s = time.monotonic() - start
-        data.append(episodes)
-        losses = fit_student(model, Episodes.concatenate(data), epochs=config.epochs, seed=config.seed + r)
-        model.save(model_file)
-        shutil.copyfile(model_file, out / f"model_round{r}.zip")  # every round's student stays selectable
-        entry = {
-            "round": r,
-            "acting": "expert" if r == 0 else f"student of round {r - 1}",
-            "episodes": int(len(episodes.successes)),
-            "samples": int(len(episodes.actions)),
-            "total_samples": int(sum(len(d.actions) for d in data)),
-            "success_rate": float(np.mean(episodes.successes)),
-            "avoid_rate": float(np.mean(episodes.avoided)),
-            "expert_fit_rms_mm": float(1000 * np.median(episodes.fit_rms_m)),
-            **losses,
-            "collect_s": round(collect_s, 1),
-            "wall_s": round(time.monotonic() - start, 1),
-        }
-        history.append(entry)
-        write_atomic(history_file, lambda tmp: Path(tmp).write_text(json.dumps(history, indent=2)))
-        _write_metadata(out, config, history)
-        log(json.dumps(entry))
-    env.close()
+    made_folder = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    write_atomic(config_file, lambda tmp: Path(tmp).write_text(json.dumps(config.to_json(), indent=2)))
+
+    try:
+        data = [Episodes.load(out / f"round{r}.npz") for r in range(len(history))]
+        for r in range(len(history), config.rounds):
+            start = time.monotonic()
+            round_file = out / f"round{r}.npz"
+            if round_file.is_file():
+                episodes = Episodes.load(round_file)
+                log(f"round {r}: reusing {round_file} ({len(episodes.successes)} episodes)")
+            else:
+                seeds = config.round_seeds(r)
+                log(f"round {r}: {'expert' if r == 0 else 'student'} acts, {len(seeds)} episodes")
+                with _bar(len(seeds), f"round {r} episodes", "episode", progress) as bar:
+                    episodes = collect(
+                        seeds,
+                        config.teacher,
+                        str(model_file) if r else None,
+                        1.0 if r == 0 else 0.0,
+                        config.noise_model,
+                        config.task_options,
+                        config.workers,
+                        r,
+                        config.expert_speed_limit_m_s,
+                        on_episode=_success_counter(bar),
+                    )
+                episodes.save(round_file)
+            collect_s = time.monotonic() - start
+            data.append(episodes)
+            with _bar(config.epochs, f"round {r} fit", "epoch", progress) as bar:
+                losses = fit_student(
+                    model,
+                    Episodes.concatenate(data),
+                    epochs=config.epochs,
+                    seed=config.seed + r,
+                    on_epoch=_loss_reporter(bar),
+                )
+            model.save(model_file)
+            shutil.copyfile(model_file, out / f"model_round{r}.zip")  # every round's student stays selectable
+            entry = {
+                "round": r,
+                "acting": "expert" if r == 0 else f"student of round {r - 1}",
+                "episodes": int(len(episodes.successes)),
+                "samples": int(len(episodes.actions)),
+                "total_samples": int(sum(len(d.actions) for d in data)),
+                "success_rate": float(np.mean(episodes.successes)),
+                "avoid_rate": float(np.mean(episodes.avoided)),
+                "expert_fit_rms_mm": float(1000 * np.median(episodes.fit_rms_m)),
+                **losses,
+                "collect_s": round(collect_s, 1),
+                "wall_s": round(time.monotonic() - start, 1),
+            }
+            history.append(entry)
+            write_atomic(history_file, lambda tmp: Path(tmp).write_text(json.dumps(history, indent=2)))
+            _write_metadata(out, config, history)
+            log(json.dumps(entry))
+    except Exception:
+        # A new run that saved nothing but its config would block the same command ("not empty"): undo it.
+        if not resume and out.is_dir() and {p.name for p in out.iterdir()} == {config_file.name}:
+            config_file.unlink()
+            if made_folder:
+                out.rmdir()
+        raise
+    finally:
+        env.close()
     return history
+
+
+def _bar(total: int, desc: str, unit: str, progress: bool) -> Any:
+    """A progress bar on stderr, left in place when done as a record of the round (none without ``progress``).
+
+    One bar at a time (no nesting): the round is in its description, and nested bars garble logs.
+    """
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, disable=not progress, dynamic_ncols=True)
+
+
+def _loss_reporter(bar: Any) -> Callable[[int, float], None]:
+    """``on_epoch`` callback of :func:`fit_student`: advance ``bar`` and show the epoch's training loss."""
+
+    def on_epoch(_epoch: int, loss: float) -> None:
+        bar.set_postfix(mse=f"{loss:.2e}", refresh=False)
+        bar.update(1)
+
+    return on_epoch
+
+
+def _success_counter(bar: Any) -> Callable[[int, bool], None]:
+    """``on_episode`` callback of :func:`collect`: advance ``bar`` and show the successes so far."""
+    successes = 0
+
+    def on_episode(_seed: int, success: bool) -> None:
+        nonlocal successes
+        successes += bool(success)
+        bar.set_postfix(successes=successes, refresh=False)
+        bar.update(1)
+
+    return on_episode
 
 
 def _write_metadata(out: Path, config: DistillConfig, history: list[dict[str, Any]]) -> None:

@@ -124,13 +124,35 @@ def summarize(records: list[EpisodeRecord]) -> dict[str, Any]:
 
 
 def evaluate(
-    policy: Any, env: Any, episodes: int, seed: int, on_step: Callable[[Any], None] | None = None
+    policy: Any,
+    env: Any,
+    episodes: int,
+    seed: int,
+    on_step: Callable[[Any], None] | None = None,
+    on_episode: Callable[[EpisodeRecord], None] | None = None,
 ) -> tuple[dict[str, Any], list[EpisodeRecord]]:
-    """Evaluate ``policy`` for ``episodes`` episodes seeded ``seed, seed + 1, ...``."""
+    """Evaluate ``policy`` for ``episodes`` episodes seeded ``seed, seed + 1, ...``.
+
+    Args:
+        policy: An SB3 model or a callable ``obs -> action`` (see :func:`as_action_fn`).
+        env: The environment the episodes run in.
+        episodes: Number of episodes (>= 1).
+        seed: Seed of the first episode.
+        on_step: Called with ``env`` after every step (e.g. to record frames).
+        on_episode: Called with each finished episode's record, in order (e.g. to show progress; this
+            function prints nothing itself).
+
+    Returns:
+        The report of :func:`summarize` with the first seed, and the episodes' records.
+    """
     if episodes < 1:
         raise ValueError(f"episodes={episodes}; expected >= 1")
     act = as_action_fn(policy)
-    records = [run_episode(env, act, seed + i, on_step) for i in range(episodes)]
+    records = []
+    for i in range(episodes):
+        records.append(run_episode(env, act, seed + i, on_step))
+        if on_episode is not None:
+            on_episode(records[-1])
     report = summarize(records)
     report["seed"] = seed
     return report, records

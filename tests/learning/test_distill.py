@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import shutil
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -11,6 +13,7 @@ import pytest
 import dyndlo_vision  # noqa: F401
 from dyndlo_vision import policies
 from dyndlo_vision.cli import main
+from dyndlo_vision.learning import distill as distill_module
 from dyndlo_vision.learning.distill import DistillConfig, Episodes, PlanFollowingExpert, distill, run_episode
 from dyndlo_vision.trajectory import ActionSpec, BSplineTrajectory
 
@@ -185,3 +188,128 @@ def test_fit_student_regresses_the_mean_action() -> None:
         obs[:50], obs[:50], actions[:50], np.zeros(50, int), np.ones(1, bool), np.zeros(1, bool), np.zeros(1)
     )
     assert np.isnan(fit_student(model, one, epochs=2)["validation_mse"])
+
+
+def _fake_collect(seeds, *_: Any, on_episode=None, **__: Any) -> Episodes:
+    """Stands in for :func:`collect` (no simulation): three decisions per episode, even seeds succeed."""
+    rng = np.random.default_rng(len(seeds))
+    n = 3 * len(seeds)
+    obs = rng.uniform(-1, 1, (n, 12)).astype(np.float32)
+    for seed in seeds:
+        if on_episode is not None:
+            on_episode(seed, seed % 2 == 0)
+    return Episodes(
+        obs,
+        obs,
+        rng.uniform(-1, 1, (n, 9)).astype(np.float32),
+        np.repeat(np.asarray(seeds, dtype=np.int64), 3),
+        np.array([s % 2 == 0 for s in seeds]),
+        np.zeros(len(seeds), bool),
+        np.zeros(len(seeds)),
+    )
+
+
+def _no_collect(*_: Any, **__: Any) -> Episodes:
+    raise AssertionError("episodes were collected for a run that should have been refused")
+
+
+def test_cli_distill_refuses_teachers_it_cannot_follow(tmp_path, monkeypatch, capsys) -> None:
+    """Only a single-step tip-control policy has plans the expert can follow; others are refused up front.
+
+    Vaulting has tip control's spaces, so without the check it would be distilled without complaint; hooking
+    crashed on an observation shape after the run folder was made.
+    """
+    monkeypatch.setattr(distill_module, "collect", _no_collect)
+    out = tmp_path / "run"
+    fast = ["--workers", "1", "--first-round-episodes", "1", "--epochs", "1", "--out", str(out)]
+    for teacher, named in (
+        ("hooking", "'hooking' policy"),
+        ("vaulting", "'vaulting' policy"),
+        ("time-oscillation-down", "'time-oscillation' policy"),
+        ("tip-control-multi-step", "multi-step policy"),
+    ):
+        with pytest.raises(SystemExit) as err:
+            main(["distill", "--teacher", teacher, *fast])
+        assert err.value.code == 2
+        message = capsys.readouterr().err
+        assert f"teacher {teacher!r}" in message and named in message and "'tip-control'" in message, message
+        assert not out.exists()
+    # Without metadata only the spaces can be checked: a hooking policy's observation has 18 values, not 12.
+    path, _ = policies.resolve("hooking")
+    shutil.copyfile(path, tmp_path / "bare.zip")
+    with pytest.raises(SystemExit) as err:
+        main(["distill", "--teacher", str(tmp_path / "bare.zip"), *fast])
+    assert err.value.code == 2 and "observation_space has shape (18,)" in capsys.readouterr().err
+    # A missing teacher: refused before the run folder is made (it used to be left holding config.json).
+    with pytest.raises(SystemExit) as err:
+        main(["distill", "--teacher", str(tmp_path / "missing.zip"), *fast])
+    assert err.value.code == 2 and "missing.zip" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bare.zip"]
+
+
+def test_a_failed_first_round_does_not_block_running_again(tmp_path, monkeypatch, capsys) -> None:
+    """A new run that fails before saving round data leaves nothing that refuses the same command."""
+
+    def crash(*_: Any, **__: Any) -> Episodes:
+        raise RuntimeError("a worker died")
+
+    config = DistillConfig(rounds=1, episodes=1, first_round_episodes=2, workers=1, epochs=1, seed=7)
+    out = tmp_path / "run"
+    monkeypatch.setattr(distill_module, "collect", crash)
+    with pytest.raises(RuntimeError, match="worker died"):
+        distill(config, out, log=lambda *_: None)
+    assert not out.exists()
+    empty = tmp_path / "empty"  # a folder made by the user stays, empty
+    empty.mkdir()
+    with pytest.raises(RuntimeError, match="worker died"):
+        distill(config, empty, log=lambda *_: None)
+    assert empty.is_dir() and not any(empty.iterdir())
+    monkeypatch.setattr(distill_module, "collect", _fake_collect)
+    assert [h["round"] for h in distill(config, out, log=lambda *_: None)] == [0]
+
+    # Interrupted (Ctrl-C), the run keeps its config so that --resume goes on, as the command says.
+    def interrupt(*_: Any, **__: Any) -> Episodes:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(distill_module, "collect", interrupt)
+    argv = ["distill", "--first-round-episodes", "2", "--workers", "1", "--epochs", "1", "--seed", "7"]
+    other = tmp_path / "other"
+    assert main([*argv, "--out", str(other)]) == 130
+    assert f"--resume --out {other}" in capsys.readouterr().out
+    assert sorted(p.name for p in other.iterdir()) == ["config.json"]
+    monkeypatch.setattr(distill_module, "collect", _fake_collect)
+    assert main([*argv, "--out", str(other), "--resume", "--quiet"]) == 0
+    assert (other / "model.zip").is_file()
+    # Interrupted while the run is set up: no folder, and no advice to resume what does not exist.
+    monkeypatch.setattr(distill_module, "check_teacher", interrupt)
+    assert main([*argv, "--out", str(tmp_path / "early")]) == 130
+    assert "before the run started" in capsys.readouterr().out and not (tmp_path / "early").exists()
+
+
+def test_cli_distill_shows_progress_unless_quiet(tmp_path, monkeypatch, capsys) -> None:
+    monkeypatch.setattr(distill_module, "collect", _fake_collect)
+    out = tmp_path / "run"
+    argv = ["distill", "--first-round-episodes", "2", "--episodes", "3", "--workers", "1", "--epochs", "2"]
+    assert main([*argv, "--rounds", "1", "--out", str(out)]) == 0
+    lines = capsys.readouterr().err.replace("\r", "\n").splitlines()
+    assert any(
+        line.startswith("round 0 episodes") and "2/2" in line and "successes=1" in line for line in lines
+    )
+    assert any(line.startswith("round 0 fit") and "2/2" in line and "mse=" in line for line in lines), lines
+    assert main([*argv, "--rounds", "2", "--out", str(out), "--resume", "--quiet"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == "" and '"round": 1' in captured.out
+
+
+@pytest.mark.slow
+def test_collect_reports_episodes_from_worker_processes() -> None:
+    """With two workers each episode is reported as it ends; the data keep the job order of a silent run."""
+    from dyndlo_vision.learning.distill import collect
+
+    seen: list[tuple[int, bool]] = []
+    seeds = [7_000_000, 7_000_001]
+    data = collect(seeds, "tip-control-single-step", workers=2, on_episode=lambda s, ok: seen.append((s, ok)))
+    assert sorted(s for s, _ in seen) == seeds
+    assert [ok for _, ok in sorted(seen)] == list(data.successes)
+    _, first = np.unique(data.seeds, return_index=True)
+    assert list(data.seeds[np.sort(first)]) == seeds
