@@ -1,0 +1,79 @@
+"""Atomic writes: whole files with the umask's mode, no partial outputs, MP4 with the best codec there is."""
+
+from __future__ import annotations
+
+import os
+import stat
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dyndlo_vision._atomic import current_umask, write_atomic, write_video_atomic
+
+
+@pytest.fixture
+def umask() -> Iterator[None]:
+    """Restore the process' umask after a test that sets its own."""
+    saved = os.umask(0o022)
+    os.umask(saved)
+    try:
+        yield
+    finally:
+        os.umask(saved)
+
+
+def mode(path: Path) -> int:
+    return stat.S_IMODE(path.stat().st_mode)
+
+
+def frames(n: int = 3, h: int = 48, w: int = 64) -> list[np.ndarray]:
+    return [np.full((h, w, 3), 40 * k, dtype=np.uint8) for k in range(n)]
+
+
+@pytest.mark.parametrize("mask", [0o022, 0o077, 0o002])
+def test_outputs_get_the_mode_of_the_umask_not_mkstemps_0600(tmp_path: Path, umask: None, mask: int) -> None:
+    os.umask(mask)
+    assert current_umask() == mask
+    assert current_umask() == mask  # reading it left it as it was
+    write_atomic(tmp_path / "a.json", lambda p: Path(p).write_text("{}"))
+    assert mode(tmp_path / "a.json") == 0o666 & ~mask
+    write_video_atomic(tmp_path / "v.mp4", frames())
+    assert mode(tmp_path / "v.mp4") == 0o666 & ~mask
+
+
+def test_current_umask_without_proc_falls_back_to_os_umask(
+    tmp_path: Path, umask: None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    os.umask(0o027)
+    real_open = open
+
+    def no_proc(file: object, *args: object, **kwargs: object) -> object:
+        if str(file).startswith("/proc/"):
+            raise FileNotFoundError(file)
+        return real_open(file, *args, **kwargs)  # type: ignore[call-overload]
+
+    monkeypatch.setattr("builtins.open", no_proc)
+    assert current_umask() == 0o027
+    assert current_umask() == 0o027
+
+
+def test_a_failed_write_leaves_no_file_and_keeps_the_old_one(tmp_path: Path) -> None:
+    def half_then_fail(p: str) -> None:
+        Path(p).write_text("half")
+        raise OSError("disk full")
+
+    with pytest.raises(OSError, match="disk full"):
+        write_atomic(tmp_path / "new.json", half_then_fail)
+    assert list(tmp_path.iterdir()) == []  # neither the output nor the temporary file
+    (tmp_path / "old.json").write_text("old")
+    with pytest.raises(OSError, match="disk full"):
+        write_atomic(tmp_path / "old.json", half_then_fail)
+    assert (tmp_path / "old.json").read_text() == "old"
+    assert [p.name for p in tmp_path.iterdir()] == ["old.json"]
+    write_atomic(tmp_path / "old.json", lambda p: Path(p).write_text("new"))
+    assert (tmp_path / "old.json").read_text() == "new"
+    assert [p.name for p in tmp_path.iterdir()] == ["old.json"]
+
+
