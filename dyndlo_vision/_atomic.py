@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +57,64 @@ def write_atomic(path: Path, write: Callable[[str], Any]) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def check_output_folder(folder: Path, option: str = "--out") -> None:
+    """Check that ``folder`` can be an output folder (existing or new) before any work is done.
+
+    Raises:
+        ValueError: ``folder`` is an existing file, one of its ancestors is a file, or the folder that would
+            hold it is not writable.
+    """
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"{option} {folder} is an existing file; expected a folder (existing or new)")
+    anchor = _existing_ancestor(folder)
+    if not anchor.is_dir():
+        raise ValueError(f"{option} {folder}: {anchor} is a file, so no folder can be created under it")
+    if not os.access(anchor, os.W_OK | os.X_OK):
+        raise ValueError(f"{option} {folder}: cannot write in {anchor} (permission denied)")
+
+
+@contextmanager
+def staged_folder(folder: Path) -> Iterator[Path]:
+    """Write a set of outputs into a staging folder; they land in ``folder`` together, or not at all.
+
+    Yields an empty staging folder next to where ``folder`` is (same file system, so moves are renames).
+    When the block ends normally its files move into ``folder``: a new ``folder`` appears by one rename,
+    with its files in it; in an existing one each file replaces its namesake. When the block raises, the
+    staging folder is removed and nothing, not even an empty ``folder``, is left behind.
+
+    Raises:
+        ValueError: ``folder`` cannot be an output folder (see :func:`check_output_folder`).
+    """
+    folder = Path(folder)
+    check_output_folder(folder)
+    anchor = folder if folder.is_dir() else _existing_ancestor(folder)
+    stage = Path(tempfile.mkdtemp(dir=anchor, prefix=f".{folder.name}.staging-"))
+    try:
+        yield stage
+        if folder.is_dir():
+            for item in sorted(stage.iterdir()):
+                os.replace(item, folder / item.name)
+            stage.rmdir()
+        else:
+            folder.parent.mkdir(parents=True, exist_ok=True)
+            # mkdtemp makes a private (0o700) folder; a new output folder gets the mode mkdir would give it.
+            os.chmod(stage, 0o777 & ~current_umask())
+            os.rename(stage, folder)
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)  # our own temporary folder, nothing else
+        raise
+
+
+def _existing_ancestor(path: Path) -> Path:
+    """``path`` itself if it exists, else its nearest existing ancestor (``.`` for a relative path)."""
+    path = Path(path)
+    for candidate in (path, *path.parents):
+        if candidate.exists():
+            return candidate
+    return Path(".")
 
 
 def write_video_atomic(path: Path, frames: Sequence[Any], fps: float = 25.0, rgb: bool = True) -> None:
