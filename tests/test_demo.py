@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import cv2
+import numpy as np
 import pytest
 
 from dyndlo_vision.cli import main
+from dyndlo_vision.commands import demo
 
 
 @pytest.mark.slow
@@ -27,6 +30,46 @@ def test_demo_writes_video_plot_and_metrics(tmp_path: Path) -> None:
     assert plot is not None and plot.shape[0] > 300
 
 
+# ---------------------------------------------------------------- fast: the command around the episodes
+
+
+def fake_record(seed: int, success: bool, cycle_ms: list[float]) -> dict[str, Any]:
+    """What ``run_episode`` returns, made up: a hit ends 1 cm from the target, a miss 20 cm."""
+    distance = 0.01 if success else 0.2
+    goal = [0.8, 0.0, 0.4]
+    tip = [0.8 + distance, 0.0, 0.4]
+    return {
+        "seed": seed, "success": success, "final_distance_m": distance, "min_distance_m": distance / 2,
+        "estimate_rmse_m": 0.001 * (seed % 7),
+        "cycle_ms_p50": float(np.percentile(cycle_ms, 50)),
+        "cycle_ms_p95": float(np.percentile(cycle_ms, 95)),
+        "stage_ms_p50": {}, "stage_ms_p95": {}, "deadline_misses": 1, "cycles": len(cycle_ms),
+        "stop_reason": "done" if success else "duration", "avoid": {},
+        "trace": {"t": [0.0, 0.04], "true": [tip, tip], "estimate": [tip, tip], "measured": [True, False],
+                  "goal": goal},
+        "_cycle_ms": cycle_ms, "_stage_ms": {"camera": cycle_ms},
+    }
+
+
+@pytest.fixture
+def fake_episodes(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """Replace the policy and the episodes by stand-ins (seeds ending in 1 miss); returns the seeds run."""
+    from dyndlo_vision import policies
+
+    seeds: list[int] = []
+
+    def run_episode(env: Any, model: Any, seed: int, observation: str, camera_name: str,
+                    video: list[np.ndarray] | None, **kwargs: Any) -> dict[str, Any]:
+        seeds.append(seed)
+        if video is not None:
+            video.extend(np.full((48, 64, 3), 60 * k, dtype=np.uint8) for k in range(3))
+        return fake_record(seed, seed % 10 != 1, [1.0, 2.0, 3.0])
+
+    monkeypatch.setattr(policies, "load", lambda *args, **kwargs: object())
+    monkeypatch.setattr(demo, "run_episode", run_episode)
+    return seeds
+
+
 def test_demo_rejects_bad_input_and_writes_nothing(tmp_path: Path) -> None:
     out = tmp_path / "demo"
     for argv in (
@@ -40,7 +83,64 @@ def test_demo_rejects_bad_input_and_writes_nothing(tmp_path: Path) -> None:
         with pytest.raises(SystemExit) as exc:
             main(["demo", "--out", str(out), *argv])
         assert exc.value.code == 2
-    assert not out.exists() or not any(out.iterdir())
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_demo_out_that_is_a_file_is_an_error_before_any_work(
+    tmp_path: Path, fake_episodes: list[int], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """It was a FileExistsError traceback (``mkdir``), after the policy had been loaded."""
+    existing = tmp_path / "results.txt"
+    existing.write_text("mine")
+    for out, message in ((existing, "is an existing file; expected a folder"),
+                         (existing / "demo", "results.txt is a file, so no folder can be created under it")):
+        with pytest.raises(SystemExit) as exc:
+            main(["demo", "--out", str(out)])
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert message in err and str(existing) in err and "Traceback" not in err
+    assert fake_episodes == []  # checked before any episode ran
+    assert existing.read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == ["results.txt"]
+
+
+def test_demo_unknown_camera_lists_the_cameras_and_leaves_no_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """It used to fail in the first episode, after the output folder had been made: an empty folder."""
+    from dyndlo_vision import policies
+
+    def no_load(*args: Any, **kwargs: Any) -> Any:
+        raise AssertionError("the policy was loaded before the camera was checked")
+
+    monkeypatch.setattr(policies, "load", no_load)
+    out = tmp_path / "new" / "demo"
+    with pytest.raises(SystemExit) as exc:
+        main(["demo", "--out", str(out), "--camera", "nosuchcam"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "--camera 'nosuchcam' is not a camera of the scene; expected one of" in err
+    assert "'tracking'" in err and "'front'" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_demo_that_fails_while_writing_leaves_no_new_folder_and_no_partial_outputs(
+    tmp_path: Path, fake_episodes: list[int], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def broken_plot(path: Path, trace: dict[str, Any]) -> None:
+        raise RuntimeError("plotting failed")
+
+    monkeypatch.setattr(demo, "_write_plot", broken_plot)
+    with pytest.raises(RuntimeError, match="plotting failed"):
+        main(["demo", "--out", str(tmp_path / "new" / "demo")])
+    assert list(tmp_path.iterdir()) == []  # the video was written already: into the staging folder, now gone
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / "metrics.json").write_text("previous run")
+    with pytest.raises(RuntimeError, match="plotting failed"):
+        main(["demo", "--out", str(old)])
+    assert [p.name for p in old.iterdir()] == ["metrics.json"] and (old / "metrics.json").read_text() == (
+        "previous run"
+    )
 
 
 @pytest.mark.slow

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from dyndlo_vision._atomic import write_atomic, write_video_atomic
+from dyndlo_vision._atomic import check_output_folder, staged_folder, write_atomic, write_video_atomic
 
 HELP = "closed-loop tip control in simulation on tracked state: video, plot and metrics"
 DEFAULT_POLICIES = ("tip-control-multi-step", "tip-control-single-step")
@@ -61,14 +61,20 @@ def _default_policy() -> str:
     raise ValueError(f"no shipped tip-control policy found (have {shipped}); pass --policy PATH.zip")
 
 
+def check_camera(env: Any, camera_name: str) -> None:
+    """Raise ValueError unless ``camera_name`` is a camera of the environment's scene (the names listed)."""
+    model = env.unwrapped.model
+    names = [model.camera(i).name for i in range(model.ncam)]
+    if camera_name not in names:
+        raise ValueError(f"--camera {camera_name!r} is not a camera of the scene; expected one of {names}")
+
+
 def run(args: argparse.Namespace) -> int:
-    """Run the episodes and write the outputs."""
-    import gymnasium as gym
+    """Run the episodes and write the outputs.
 
-    import dyndlo_vision  # noqa: F401
-    from dyndlo_vision import policies
-    from dyndlo_vision.learning.evaluate import wilson_interval
-
+    Everything that can be checked before the episodes is (options, the output folder, the camera), and the
+    outputs are written together at the end: a run that fails leaves no new folder and no partial output.
+    """
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
     from dyndlo_vision.control.sim_perception import MAX_LATENCY_S
@@ -77,6 +83,15 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--latency-ms must be in [0, {1000.0 * MAX_LATENCY_S:g}] ms, got {args.latency_ms}")
     if args.latency_ms and args.observation != "tracked":
         raise ValueError(f"--latency-ms applies to the tracked observation, not to {args.observation!r}")
+    out = Path(args.out)
+    check_output_folder(out)
+
+    import gymnasium as gym
+
+    import dyndlo_vision  # noqa: F401  (registers the environments)
+    from dyndlo_vision import policies
+    from dyndlo_vision.learning.evaluate import wilson_interval
+
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     name = args.policy or _default_policy()
     _, meta = policies.resolve(name)
@@ -84,9 +99,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"the demo runs tip control; policy {name} is for {meta.get('task')}")
     multi_step = bool(meta.get("multi_step", False))
     env = gym.make("DynDLO/TipControl-v0", multi_step=multi_step, render_mode=None)
+    check_camera(env, args.camera)
     model = policies.load(name, env=env)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
 
     episodes = []
     video: list[np.ndarray] = []
@@ -137,13 +151,15 @@ def run(args: argparse.Namespace) -> int:
             }
         )
         print(f"success rate {successes}/{args.episodes} (95% CI {lo:.2f}-{hi:.2f})")
-    if video:
-        write_video_atomic(out / "demo.mp4", video, rgb=False)  # annotated frames are BGR
-    _write_plot(out / "p_dlo.png", first["trace"])
+    trace = first["trace"]
     for e in episodes:
         for key in ("trace", "_cycle_ms", "_stage_ms"):
             e.pop(key, None)
-    write_atomic(out / "metrics.json", lambda p: Path(p).write_text(json.dumps(metrics, indent=2)))
+    with staged_folder(out) as stage:
+        if video:
+            write_video_atomic(stage / "demo.mp4", video, rgb=False)  # annotated frames are BGR
+        _write_plot(stage / "p_dlo.png", trace)
+        write_atomic(stage / "metrics.json", lambda p: Path(p).write_text(json.dumps(metrics, indent=2)))
     print(
         json.dumps(
             {
