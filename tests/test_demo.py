@@ -12,6 +12,7 @@ import pytest
 
 from dyndlo_vision.cli import main
 from dyndlo_vision.commands import demo
+from dyndlo_vision.learning.evaluate import wilson_interval
 
 
 @pytest.mark.slow
@@ -68,6 +69,45 @@ def fake_episodes(monkeypatch: pytest.MonkeyPatch) -> list[int]:
     monkeypatch.setattr(policies, "load", lambda *args, **kwargs: object())
     monkeypatch.setattr(demo, "run_episode", run_episode)
     return seeds
+
+
+def test_summarize_aggregates_all_episodes_instead_of_reporting_the_first() -> None:
+    # Episode 0 misses, so its numbers differ from the run's.
+    records = [fake_record(2, False, [10.0, 20.0]), fake_record(1, True, [1.0, 2.0, 3.0]),
+               fake_record(3, True, [4.0])]
+    metrics = demo.summarize(records)
+    assert metrics["num_episodes"] == 3 and metrics["successes"] == 2
+    assert metrics["success_rate"] == pytest.approx(2 / 3)
+    assert metrics["success_ci95"] == list(wilson_interval(2, 3))
+    assert metrics["final_distance_m_median"] == 0.01 and metrics["min_distance_m_median"] == 0.005
+    assert metrics["estimate_rmse_m_median"] == np.median([r["estimate_rmse_m"] for r in records])
+    # Percentiles over the six cycles pooled (3.5 ms), not episode 0's (15 ms) nor a median of medians (4 ms).
+    assert metrics["cycle_ms_p50"] == 3.5
+    assert metrics["cycle_ms_p95"] == pytest.approx(np.percentile([10, 20, 1, 2, 3, 4], 95))
+    assert metrics["stage_ms_p50"] == {"camera": 3.5}
+    assert metrics["cycles"] == 6 and metrics["deadline_misses"] == 3
+    assert "success" not in metrics and "final_distance_m" not in metrics
+    assert [r["seed"] for r in metrics["episodes"]] == [2, 1, 3]
+    assert all("trace" not in r and "_cycle_ms" not in r for r in metrics["episodes"])
+    one = demo.summarize(records[:1])
+    assert one["success"] is False and one["final_distance_m"] == 0.2 and one["success_rate"] == 0.0
+
+
+def test_demo_progress_bar_for_several_episodes_and_quiet_turns_it_off(
+    tmp_path: Path, fake_episodes: list[int], capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["demo", "--out", str(tmp_path / "a"), "--episodes", "3", "--seed", "100000"]) == 0
+    captured = capsys.readouterr()
+    assert "demo episodes" in captured.err and "3/3" in captured.err
+    assert captured.out.count("episode ") >= 3 and "success rate 2/3" in captured.out
+    assert main(["demo", "--out", str(tmp_path / "b"), "--episodes", "3", "--quiet"]) == 0
+    captured = capsys.readouterr()
+    assert "demo episodes" not in captured.err and "3/3" not in captured.err
+    assert "success rate 2/3" in captured.out
+    assert main(["demo", "--out", str(tmp_path / "c")]) == 0  # one episode: no bar
+    assert "demo episodes" not in capsys.readouterr().err
+    metrics = json.loads((tmp_path / "a" / "metrics.json").read_text())
+    assert metrics["success_rate"] == pytest.approx(2 / 3) and len(metrics["episodes"]) == 3
 
 
 def test_demo_rejects_bad_input_and_writes_nothing(tmp_path: Path) -> None:

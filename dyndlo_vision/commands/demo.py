@@ -4,7 +4,8 @@ The loop (``dyndlo_vision.control.loop``) reads the "tracking" camera at 25 Hz, 
 tip, builds the observation from the *estimate*, queries the shipped policy, re-plans the B-spline from the
 commanded TCP state and sends the setpoints to the simulated robot. Outputs in ``--out``: ``demo.mp4`` (camera
 view with the tracked polyline, the true and estimated P_DLO and the target), ``p_dlo.png`` (true vs estimated
-P_DLO over time), ``metrics.json``.
+P_DLO over time), ``metrics.json`` (the aggregate over the episodes at the top, one row per episode under
+``"episodes"``).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -37,7 +39,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="where P_DLO comes from: camera + tracker + filter (default), the simulator, or the "
         "simulator through the fitted noise model",
     )
-    p.add_argument("--episodes", type=int, default=1, help="episodes to run (video of the first; default 1)")
+    p.add_argument(
+        "--episodes",
+        type=int,
+        default=1,
+        help="episodes to run; the video and plot show the first, metrics.json aggregates all (default 1)",
+    )
     p.add_argument("--seed", type=int, default=100_000, help="seed of the first episode (default 100000)")
     p.add_argument("--camera", default="tracking", help="MuJoCo camera to track from (default: tracking)")
     p.add_argument(
@@ -49,6 +56,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "period is exact, other values round up to one)",
     )
     p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
+    p.add_argument(
+        "--quiet", action="store_true", help="no progress bar on stderr (shown for --episodes > 1)"
+    )
 
 
 def _default_policy() -> str:
@@ -87,10 +97,10 @@ def run(args: argparse.Namespace) -> int:
     check_output_folder(out)
 
     import gymnasium as gym
+    from tqdm import tqdm
 
     import dyndlo_vision  # noqa: F401  (registers the environments)
     from dyndlo_vision import policies
-    from dyndlo_vision.learning.evaluate import wilson_interval
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     name = args.policy or _default_policy()
@@ -104,72 +114,101 @@ def run(args: argparse.Namespace) -> int:
 
     episodes = []
     video: list[np.ndarray] = []
-    for i in range(args.episodes):
-        record = run_episode(
-            env,
-            model,
-            args.seed + i,
-            args.observation,
-            args.camera,
-            video if i == 0 else None,
-            latency_s=1e-3 * args.latency_ms,
-        )
-        episodes.append(record)
-        print(
-            f"episode {i}: success={record['success']} min_distance={record['min_distance_m']:.3f} m "
-            f"estimate_rmse={record['estimate_rmse_m']}"
-        )
-    first = episodes[0]
-    successes = sum(e["success"] for e in episodes)
+    bar = tqdm(total=args.episodes, desc="demo episodes", unit="episode", file=sys.stderr,
+               disable=args.quiet or args.episodes == 1)
+    with bar:
+        for i in range(args.episodes):
+            record = run_episode(
+                env,
+                model,
+                args.seed + i,
+                args.observation,
+                args.camera,
+                video if i == 0 else None,
+                latency_s=1e-3 * args.latency_ms,
+            )
+            episodes.append(record)
+            bar.update(1)
+            # tqdm.write keeps the line and the bar apart on a terminal (plain print otherwise).
+            rmse = record["estimate_rmse_m"]
+            tqdm.write(
+                f"episode {i} (seed {record['seed']}): success={record['success']} "
+                f"min_distance={record['min_distance_m']:.3f} m "
+                f"estimate_rmse={'n/a' if rmse is None else f'{rmse:.4f} m'}",
+                file=sys.stdout,
+            )
+    trace = episodes[0]["trace"]
     metrics: dict[str, Any] = {
         "policy": str(name),
         "multi_step": multi_step,
         "observation": args.observation,
         "latency_ms": args.latency_ms,
-        "success": first["success"],
-        "final_distance_m": first["final_distance_m"],
-        "min_distance_m": first["min_distance_m"],
-        "estimate_rmse_m": first["estimate_rmse_m"],
-        "cycle_ms_p50": first["cycle_ms_p50"],
-        "cycle_ms_p95": first["cycle_ms_p95"],
-        "stage_ms_p50": first["stage_ms_p50"],
-        "stage_ms_p95": first["stage_ms_p95"],
-        "deadline_misses": first["deadline_misses"],
-        "cycles": first["cycles"],
-        "stop_reason": first["stop_reason"],
+        **summarize(episodes),
         "cycle_ms_note": "controller time per 40 ms cycle: camera render + tracking + filter + policy + "
-        "planning (the simulated robot's physics is timed apart as send_ms)",
+        "planning (the simulated robot's physics is timed apart as send_ms); percentiles over the cycles of "
+        "all episodes",
     }
-    if args.episodes > 1:
-        lo, hi = wilson_interval(successes, args.episodes)
-        metrics.update(
-            {
-                "episodes": args.episodes,
-                "success_rate": successes / args.episodes,
-                "success_ci95": [lo, hi],
-                "per_episode": episodes,
-            }
-        )
-        print(f"success rate {successes}/{args.episodes} (95% CI {lo:.2f}-{hi:.2f})")
-    trace = first["trace"]
-    for e in episodes:
-        for key in ("trace", "_cycle_ms", "_stage_ms"):
-            e.pop(key, None)
     with staged_folder(out) as stage:
-        if video:
-            write_video_atomic(stage / "demo.mp4", video, rgb=False)  # annotated frames are BGR
+        write_video_atomic(stage / "demo.mp4", video, rgb=False)  # annotated frames are BGR
         _write_plot(stage / "p_dlo.png", trace)
-        write_atomic(stage / "metrics.json", lambda p: Path(p).write_text(json.dumps(metrics, indent=2)))
-    print(
-        json.dumps(
-            {
-                k: metrics[k]
-                for k in ("success", "final_distance_m", "estimate_rmse_m", "cycle_ms_p50", "cycle_ms_p95")
-            }
-        )
-    )
+        text = json.dumps(metrics, indent=2)
+        write_atomic(stage / "metrics.json", lambda p: Path(p).write_text(text))
+    if args.episodes > 1:
+        lo, hi = metrics["success_ci95"]
+        print(f"success rate {metrics['successes']}/{args.episodes} (95% CI {lo:.2f}-{hi:.2f})")
+    keys = ("success", "final_distance_m", "estimate_rmse_m") if args.episodes == 1 else (
+        "success_rate", "success_ci95", "final_distance_m_median", "estimate_rmse_m_median")
+    print(json.dumps({k: metrics[k] for k in (*keys, "cycle_ms_p50", "cycle_ms_p95")}))
     print(f"wrote {out / 'demo.mp4'}, {out / 'p_dlo.png'}, {out / 'metrics.json'}")
     return 0
+
+
+def summarize(episodes: list[dict[str, Any]]) -> dict[str, Any]:
+    """The top-level metrics of a run: aggregates over all episodes, then the per-episode rows.
+
+    Success rate with its Wilson 95% interval, medians of the per-episode distances and estimate errors, and
+    controller-time percentiles over the cycles of all episodes pooled. With one episode its own values
+    (``success``, ``final_distance_m``, ...) are at the top level too; with more they are only in the rows,
+    so that no one episode's numbers pass for the run's.
+    """
+    from dyndlo_vision.learning.evaluate import wilson_interval
+
+    n = len(episodes)
+    successes = sum(bool(e["success"]) for e in episodes)
+    lo, hi = wilson_interval(successes, n)
+    cycle_ms = np.concatenate([np.asarray(e["_cycle_ms"], dtype=float) for e in episodes])
+    stage_ms: dict[str, list[float]] = {}
+    for e in episodes:
+        for key, values in e["_stage_ms"].items():
+            stage_ms.setdefault(key, []).extend(values)
+    rmse = [e["estimate_rmse_m"] for e in episodes if e["estimate_rmse_m"] is not None]
+
+    def median(key: str) -> float:
+        return float(np.median([e[key] for e in episodes]))
+
+    metrics: dict[str, Any] = {
+        "num_episodes": n,
+        "seeds": [e["seed"] for e in episodes],
+        "successes": successes,
+        "success_rate": successes / n,
+        "success_ci95": [lo, hi],
+        "final_distance_m_median": median("final_distance_m"),
+        "min_distance_m_median": median("min_distance_m"),
+        "estimate_rmse_m_median": float(np.median(rmse)) if rmse else None,
+        "cycle_ms_p50": float(np.percentile(cycle_ms, 50)),
+        "cycle_ms_p95": float(np.percentile(cycle_ms, 95)),
+        "stage_ms_p50": {k: float(np.percentile(v, 50)) for k, v in sorted(stage_ms.items())},
+        "stage_ms_p95": {k: float(np.percentile(v, 95)) for k, v in sorted(stage_ms.items())},
+        "deadline_misses": int(sum(e["deadline_misses"] for e in episodes)),
+        "cycles": int(sum(e["cycles"] for e in episodes)),
+    }
+    if n == 1:
+        only = episodes[0]
+        metrics.update({k: only[k] for k in ("success", "final_distance_m", "min_distance_m",
+                                             "estimate_rmse_m", "stop_reason")})
+    metrics["episodes"] = [{k: v for k, v in e.items() if k != "trace" and not k.startswith("_")}
+                           for e in episodes]
+    return metrics
 
 
 def run_episode(
