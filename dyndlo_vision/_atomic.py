@@ -1,45 +1,227 @@
-"""Atomic file writes: outputs appear whole or not at all."""
+"""Atomic file writes: outputs appear whole or not at all, with the modes a plain ``open`` would give them."""
 
 from __future__ import annotations
 
+import logging
 import os
+import shutil
 import tempfile
-from collections.abc import Callable, Sequence
+import threading
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+log = logging.getLogger(__name__)
+
+#: MP4 codecs tried in order: H.264 plays in browsers and editors; MPEG-4 Part 2 ("mp4v") is in every OpenCV
+#: build with FFmpeg, but browsers and some editors refuse it. (The opencv-python wheels' FFmpeg has no
+#: software H.264 encoder, only Video4Linux hardware ones, so on most machines the fallback is what you get.)
+VIDEO_CODECS = ("avc1", "mp4v")
+
+_UMASK_LOCK = threading.Lock()
+_codec_cache: dict[str, bool] = {}
+
+
+def current_umask() -> int:
+    """The process' file mode creation mask, read without changing it where the OS allows.
+
+    ``os.umask`` can only read the mask by setting another one, which would briefly change the mode of files
+    that other threads create; Linux reports the mask in ``/proc/self/status``, so that is read first.
+    """
+    try:
+        with open("/proc/self/status", encoding="ascii", errors="replace") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    # Elsewhere: set a placeholder and put the mask back. 0o077 is the safe placeholder (a file another thread
+    # creates meanwhile is private, not public); the lock keeps two readers from restoring each other's.
+    with _UMASK_LOCK:
+        mask = os.umask(0o077)
+        os.umask(mask)
+    return mask
+
 
 def write_atomic(path: Path, write: Callable[[str], Any]) -> None:
-    """Write via a temporary file in the same folder, then rename: no partial outputs on failure."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=path.suffix)
+    """Write via a temporary file in the same folder, then rename: no partial outputs on failure.
+
+    The file gets the mode a plain ``open(path, "w")`` would give a new file (``0o666`` less the umask):
+    ``tempfile.mkstemp`` creates its files ``0o600``, private to the owner, which outputs are not meant to be.
+
+    Args:
+        path: The file to (over)write.
+        write: Writes the content to the temporary path it is given.
+    """
+    path = Path(path)
+    # A dot-name with the target's name in it: a partial file left by a killed process is hidden and says
+    # what it was; the suffix is kept because some writers (OpenCV, matplotlib) choose the format by it.
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
     os.close(fd)
     try:
         write(tmp)
+        os.chmod(tmp, 0o666 & ~current_umask())
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
 
 
-def write_video_atomic(path: Path, frames: Sequence[Any], fps: float = 25.0, rgb: bool = True) -> None:
-    """Write equally sized uint8 frames (RGB, or BGR with ``rgb=False``) to an MP4, atomically.
+def check_output_folder(folder: Path, option: str = "--out") -> None:
+    """Check that ``folder`` can be an output folder (existing or new) before any work is done.
 
     Raises:
-        ValueError: No frames.
+        ValueError: ``folder`` is an existing file, one of its ancestors is a file, or the folder that would
+            hold it is not writable.
+    """
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"{option} {folder} is an existing file; expected a folder (existing or new)")
+    anchor = _existing_ancestor(folder)
+    if not anchor.is_dir():
+        raise ValueError(f"{option} {folder}: {anchor} is a file, so no folder can be created under it")
+    if not os.access(anchor, os.W_OK | os.X_OK):
+        raise ValueError(f"{option} {folder}: cannot write in {anchor} (permission denied)")
+
+
+@contextmanager
+def staged_folder(folder: Path) -> Iterator[Path]:
+    """Write a set of outputs into a staging folder; they land in ``folder`` together, or not at all.
+
+    Yields an empty staging folder next to where ``folder`` is (same file system, so moves are renames).
+    When the block ends normally its files move into ``folder``: a new ``folder`` appears by one rename,
+    with its files in it; in an existing one each file replaces its namesake. When the block raises, the
+    staging folder is removed and nothing, not even an empty ``folder``, is left behind.
+
+    Raises:
+        ValueError: ``folder`` cannot be an output folder (see :func:`check_output_folder`).
+    """
+    folder = Path(folder)
+    check_output_folder(folder)
+    anchor = folder if folder.is_dir() else _existing_ancestor(folder)
+    stage = Path(tempfile.mkdtemp(dir=anchor, prefix=f".{folder.name}.staging-"))
+    try:
+        yield stage
+        if folder.is_dir():
+            for item in sorted(stage.iterdir()):
+                os.replace(item, folder / item.name)
+            stage.rmdir()
+        else:
+            folder.parent.mkdir(parents=True, exist_ok=True)
+            # mkdtemp makes a private (0o700) folder; a new output folder gets the mode mkdir would give it.
+            os.chmod(stage, 0o777 & ~current_umask())
+            os.rename(stage, folder)
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)  # our own temporary folder, nothing else
+        raise
+
+
+def _existing_ancestor(path: Path) -> Path:
+    """``path`` itself if it exists, else its nearest existing ancestor (``.`` for a relative path)."""
+    path = Path(path)
+    for candidate in (path, *path.parents):
+        if candidate.exists():
+            return candidate
+    return Path(".")
+
+
+def video_codec_available(fourcc: str) -> bool:
+    """Whether this OpenCV build can write MP4 with ``fourcc`` (probed once in a temporary file, cached).
+
+    FFmpeg and OpenCV report a missing encoder on stderr (several lines per try); the probe silences
+    stderr while it runs, since not finding H.264 is the expected case with the opencv-python wheels.
+
+    Raises:
+        ValueError: ``fourcc`` is not four characters.
+    """
+    if len(fourcc) != 4:
+        raise ValueError(f"a FourCC code is four characters, got {fourcc!r}")
+    if fourcc not in _codec_cache:
+        import cv2
+        import numpy as np
+
+        with tempfile.TemporaryDirectory() as tmp, _quiet_stderr():
+            writer = cv2.VideoWriter(str(Path(tmp) / "probe.mp4"), cv2.VideoWriter_fourcc(*fourcc), 25.0,
+                                     (64, 48))
+            ok = bool(writer.isOpened())
+            if ok:
+                writer.write(np.zeros((48, 64, 3), dtype=np.uint8))
+            writer.release()
+        _codec_cache[fourcc] = ok
+        log.debug("MP4 codec %s: %s", fourcc, "available" if ok else "not available")
+    return _codec_cache[fourcc]
+
+
+def write_video_atomic(path: Path, frames: Sequence[Any], fps: float = 25.0, rgb: bool = True) -> str:
+    """Write equally sized uint8 frames (RGB, or BGR with ``rgb=False``) to an MP4, atomically.
+
+    H.264 when this OpenCV build can encode it, else MPEG-4 Part 2 (see :data:`VIDEO_CODECS`).
+
+    Returns:
+        The codec written (``"avc1"`` or ``"mp4v"``).
+
+    Raises:
+        ValueError: No frames, or frames that are not all (H, W, 3) uint8 of the first frame's size.
         RuntimeError: OpenCV cannot write MP4 here.
     """
     import cv2
+    import numpy as np
 
     if not frames:
         raise ValueError(f"no frames to write to {path}")
     h, w = frames[0].shape[:2]
+    for i, frame in enumerate(frames):
+        # OpenCV drops a frame of another size without a word: the video would silently be short.
+        if frame.shape != (h, w, 3) or frame.dtype != np.uint8:
+            raise ValueError(
+                f"frame {i} is {frame.shape} {frame.dtype}; expected ({h}, {w}, 3) uint8 like frame 0"
+            )
+    codecs = [c for c in VIDEO_CODECS if video_codec_available(c)]
+    if not codecs:
+        raise RuntimeError(f"OpenCV cannot write MP4 here with any of {list(VIDEO_CODECS)}")
+    used: list[str] = []
 
     def write(tmp: str) -> None:
-        writer = cv2.VideoWriter(tmp, cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
-        if not writer.isOpened():
-            raise RuntimeError(f"OpenCV cannot write MP4 to {tmp}")
-        for frame in frames:
-            writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR) if rgb else frame)
-        writer.release()
+        for fourcc in codecs:
+            # An encoder that opened for the probe's size may still refuse this one (H.264 wants even sizes).
+            with _quiet_stderr():
+                writer = cv2.VideoWriter(tmp, cv2.VideoWriter_fourcc(*fourcc), fps, (w, h))
+            if writer.isOpened():
+                break
+        else:
+            raise RuntimeError(f"OpenCV cannot write a {w}x{h} MP4 with any of {codecs} to {tmp}")
+        try:
+            for frame in frames:
+                writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR) if rgb else frame)
+        finally:
+            writer.release()
+        used.append(fourcc)
 
-    write_atomic(path, write)
+    write_atomic(Path(path), write)
+    return used[-1]
+
+
+@contextmanager
+def _quiet_stderr() -> Iterator[None]:
+    """Send file descriptor 2 to /dev/null for the block (C libraries write there, not to ``sys.stderr``).
+
+    For a moment only (opening a writer): what other threads write to stderr meanwhile is lost too.
+    """
+    import sys
+
+    try:
+        sys.stderr.flush()
+        saved: int | None = os.dup(2)
+    except (OSError, ValueError):  # no usable stderr (closed or replaced): nothing to silence
+        saved = None
+    if saved is None:
+        yield
+        return
+    try:
+        with open(os.devnull, "w") as devnull:
+            os.dup2(devnull.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)

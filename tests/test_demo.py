@@ -1,30 +1,250 @@
-"""The main job, `dyndlo-vision demo`, end to end on its shipped defaults."""
+"""The main job, `dyndlo-vision demo`, end to end on its shipped defaults, and its outputs' agreement."""
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
+from typing import Any
 
 import cv2
+import numpy as np
 import pytest
 
 from dyndlo_vision.cli import main
+from dyndlo_vision.commands import demo
+from dyndlo_vision.learning.evaluate import wilson_interval
+from dyndlo_vision.tasks.tip_control import TipControl
+
+PERIOD_S = 0.04
+
+
+def read_video(path: Path) -> list[np.ndarray]:
+    cap = cv2.VideoCapture(str(path))
+    frames = []
+    while True:
+        ok, frame = cap.read()
+        if not ok:
+            return frames
+        frames.append(frame)
+
+
+def spy_outputs(monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
+    """Record the frames the demo encodes and the trace it plots (the real writers still run)."""
+    seen: dict[str, Any] = {}
+    write_video, write_plot = demo.write_video_atomic, demo._write_plot
+
+    def video(path: Path, frames: list[np.ndarray], **kwargs: Any) -> str:
+        seen["frames"] = list(frames)
+        return write_video(path, frames, **kwargs)
+
+    def plot(path: Path, trace: dict[str, Any]) -> None:
+        seen["trace"] = trace
+        write_plot(path, trace)
+
+    monkeypatch.setattr(demo, "write_video_atomic", video)
+    monkeypatch.setattr(demo, "_write_plot", plot)
+    return seen
+
+
+def true_tip_marker_px(frame_bgr: np.ndarray) -> np.ndarray:
+    """Centre of the white ring marking the true P_DLO (pure white pixels, leaving out status and legend)."""
+    h = frame_bgr.shape[0]
+    rows, cols = np.nonzero(np.all(frame_bgr[45 : h - 30] == 255, axis=2))
+    assert rows.size > 10, "no true P_DLO marker in the frame"
+    return np.array([cols.mean(), rows.mean() + 45])
 
 
 @pytest.mark.slow
-def test_demo_writes_video_plot_and_metrics(tmp_path: Path) -> None:
+def test_demo_hits_and_its_video_plot_and_metrics_agree(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The default episode hits, and the video and plot end where metrics.json measures the final distance.
+
+    They used to stop at the start of the last control cycle, 40 ms (about 5 cm of whipped tip) before the
+    state metrics.json scores: the last frame showed a miss beside a reported hit.
+    """
+    import gymnasium as gym
+
+    from dyndlo_vision.control.cameras import MujocoCamera
+
+    seen = spy_outputs(monkeypatch)
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out)]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     for key in ("success", "final_distance_m", "estimate_rmse_m", "cycle_ms_p50", "cycle_ms_p95"):
         assert key in metrics
-    # The default is the shipped multi-step policy; on seed 100000 it hits after 16 cycles (0.64 s).
+    # The default is the shipped multi-step policy; on seed 100000 it hits in the 16th cycle (by 0.64 s).
     assert metrics["observation"] == "tracked" and metrics["multi_step"] is True and metrics["cycles"] > 10
+    assert metrics["success"] is True and metrics["stop_reason"] == "done"
+    assert metrics["final_distance_m"] < TipControl().success_radius_m  # measured 16 mm; radius 35 mm
     assert 0.0 < metrics["estimate_rmse_m"] < 0.1  # measured 11 mm on this seed
-    video = cv2.VideoCapture(str(out / "demo.mp4"))
-    assert int(video.get(cv2.CAP_PROP_FRAME_COUNT)) == metrics["cycles"]
+    (episode,) = metrics["episodes"]
+    end_t = episode["end_time_s"]
+    assert end_t == pytest.approx(PERIOD_S * metrics["cycles"])
+
+    # The plot's truth ends at that instant, on the tip metrics.json measured.
+    trace = seen["trace"]
+    assert trace["truth_t"][-1] == end_t
+    assert trace["truth"][-1] == episode["final_p_dlo_m"]
+    assert np.linalg.norm(np.subtract(trace["truth"][-1], trace["goal"])) == metrics["final_distance_m"]
+
+    # The video: a frame at the start of every 40 ms period and one at the outcome.
+    frames = read_video(out / "demo.mp4")
+    assert len(frames) == len(seen["frames"]) == metrics["video"]["frames"] == metrics["cycles"] + 1
+    assert len(frames) == round(end_t / PERIOD_S) + 1
+    # Its last frame draws the true tip where metrics.json has it (the camera does not move).
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    env.reset(seed=100000)
+    with MujocoCamera(env.unwrapped.model, env.unwrapped.data, "tracking") as camera:
+        expected = camera.calibration.project(np.asarray([episode["final_p_dlo_m"]]))[0]
+    assert np.linalg.norm(true_tip_marker_px(seen["frames"][-1]) - expected) < 1.5
     plot = cv2.imread(str(out / "p_dlo.png"))
     assert plot is not None and plot.shape[0] > 300
+
+
+@pytest.mark.slow
+def test_demo_episodes_aggregate_and_a_full_length_miss_is_filmed_to_its_outcome(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``--episodes 2``: top-level numbers are the run's, rows per episode; episode 0 misses and runs long.
+
+    Seed 100056 misses and runs all 40 decisions; the environment then follows the last plan for the 0.5 s
+    settle time before it scores the episode, and the video and plot go on through that time.
+    """
+    seen = spy_outputs(monkeypatch)
+    out = tmp_path / "demo"
+    argv = ["demo", "--out", str(out), "--observation", "true", "--seed", "100056", "--episodes", "2"]
+    assert main([*argv, "--quiet"]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    rows = metrics["episodes"]
+    assert [r["seed"] for r in rows] == [100056, 100057]
+    assert [r["success"] for r in rows] == [False, True]
+    assert metrics["num_episodes"] == 2 and metrics["successes"] == 1 and metrics["success_rate"] == 0.5
+    assert metrics["success_ci95"] == list(wilson_interval(1, 2))
+    for key in ("final_distance_m", "min_distance_m"):
+        assert metrics[f"{key}_median"] == pytest.approx(np.median([r[key] for r in rows]))
+    assert metrics["cycles"] == sum(r["cycles"] for r in rows)
+    assert "success" not in metrics and "final_distance_m" not in metrics  # no episode's numbers on top
+
+    miss = rows[0]
+    assert miss["stop_reason"] == "duration" and miss["cycles"] == 40
+    end_t = miss["end_time_s"]
+    task = TipControl(multi_step=True)
+    assert end_t == pytest.approx(task.episode_s + task.settle_s)
+    trace = seen["trace"]
+    # Truth every 40 ms through the settle time, then at the outcome (2.10 s, half a period later).
+    assert trace["truth_t"][:-1] == pytest.approx([PERIOD_S * k for k in range(math.ceil(end_t / PERIOD_S))])
+    assert trace["truth_t"][-1] == end_t and trace["truth"][-1] == miss["final_p_dlo_m"]
+    assert np.linalg.norm(np.subtract(trace["truth"][-1], trace["goal"])) == miss["final_distance_m"]
+    frames = read_video(out / "demo.mp4")
+    assert len(frames) == len(trace["truth_t"]) == math.ceil(end_t / PERIOD_S) + 1 == 54
+
+
+# ---------------------------------------------------------------- fast: the command around the episodes
+
+
+NAMED_RGB = {"cyan": (0, 255, 255), "magenta": (255, 0, 255), "white": (255, 255, 255),
+             "yellow": (255, 255, 0), "red": (255, 0, 0), "green": (0, 255, 0), "blue": (0, 0, 255),
+             "black": (0, 0, 0)}
+
+
+def test_overlay_colours_are_the_legends_and_stand_apart_from_the_scene() -> None:
+    """The true P_DLO used to be drawn green, the colour the scene renders the target sphere in."""
+    import gymnasium as gym
+
+    import dyndlo_vision  # noqa: F401
+    from dyndlo_vision.tracking import annotate
+
+    # The tracker's drawing is what the legend says it is.
+    assert demo.CABLE_RGB == annotate._LINE_RGB and demo.ESTIMATE_RGB == annotate._POINT_RGB
+    for text, rgb in (*demo.LEGEND, *demo.LEGEND_UNTRACKED):
+        name = text.split()[0].rstrip(":")
+        assert min(NAMED_RGB, key=lambda n: np.linalg.norm(np.subtract(NAMED_RGB[n], rgb))) == name, text
+    model = gym.make("DynDLO/TipControl-v0", multi_step=True).unwrapped.model
+    scene = {"target sphere": 255 * model.geom("target_geom").rgba[:3], "cable": 255 * model.flex_rgba[0][:3]}
+    overlay = {"true P_DLO": demo.TRUE_RGB, "target ring": demo.TARGET_RGB, "tracked cable": demo.CABLE_RGB,
+               "estimate": demo.ESTIMATE_RGB}
+    for name, rgb in overlay.items():
+        for other, other_rgb in (*scene.items(), *((k, v) for k, v in overlay.items() if k != name)):
+            assert np.linalg.norm(np.subtract(rgb, other_rgb)) > 100, f"{name} {rgb} looks like {other}"
+
+
+def fake_record(seed: int, success: bool, cycle_ms: list[float]) -> dict[str, Any]:
+    """What ``run_episode`` returns, made up: a hit ends 1 cm from the target, a miss 20 cm."""
+    distance = 0.01 if success else 0.2
+    goal = [0.8, 0.0, 0.4]
+    tip = [0.8 + distance, 0.0, 0.4]
+    return {
+        "seed": seed, "success": success, "final_distance_m": distance, "final_p_dlo_m": tip,
+        "end_time_s": 0.08, "min_distance_m": distance / 2, "estimate_rmse_m": 0.001 * (seed % 7),
+        "cycle_ms_p50": float(np.percentile(cycle_ms, 50)),
+        "cycle_ms_p95": float(np.percentile(cycle_ms, 95)),
+        "stage_ms_p50": {}, "stage_ms_p95": {}, "deadline_misses": 1, "cycles": len(cycle_ms),
+        "stop_reason": "done" if success else "duration", "avoid": {},
+        "trace": {"t": [0.0, 0.04], "estimate": [tip, tip], "measured": [True, False],
+                  "truth_t": [0.0, 0.04, 0.08], "truth": [tip, tip, tip], "goal": goal,
+                  "success_radius_m": 0.035, "replan_end_t": 0.08, "success": success,
+                  "min_distance_m": distance / 2},
+        "_cycle_ms": cycle_ms, "_stage_ms": {"camera": cycle_ms},
+    }
+
+
+@pytest.fixture
+def fake_episodes(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """Replace the policy and the episodes by stand-ins (seeds ending in 1 miss); returns the seeds run."""
+    from dyndlo_vision import policies
+
+    seeds: list[int] = []
+
+    def run_episode(env: Any, model: Any, seed: int, observation: str, camera_name: str,
+                    video: list[np.ndarray] | None, **kwargs: Any) -> dict[str, Any]:
+        seeds.append(seed)
+        if video is not None:
+            video.extend(np.full((48, 64, 3), 60 * k, dtype=np.uint8) for k in range(3))
+        return fake_record(seed, seed % 10 != 1, [1.0, 2.0, 3.0])
+
+    monkeypatch.setattr(policies, "load", lambda *args, **kwargs: object())
+    monkeypatch.setattr(demo, "run_episode", run_episode)
+    return seeds
+
+
+def test_summarize_aggregates_all_episodes_instead_of_reporting_the_first() -> None:
+    # Episode 0 misses, so its numbers differ from the run's.
+    records = [fake_record(2, False, [10.0, 20.0]), fake_record(1, True, [1.0, 2.0, 3.0]),
+               fake_record(3, True, [4.0])]
+    metrics = demo.summarize(records)
+    assert metrics["num_episodes"] == 3 and metrics["successes"] == 2
+    assert metrics["success_rate"] == pytest.approx(2 / 3)
+    assert metrics["success_ci95"] == list(wilson_interval(2, 3))
+    assert metrics["final_distance_m_median"] == 0.01 and metrics["min_distance_m_median"] == 0.005
+    assert metrics["estimate_rmse_m_median"] == np.median([r["estimate_rmse_m"] for r in records])
+    # Percentiles over the six cycles pooled (3.5 ms), not episode 0's (15 ms) nor a median of medians (4 ms).
+    assert metrics["cycle_ms_p50"] == 3.5
+    assert metrics["cycle_ms_p95"] == pytest.approx(np.percentile([10, 20, 1, 2, 3, 4], 95))
+    assert metrics["stage_ms_p50"] == {"camera": 3.5}
+    assert metrics["cycles"] == 6 and metrics["deadline_misses"] == 3
+    assert "success" not in metrics and "final_distance_m" not in metrics
+    assert [r["seed"] for r in metrics["episodes"]] == [2, 1, 3]
+    assert all("trace" not in r and "_cycle_ms" not in r for r in metrics["episodes"])
+    one = demo.summarize(records[:1])
+    assert one["success"] is False and one["final_distance_m"] == 0.2 and one["success_rate"] == 0.0
+
+
+def test_demo_progress_bar_for_several_episodes_and_quiet_turns_it_off(
+    tmp_path: Path, fake_episodes: list[int], capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["demo", "--out", str(tmp_path / "a"), "--episodes", "3", "--seed", "100000"]) == 0
+    captured = capsys.readouterr()
+    assert "demo episodes" in captured.err and "3/3" in captured.err
+    assert captured.out.count("episode ") >= 3 and "success rate 2/3" in captured.out
+    assert main(["demo", "--out", str(tmp_path / "b"), "--episodes", "3", "--quiet"]) == 0
+    captured = capsys.readouterr()
+    assert "demo episodes" not in captured.err and "3/3" not in captured.err
+    assert "success rate 2/3" in captured.out
+    metrics = json.loads((tmp_path / "a" / "metrics.json").read_text())
+    assert metrics["success_rate"] == pytest.approx(2 / 3) and len(metrics["episodes"]) == 3
+    assert metrics["video"]["frames"] == 3 and metrics["video"]["codec"] in ("avc1", "mp4v")
 
 
 def test_demo_rejects_bad_input_and_writes_nothing(tmp_path: Path) -> None:
@@ -40,7 +260,64 @@ def test_demo_rejects_bad_input_and_writes_nothing(tmp_path: Path) -> None:
         with pytest.raises(SystemExit) as exc:
             main(["demo", "--out", str(out), *argv])
         assert exc.value.code == 2
-    assert not out.exists() or not any(out.iterdir())
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_demo_out_that_is_a_file_is_an_error_before_any_work(
+    tmp_path: Path, fake_episodes: list[int], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """It was a FileExistsError traceback (``mkdir``), after the policy had been loaded."""
+    existing = tmp_path / "results.txt"
+    existing.write_text("mine")
+    for out, message in ((existing, "is an existing file; expected a folder"),
+                         (existing / "demo", "results.txt is a file, so no folder can be created under it")):
+        with pytest.raises(SystemExit) as exc:
+            main(["demo", "--out", str(out)])
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert message in err and str(existing) in err and "Traceback" not in err
+    assert fake_episodes == []  # checked before any episode ran
+    assert existing.read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == ["results.txt"]
+
+
+def test_demo_unknown_camera_lists_the_cameras_and_leaves_no_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """It used to fail in the first episode, after the output folder had been made: an empty folder."""
+    from dyndlo_vision import policies
+
+    def no_load(*args: Any, **kwargs: Any) -> Any:
+        raise AssertionError("the policy was loaded before the camera was checked")
+
+    monkeypatch.setattr(policies, "load", no_load)
+    out = tmp_path / "new" / "demo"
+    with pytest.raises(SystemExit) as exc:
+        main(["demo", "--out", str(out), "--camera", "nosuchcam"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "--camera 'nosuchcam' is not a camera of the scene; expected one of" in err
+    assert "'tracking'" in err and "'front'" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_demo_that_fails_while_writing_leaves_no_new_folder_and_no_partial_outputs(
+    tmp_path: Path, fake_episodes: list[int], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def broken_plot(path: Path, trace: dict[str, Any]) -> None:
+        raise RuntimeError("plotting failed")
+
+    monkeypatch.setattr(demo, "_write_plot", broken_plot)
+    with pytest.raises(RuntimeError, match="plotting failed"):
+        main(["demo", "--out", str(tmp_path / "new" / "demo")])
+    assert list(tmp_path.iterdir()) == []  # the video was written already: into the staging folder, now gone
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / "metrics.json").write_text("previous run")
+    with pytest.raises(RuntimeError, match="plotting failed"):
+        main(["demo", "--out", str(old)])
+    assert [p.name for p in old.iterdir()] == ["metrics.json"] and (old / "metrics.json").read_text() == (
+        "previous run"
+    )
 
 
 @pytest.mark.slow
@@ -49,10 +326,10 @@ def test_demo_loop_on_true_state_is_the_environment_episode(seed: int) -> None:
     """The demo's loop on true state scores a multi-step episode exactly as ``env.step`` does.
 
     Seed 100056 misses and runs all 40 decisions: after the last re-plan the environment follows that plan for
-    the settle time, and so must the loop (holding the TCP instead once changed the outcome of this seed).
+    the settle time, and so must the loop (holding the TCP instead once changed the outcome of this seed; the
+    loop sends it one period at a time, for the video, and must still end in the environment's state).
     """
     import gymnasium as gym
-    import numpy as np
 
     from dyndlo_vision import policies
     from dyndlo_vision.commands.demo import run_episode
@@ -66,9 +343,12 @@ def test_demo_loop_on_true_state_is_the_environment_episode(seed: int) -> None:
         obs, _, done, _, info = env.step(action)
         steps += 1
     end_time = env.unwrapped.scene.time
+    end_tip = env.unwrapped.p_dlo()
     record = run_episode(env, model, seed, "true", "tracking", None)
     assert record["cycles"] == steps
     assert record["success"] == info["is_success"] and record["avoid"] == info["avoid"]
     assert record["min_distance_m"] == pytest.approx(info["min_distance_m"], abs=1e-9)
     assert env.unwrapped.scene.time == pytest.approx(end_time)
+    assert record["end_time_s"] == pytest.approx(end_time)
+    assert record["final_p_dlo_m"] == pytest.approx(end_tip.tolist(), abs=1e-9)
     assert np.isfinite(record["final_distance_m"])

@@ -3,8 +3,13 @@
 The loop (``dyndlo_vision.control.loop``) reads the "tracking" camera at 25 Hz, tracks the cable, filters the
 tip, builds the observation from the *estimate*, queries the shipped policy, re-plans the B-spline from the
 commanded TCP state and sends the setpoints to the simulated robot. Outputs in ``--out``: ``demo.mp4`` (camera
-view with the tracked polyline, the true and estimated P_DLO and the target), ``p_dlo.png`` (true vs estimated
-P_DLO over time), ``metrics.json``.
+view of the first episode with the tracked polyline, the true and estimated P_DLO and the target),
+``p_dlo.png`` (true vs estimated P_DLO and the distance to the target over time), ``metrics.json`` (the
+aggregate over the episodes at the top, one row per episode under ``"episodes"``).
+
+The video and the plot run until the episode's outcome is decided, the instant ``final_distance_m`` is
+measured: one frame at the start of every 40 ms period, including the periods in which the robot finishes
+its last plan without re-planning, and a last frame at the outcome.
 """
 
 from __future__ import annotations
@@ -12,15 +17,41 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from dyndlo_vision._atomic import write_atomic, write_video_atomic
+from dyndlo_vision._atomic import check_output_folder, staged_folder, write_atomic, write_video_atomic
 
 HELP = "closed-loop tip control in simulation on tracked state: video, plot and metrics"
 DEFAULT_POLICIES = ("tip-control-multi-step", "tip-control-single-step")
+FPS = 25.0  # one frame per 40 ms control period
+
+# Overlay colours (RGB). ``tracking.annotate`` draws the tracked cable cyan and the estimate magenta. The
+# scene renders the cable red, the target as a green sphere, the sky black and the floor light grey, so the
+# true tip is a white ring with a black rim (a green one vanished into the sphere at the hit, a red one into
+# the cable) and the target sphere is ringed in yellow. The plot uses the same colours where a white
+# background allows: black for the truth, a darker yellow for the target.
+CABLE_RGB = (0, 230, 255)
+ESTIMATE_RGB = (255, 0, 220)
+TRUE_RGB = (255, 255, 255)
+TARGET_RGB = (255, 220, 0)
+LEGEND = (
+    ("cyan: tracked cable", CABLE_RGB),
+    ("magenta +: estimate (dot filled: measured)", ESTIMATE_RGB),
+    ("white o: true P_DLO", TRUE_RGB),
+    ("yellow ring: target", TARGET_RGB),
+)
+#: Without the tracker nothing is tracked, and the magenta cross is the P_DLO the policy is given.
+LEGEND_UNTRACKED = (
+    ("magenta +: P_DLO given to the policy", ESTIMATE_RGB),
+    ("white o: true P_DLO", TRUE_RGB),
+    ("yellow ring: target", TARGET_RGB),
+)
+_PLOT_TRUE = "black"
+_PLOT_TARGET = "#c8a000"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -37,7 +68,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="where P_DLO comes from: camera + tracker + filter (default), the simulator, or the "
         "simulator through the fitted noise model",
     )
-    p.add_argument("--episodes", type=int, default=1, help="episodes to run (video of the first; default 1)")
+    p.add_argument(
+        "--episodes",
+        type=int,
+        default=1,
+        help="episodes to run; the video and plot show the first, metrics.json aggregates all (default 1)",
+    )
     p.add_argument("--seed", type=int, default=100_000, help="seed of the first episode (default 100000)")
     p.add_argument("--camera", default="tracking", help="MuJoCo camera to track from (default: tracking)")
     p.add_argument(
@@ -49,6 +85,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "period is exact, other values round up to one)",
     )
     p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
+    p.add_argument(
+        "--quiet", action="store_true", help="no progress bar on stderr (shown for --episodes > 1)"
+    )
 
 
 def _default_policy() -> str:
@@ -61,14 +100,20 @@ def _default_policy() -> str:
     raise ValueError(f"no shipped tip-control policy found (have {shipped}); pass --policy PATH.zip")
 
 
+def check_camera(env: Any, camera_name: str) -> None:
+    """Raise ValueError unless ``camera_name`` is a camera of the environment's scene (the names listed)."""
+    model = env.unwrapped.model
+    names = [model.camera(i).name for i in range(model.ncam)]
+    if camera_name not in names:
+        raise ValueError(f"--camera {camera_name!r} is not a camera of the scene; expected one of {names}")
+
+
 def run(args: argparse.Namespace) -> int:
-    """Run the episodes and write the outputs."""
-    import gymnasium as gym
+    """Run the episodes and write the outputs.
 
-    import dyndlo_vision  # noqa: F401
-    from dyndlo_vision import policies
-    from dyndlo_vision.learning.evaluate import wilson_interval
-
+    Everything that can be checked before the episodes is (options, the output folder, the camera), and the
+    outputs are written together at the end: a run that fails leaves no new folder and no partial output.
+    """
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
     from dyndlo_vision.control.sim_perception import MAX_LATENCY_S
@@ -77,6 +122,15 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--latency-ms must be in [0, {1000.0 * MAX_LATENCY_S:g}] ms, got {args.latency_ms}")
     if args.latency_ms and args.observation != "tracked":
         raise ValueError(f"--latency-ms applies to the tracked observation, not to {args.observation!r}")
+    out = Path(args.out)
+    check_output_folder(out)
+
+    import gymnasium as gym
+    from tqdm import tqdm
+
+    import dyndlo_vision  # noqa: F401  (registers the environments)
+    from dyndlo_vision import policies
+
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     name = args.policy or _default_policy()
     _, meta = policies.resolve(name)
@@ -84,76 +138,113 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"the demo runs tip control; policy {name} is for {meta.get('task')}")
     multi_step = bool(meta.get("multi_step", False))
     env = gym.make("DynDLO/TipControl-v0", multi_step=multi_step, render_mode=None)
+    check_camera(env, args.camera)
     model = policies.load(name, env=env)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
 
     episodes = []
     video: list[np.ndarray] = []
-    for i in range(args.episodes):
-        record = run_episode(
-            env,
-            model,
-            args.seed + i,
-            args.observation,
-            args.camera,
-            video if i == 0 else None,
-            latency_s=1e-3 * args.latency_ms,
-        )
-        episodes.append(record)
-        print(
-            f"episode {i}: success={record['success']} min_distance={record['min_distance_m']:.3f} m "
-            f"estimate_rmse={record['estimate_rmse_m']}"
-        )
-    first = episodes[0]
-    successes = sum(e["success"] for e in episodes)
+    bar = tqdm(total=args.episodes, desc="demo episodes", unit="episode", file=sys.stderr,
+               disable=args.quiet or args.episodes == 1)
+    with bar:
+        for i in range(args.episodes):
+            record = run_episode(
+                env,
+                model,
+                args.seed + i,
+                args.observation,
+                args.camera,
+                video if i == 0 else None,
+                latency_s=1e-3 * args.latency_ms,
+            )
+            episodes.append(record)
+            bar.update(1)
+            # tqdm.write keeps the line and the bar apart on a terminal (plain print otherwise).
+            rmse = record["estimate_rmse_m"]
+            tqdm.write(
+                f"episode {i} (seed {record['seed']}): success={record['success']} "
+                f"final_distance={record['final_distance_m']:.3f} m "
+                f"min_distance={record['min_distance_m']:.3f} m "
+                f"estimate_rmse={'n/a' if rmse is None else f'{rmse:.4f} m'}",
+                file=sys.stdout,
+            )
+    trace = episodes[0]["trace"]
     metrics: dict[str, Any] = {
         "policy": str(name),
         "multi_step": multi_step,
         "observation": args.observation,
         "latency_ms": args.latency_ms,
-        "success": first["success"],
-        "final_distance_m": first["final_distance_m"],
-        "min_distance_m": first["min_distance_m"],
-        "estimate_rmse_m": first["estimate_rmse_m"],
-        "cycle_ms_p50": first["cycle_ms_p50"],
-        "cycle_ms_p95": first["cycle_ms_p95"],
-        "stage_ms_p50": first["stage_ms_p50"],
-        "stage_ms_p95": first["stage_ms_p95"],
-        "deadline_misses": first["deadline_misses"],
-        "cycles": first["cycles"],
-        "stop_reason": first["stop_reason"],
+        **summarize(episodes),
         "cycle_ms_note": "controller time per 40 ms cycle: camera render + tracking + filter + policy + "
-        "planning (the simulated robot's physics is timed apart as send_ms)",
+        "planning (the simulated robot's physics is timed apart as send_ms); percentiles over the cycles of "
+        "all episodes",
     }
+    with staged_folder(out) as stage:
+        codec = write_video_atomic(stage / "demo.mp4", video, fps=FPS, rgb=False)  # annotated frames are BGR
+        rows = metrics.pop("episodes")  # kept last, after the run's numbers
+        metrics["video"] = {"episode": 0, "seed": episodes[0]["seed"], "frames": len(video), "fps": FPS,
+                            "codec": codec}
+        metrics["episodes"] = rows
+        _write_plot(stage / "p_dlo.png", trace)
+        text = json.dumps(metrics, indent=2)
+        write_atomic(stage / "metrics.json", lambda p: Path(p).write_text(text))
     if args.episodes > 1:
-        lo, hi = wilson_interval(successes, args.episodes)
-        metrics.update(
-            {
-                "episodes": args.episodes,
-                "success_rate": successes / args.episodes,
-                "success_ci95": [lo, hi],
-                "per_episode": episodes,
-            }
-        )
-        print(f"success rate {successes}/{args.episodes} (95% CI {lo:.2f}-{hi:.2f})")
-    if video:
-        write_video_atomic(out / "demo.mp4", video, rgb=False)  # annotated frames are BGR
-    _write_plot(out / "p_dlo.png", first["trace"])
-    for e in episodes:
-        for key in ("trace", "_cycle_ms", "_stage_ms"):
-            e.pop(key, None)
-    write_atomic(out / "metrics.json", lambda p: Path(p).write_text(json.dumps(metrics, indent=2)))
-    print(
-        json.dumps(
-            {
-                k: metrics[k]
-                for k in ("success", "final_distance_m", "estimate_rmse_m", "cycle_ms_p50", "cycle_ms_p95")
-            }
-        )
-    )
-    print(f"wrote {out / 'demo.mp4'}, {out / 'p_dlo.png'}, {out / 'metrics.json'}")
+        lo, hi = metrics["success_ci95"]
+        print(f"success rate {metrics['successes']}/{args.episodes} (95% CI {lo:.2f}-{hi:.2f})")
+    keys = ("success", "final_distance_m", "estimate_rmse_m") if args.episodes == 1 else (
+        "success_rate", "success_ci95", "final_distance_m_median", "estimate_rmse_m_median")
+    print(json.dumps({k: metrics[k] for k in (*keys, "cycle_ms_p50", "cycle_ms_p95")}))
+    note = "" if codec == "avc1" else " (MPEG-4 Part 2: this OpenCV build has no H.264 encoder)"
+    print(f"wrote {out / 'demo.mp4'} ({len(video)} frames, {codec}{note}), {out / 'p_dlo.png'}, "
+          f"{out / 'metrics.json'}")
     return 0
+
+
+def summarize(episodes: list[dict[str, Any]]) -> dict[str, Any]:
+    """The top-level metrics of a run: aggregates over all episodes, then the per-episode rows.
+
+    Success rate with its Wilson 95% interval, medians of the per-episode distances and estimate errors, and
+    controller-time percentiles over the cycles of all episodes pooled. With one episode its own values
+    (``success``, ``final_distance_m``, ...) are at the top level too; with more they are only in the rows,
+    so that no one episode's numbers pass for the run's.
+    """
+    from dyndlo_vision.learning.evaluate import wilson_interval
+
+    n = len(episodes)
+    successes = sum(bool(e["success"]) for e in episodes)
+    lo, hi = wilson_interval(successes, n)
+    cycle_ms = np.concatenate([np.asarray(e["_cycle_ms"], dtype=float) for e in episodes])
+    stage_ms: dict[str, list[float]] = {}
+    for e in episodes:
+        for key, values in e["_stage_ms"].items():
+            stage_ms.setdefault(key, []).extend(values)
+    rmse = [e["estimate_rmse_m"] for e in episodes if e["estimate_rmse_m"] is not None]
+
+    def median(key: str) -> float:
+        return float(np.median([e[key] for e in episodes]))
+
+    metrics: dict[str, Any] = {
+        "num_episodes": n,
+        "seeds": [e["seed"] for e in episodes],
+        "successes": successes,
+        "success_rate": successes / n,
+        "success_ci95": [lo, hi],
+        "final_distance_m_median": median("final_distance_m"),
+        "min_distance_m_median": median("min_distance_m"),
+        "estimate_rmse_m_median": float(np.median(rmse)) if rmse else None,
+        "cycle_ms_p50": float(np.percentile(cycle_ms, 50)),
+        "cycle_ms_p95": float(np.percentile(cycle_ms, 95)),
+        "stage_ms_p50": {k: float(np.percentile(v, 50)) for k, v in sorted(stage_ms.items())},
+        "stage_ms_p95": {k: float(np.percentile(v, 95)) for k, v in sorted(stage_ms.items())},
+        "deadline_misses": int(sum(e["deadline_misses"] for e in episodes)),
+        "cycles": int(sum(e["cycles"] for e in episodes)),
+    }
+    if n == 1:
+        only = episodes[0]
+        metrics.update({k: only[k] for k in ("success", "final_distance_m", "min_distance_m",
+                                             "estimate_rmse_m", "stop_reason", "end_time_s")})
+    metrics["episodes"] = [{k: v for k, v in e.items() if k != "trace" and not k.startswith("_")}
+                           for e in episodes]
+    return metrics
 
 
 def run_episode(
@@ -166,7 +257,13 @@ def run_episode(
     latency_s: float = 0.0,
     point_filter: Any = None,
 ) -> dict[str, Any]:
-    """One closed-loop episode; appends annotated frames to ``video`` when given.
+    """One closed-loop episode; appends annotated BGR frames to ``video`` when given.
+
+    Frames (and the true P_DLO of the record's ``trace``) are taken at the start of every control period
+    until the outcome, and once more at the outcome, where ``final_distance_m`` is measured: after the cycle
+    in which the target was hit, after the last plan has been followed (multi-step episode that ran its
+    full length), or when the estimate was lost. Without re-planning there is nothing new to track, so
+    those frames show the truth and the target only.
 
     ``latency_s`` and ``point_filter`` (tracked observation): the camera's delay and the tip filter (default:
     ``tracked_state``'s). With a delay the video shows the present, with the polyline the tracker found in
@@ -178,6 +275,7 @@ def run_episode(
 
     base = env.unwrapped
     env.reset(seed=seed)
+    goal = base.goal
     camera = None
     if observation == "tracked":
         from dyndlo_vision.control.sim_perception import tracked_state
@@ -195,52 +293,90 @@ def run_episode(
         camera = MujocoCamera(base.model, base.data, camera_name)
     robot = SimRobot(env)
     robot.connect()
+    period_s = 0.04
     loop = ControlLoop(
         source,
         robot,
         lambda obs: model.predict(obs, deterministic=True)[0],
         base.replanner,
-        base.goal,
-        period_s=0.04,
+        goal,
+        period_s=period_s,
         setpoint_period_s=base.scene.timestep,
         truth=base.p_dlo,
     )
-    calib = camera.calibration if camera is not None else None
+    calib = camera.calibration if camera is not None and video is not None else None
+    truth_t: list[float] = []
+    truth: list[np.ndarray] = []
+    legend = LEGEND if observation == "tracked" else LEGEND_UNTRACKED
 
     def on_cycle(record: Any, frame: Any) -> None:
+        truth_t.append(float(record.t))
+        truth.append(np.asarray(record.p_dlo_true, dtype=float))
         if video is None or calib is None:
             return
         rgb = frame.rgb if frame is not None and not latency_s else camera.read().rgb
-        video.append(_annotate(rgb, record, calib, base.goal))
+        video.append(_annotate(rgb, record, calib, goal, legend))
 
-    if base.multi_step:
-        report = loop.run(base.task.episode_s, done=base.is_done_early, on_cycle=on_cycle)
-        if report.stop_reason == "duration":
-            # As in the environment: after the last re-plan the TCP follows that plan (it ends at rest).
-            loop.finish_plan(base.task.settle_s)
-    else:
-        report = loop.run(
-            10.0,
-            done=lambda: base.scene.time >= base.trajectory.t_end + base.task.settle_s - 1e-9,
-            on_cycle=on_cycle,
-            replan_every_cycle=False,
-        )
-    _, success, info = base.outcome()
-    if camera is not None:
-        camera.close()
+    def snapshot(status: str) -> None:
+        # The truth (and a frame) where no cycle records one: while the last plan finishes, and at the end.
+        truth_t.append(float(base.scene.time))
+        truth.append(np.asarray(base.p_dlo(), dtype=float))
+        if video is not None and calib is not None:
+            video.append(
+                _annotate_truth(camera.read().rgb, truth_t[-1], truth[-1], calib, goal, status, legend)
+            )
+
+    try:
+        if base.multi_step:
+            report = loop.run(base.task.episode_s, done=base.is_done_early, on_cycle=on_cycle)
+            replan_end_t = float(base.scene.time)
+            if report.stop_reason == "duration":
+                # As in the environment: after the last re-plan the TCP follows that plan for the settle time
+                # (it ends at rest). Sent one period at a time (the same setpoints as in one piece) so the
+                # video and plot go on to the outcome.
+                dt = base.scene.timestep
+                remaining = int(round(base.task.settle_s / dt))
+                per_period = int(round(period_s / dt))
+                while remaining > 0:
+                    snapshot("following the last plan")
+                    steps = min(per_period, remaining)
+                    loop.finish_plan(steps * dt)
+                    remaining -= steps
+        else:
+            report = loop.run(
+                10.0,
+                done=lambda: base.scene.time >= base.trajectory.t_end + base.task.settle_s - 1e-9,
+                on_cycle=on_cycle,
+                replan_every_cycle=False,
+            )
+            replan_end_t = float(base.scene.time)
+        _, success, info = base.outcome()
+        final_distance = float(np.linalg.norm(base.p_dlo() - goal))
+        snapshot(f"{'HIT' if success else 'miss'}, tip {100 * final_distance:.1f} cm from target centre")
+    finally:
+        if camera is not None:
+            camera.close()
     errors = report.estimate_errors()
     controller = report.controller_ms()
     trace = {
         "t": [c.t for c in report.cycles],
-        "true": [c.p_dlo_true.tolist() for c in report.cycles],
         "estimate": [c.p_dlo_estimate.tolist() for c in report.cycles],
         "measured": [c.measured for c in report.cycles],
-        "goal": base.goal.tolist(),
+        "truth_t": truth_t,
+        "truth": [p.tolist() for p in truth],
+        "goal": goal.tolist(),
+        "success_radius_m": getattr(base.task, "success_radius_m", None),
+        "replan_end_t": replan_end_t,
+        "success": bool(success),
+        "min_distance_m": float(info["min_distance_m"]),
     }
     return {
         "seed": seed,
         "success": bool(success),
-        "final_distance_m": float(np.linalg.norm(base.p_dlo() - base.goal)),
+        # The last point of the trace and the last video frame are this state.
+        "final_distance_m": float(np.linalg.norm(truth[-1] - goal)),
+        "final_p_dlo_m": truth[-1].tolist(),
+        "end_time_s": truth_t[-1],
         "min_distance_m": float(info["min_distance_m"]),
         "estimate_rmse_m": float(np.sqrt(np.mean(errors**2))) if errors.size else None,
         "cycle_ms_p50": float(np.percentile(controller, 50)),
@@ -260,51 +396,137 @@ def run_episode(
     }
 
 
-def _annotate(rgb: np.ndarray, record: Any, calib: Any, goal: np.ndarray) -> np.ndarray:
-    """BGR frame: the tracker's drawing (polyline, estimate, status) plus the true P_DLO and the target."""
+def _pixel(calib: Any, p: Any) -> tuple[int, int] | None:
+    """Integer pixel of world point ``p``, None if it is missing or does not project."""
+    if p is None or not np.all(np.isfinite(p)):
+        return None
+    uv = calib.project(np.asarray(p, dtype=float)[None])[0]
+    return (int(round(uv[0])), int(round(uv[1]))) if np.all(np.isfinite(uv)) else None
+
+
+def _draw_truth_and_target(
+    img: np.ndarray, true_p: Any, calib: Any, goal: np.ndarray, legend: tuple[tuple[str, Any], ...]
+) -> None:
+    """Draw (RGB, in place) the yellow ring around the target sphere, the white true P_DLO and the legend."""
+    import cv2
+
+    uv = _pixel(calib, goal)
+    if uv is not None:
+        cv2.circle(img, uv, 14, TARGET_RGB, 2, cv2.LINE_AA)
+    uv = _pixel(calib, true_p)
+    if uv is not None:
+        cv2.circle(img, uv, 6, (0, 0, 0), 4, cv2.LINE_AA)  # the rim keeps it visible on the light floor
+        cv2.circle(img, uv, 6, TRUE_RGB, 2, cv2.LINE_AA)
+    # The legend on a dark band: in its own colours, readable over the light floor.
+    h, w = img.shape[:2]
+    font, scale = cv2.FONT_HERSHEY_SIMPLEX, 0.4
+    line_h = 16
+    lines: list[list[tuple[str, tuple[int, int, int]]]] = [[]]
+    x = 8
+    for text, color in legend:
+        tw = cv2.getTextSize(text, font, scale, 1)[0][0]
+        if x + tw > w - 8 and lines[-1]:
+            lines.append([])
+            x = 8
+        lines[-1].append((text, color))
+        x += tw + 14
+    top = h - line_h * len(lines) - 6
+    img[top:] = (img[top:] * 0.25).astype(np.uint8)
+    for row, items in enumerate(lines):
+        x = 8
+        y = top + line_h * (row + 1)
+        for text, color in items:
+            cv2.putText(img, text, (x, y), font, scale, color, 1, cv2.LINE_AA)
+            x += cv2.getTextSize(text, font, scale, 1)[0][0] + 14
+
+
+def _annotate(
+    rgb: np.ndarray, record: Any, calib: Any, goal: np.ndarray, legend: tuple[tuple[str, Any], ...] = LEGEND
+) -> np.ndarray:
+    """BGR frame of a control cycle: the tracker's drawing (polyline, estimate, status), truth and target."""
     import cv2
 
     from dyndlo_vision.tracking.annotate import annotate_frame
 
-    def pixel(p: Any) -> np.ndarray | None:
-        if p is None or not np.all(np.isfinite(p)):
-            return None
-        uv = calib.project(np.asarray(p, dtype=float)[None])[0]
-        return uv if np.all(np.isfinite(uv)) else None
-
+    est = _pixel(calib, record.p_dlo_estimate)
     state = "measured" if record.measured else "predicted"
-    img = annotate_frame(rgb, record.polyline_uv, None, point_uv=pixel(record.p_dlo_estimate),
+    img = annotate_frame(rgb, record.polyline_uv, None, point_uv=None if est is None else np.asarray(est),
                          point_measured=record.measured, t=record.t,
                          status=f"{state}  ctrl {record.controller_ms:.1f} ms")
-    for p, color, radius in ((goal, (255, 220, 0), 14), (record.p_dlo_true, (0, 200, 0), 5)):
-        uv = pixel(p)
-        if uv is not None:
-            cv2.circle(img, (int(round(uv[0])), int(round(uv[1]))), radius, color, 2, cv2.LINE_AA)
-    legend = "cyan: tracked cable  magenta: estimate (filled: measured)  green: true P_DLO  yellow: target"
-    cv2.putText(img, legend, (10, img.shape[0] - 12), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1,
-                cv2.LINE_AA)
+    _draw_truth_and_target(img, record.p_dlo_true, calib, goal, legend)
+    return cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
+
+
+def _annotate_truth(rgb: np.ndarray, t: float, true_p: np.ndarray, calib: Any, goal: np.ndarray,
+                    status: str, legend: tuple[tuple[str, Any], ...] = LEGEND) -> np.ndarray:
+    """BGR frame without a control cycle (nothing tracked): the truth, the target and a status line."""
+    import cv2
+
+    from dyndlo_vision.tracking.annotate import annotate_frame
+
+    img = annotate_frame(rgb, None, None, t=t, status=status)
+    _draw_truth_and_target(img, true_p, calib, goal, legend)
     return cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
 
 
 def _write_plot(path: Path, trace: dict[str, Any]) -> None:
+    """Tip position (x, y, z) and distance to the target over time: truth vs estimate, up to the outcome."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    t = np.asarray(trace["t"])
-    true = np.asarray(trace["true"])
-    est = np.asarray(trace["estimate"])
-    fig, axes = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
-    for k, (ax, name) in enumerate(zip(axes, ("x", "y", "z"), strict=True)):
-        ax.plot(t, true[:, k], "g-", label="true P_DLO")
-        ax.plot(t, est[:, k], "b.--", ms=4, label="estimated (tracked + filtered)")
-        ax.axhline(trace["goal"][k], color="orange", lw=1, label="target")
-        ax.set_ylabel(f"{name} (m)")
+    def rgb(c: tuple[int, int, int]) -> tuple[float, ...]:
+        return tuple(v / 255.0 for v in c)
+
+    t = np.asarray(trace["t"], dtype=float)
+    est = np.asarray(trace["estimate"], dtype=float).reshape(-1, 3)
+    measured = np.asarray(trace["measured"], dtype=bool)
+    truth_t = np.asarray(trace["truth_t"], dtype=float)
+    truth = np.asarray(trace["truth"], dtype=float).reshape(-1, 3)
+    goal = np.asarray(trace["goal"], dtype=float)
+    end_t = float(truth_t[-1])
+    final = float(np.linalg.norm(truth[-1] - goal))
+    fig, axes = plt.subplots(4, 1, figsize=(8, 9), sharex=True)
+    series = [(truth[:, k], est[:, k], goal[k], f"{name} (m)") for k, name in enumerate("xyz")]
+    series.append((np.linalg.norm(truth - goal, axis=1), np.linalg.norm(est - goal, axis=1), None,
+                   "distance to\ntarget centre (m)"))
+    for ax, (true_k, est_k, goal_k, label) in zip(axes, series, strict=True):
+        ax.plot(truth_t, true_k, "-", color=_PLOT_TRUE, lw=1.5, label="true P_DLO")
+        ax.plot(t, est_k, "--", color=rgb(ESTIMATE_RGB), lw=1)
+        ax.plot(t[measured], est_k[measured], "o", color=rgb(ESTIMATE_RGB), ms=4,
+                label="estimate, measured")
+        ax.plot(t[~measured], est_k[~measured], "o", mfc="none", color=rgb(ESTIMATE_RGB), ms=4,
+                label="estimate, predicted")
+        if goal_k is not None:
+            ax.axhline(goal_k, color=_PLOT_TARGET, lw=1.2, label="target")
+        if trace["replan_end_t"] < end_t - 1e-9:
+            ax.axvspan(trace["replan_end_t"], end_t, color="0.9", label="last plan, no re-planning")
+        ax.axvline(end_t, color="0.4", ls=":", lw=1)
+        ax.set_ylabel(label)
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8)
+    dist_ax = axes[-1]
+    if trace.get("success_radius_m"):
+        dist_ax.axhline(trace["success_radius_m"], color=_PLOT_TARGET, ls="--", lw=1.2,
+                        label=f"success radius {100 * trace['success_radius_m']:.1f} cm")
+    dist_ax.plot([end_t], [final], "o", color=_PLOT_TRUE, ms=6)
+    # The closest approach is checked every 2 ms on the swept path; the 25 Hz samples drawn can miss it.
+    dist_ax.set_title(
+        f"outcome at {end_t:.2f} s: {'hit' if trace['success'] else 'miss'}; "
+        f"final distance {100 * final:.1f} cm, closest {100 * trace['min_distance_m']:.1f} cm",
+        fontsize=9,
+        loc="right",
+    )
+    dist_ax.set_ylim(bottom=0.0)
+    handles, labels = axes[0].get_legend_handles_labels()
+    # One legend for all panels, below them: the distance panel's success radius joins the others'.
+    for h, lab in zip(*dist_ax.get_legend_handles_labels(), strict=True):
+        if lab not in labels:
+            handles.append(h)
+            labels.append(lab)
     axes[-1].set_xlabel("simulated time (s)")
-    fig.suptitle("Tip position: simulator truth vs the controller's estimate")
-    fig.tight_layout()
+    fig.suptitle("Tip position: simulator truth vs the controller's estimate, up to the outcome")
+    fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0.0, 0.05, 1.0, 1.0))
     write_atomic(path, lambda p: fig.savefig(p, dpi=100, format="png"))
     plt.close(fig)
