@@ -59,6 +59,16 @@ def test_tip_control_sample_points_alone_would_miss() -> None:
     assert not env.outcome()[1]
 
 
+def test_tip_control_stopping_short_of_the_target_misses() -> None:
+    # The tip moves straight at the target's centre and stops 5 cm short of it: the segment it swept ends
+    # there (its extension through the target does not count).
+    env = make_env("TipControl")
+    env.reset(seed=0, options={"goal": GOAL})
+    _feed(env, [GOAL + [-0.10, 0.0, 0.0], GOAL + [-0.07, 0.0, 0.0], GOAL + [-0.05, 0.0, 0.0]])
+    assert env._monitor.min_goal_distance_m == pytest.approx(0.05, abs=1e-9)
+    assert not env.outcome()[1] and not env.is_done_early()
+
+
 @pytest.mark.parametrize(
     ("heights", "r_dyn"),
     [
