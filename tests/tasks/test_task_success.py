@@ -389,6 +389,15 @@ def test_time_oscillation_residual_over_the_threshold_fails() -> None:
     assert not success and info["residual_oscillation_m"] == pytest.approx(0.06)
 
 
+@pytest.mark.parametrize(("residual", "success"), [(0.0499, True), (0.0501, False)])
+def test_time_oscillation_success_at_the_oscillation_threshold(residual: float, success: bool) -> None:
+    # Success: arrived with the largest oscillation after arrival under eps_oscill = 0.05 m (table V).
+    task = TimeOscillation()
+    _run_task_iv(task, [0.2, 0.0, 0.0, 0.0], [0.3, 0.01, residual, 0.0])
+    _, ok, info = task.evaluate(_Scene(np.zeros((21, 3))), np.zeros(3), EpisodeMonitor(), True)
+    assert ok is success and info["residual_oscillation_m"] == pytest.approx(residual)
+
+
 def test_time_oscillation_avoid_is_charged_per_sample_and_blocks_success() -> None:
     task = TimeOscillation()
     _run_task_iv(task, [0.3, 0.2, 0.0, 0.0], [0.0, 0.0, 0.01, 0.01], speed=[1.0, 1.81, 1.9, 0.0])
