@@ -1,0 +1,443 @@
+"""Each task's success predicate and reward terms as the task classes compute them, on hand-built states.
+
+The tasks are evaluated through their public ``evaluate`` / ``on_samples`` / predicate methods with an
+:class:`EpisodeMonitor` and, where the task looks at the cable, a stand-in scene holding hand-placed cable
+nodes (pure: no simulation). Expected numbers are written out from the paper (eq. 4-7, tables IV and V) and
+docs/TASKS.md, with the boundaries on both sides.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from dyndlo_vision.sim import CableParams
+from dyndlo_vision.tasks import EpisodeMonitor, Hooking, TimeOscillation, TipControl, Vaulting
+from dyndlo_vision.tasks.hooking import HOOK_PRONG
+from dyndlo_vision.tasks.time_oscillation import LAYOUTS
+from dyndlo_vision.tasks.vaulting import OBSTACLE_CENTRE_M, crosses_over_obstacle, middle_landed_beyond
+
+TERMS = ("r_avoid", "r_distance", "r_success", "r_dyn")
+
+
+class _Scene:
+    """The parts of :class:`dyndlo_vision.sim.Scene` the tasks' evaluations read."""
+
+    def __init__(self, nodes: np.ndarray, tcp: np.ndarray | None = None, time: float = 0.0) -> None:
+        self._nodes = np.asarray(nodes, dtype=float)
+        self._tcp = np.asarray(tcp if tcp is not None else self._nodes[:1], dtype=float).reshape(-1, 3)
+        n_seg = len(self._nodes) - 1
+        self.config = SimpleNamespace(cable=SimpleNamespace(num_segments=n_seg, num_nodes=n_seg + 1))
+        self.time = time
+
+    def cable_nodes(self) -> np.ndarray:
+        return self._nodes.copy()
+
+    def tcp_positions(self) -> np.ndarray:
+        return self._tcp.copy()
+
+
+def _terms(terms: dict[str, float]) -> tuple[float, ...]:
+    return tuple(terms[k] for k in TERMS)
+
+
+def _monitor(
+    min_goal_distance_m: float = np.inf, avoid: str | None = None, height: float = 0.6
+) -> EpisodeMonitor:
+    mon = EpisodeMonitor()
+    mon.min_goal_distance_m = min_goal_distance_m
+    mon.max_mean_height_m = height
+    if avoid is not None:
+        mon.avoid[avoid] = True
+    return mon
+
+
+# ------------------------------------------------------------------------------------------------ task I
+def test_tip_control_success_radius_is_target_radius_plus_eps_goal() -> None:
+    # docs/TASKS.md: within eps_goal = 1 cm (table V) of the 5 cm target's surface: 2.5 + 1 = 3.5 cm.
+    assert TipControl().success_radius_m == pytest.approx(0.035, abs=1e-12)
+    assert TipControl(multi_step=True).success_radius_m == pytest.approx(0.035, abs=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("distance", "hit"), [(0.0, True), (0.0349, True), (0.0351, False), (0.045, False), (0.06, False)]
+)
+def test_tip_control_success_at_the_boundary(distance: float, hit: bool) -> None:
+    task = TipControl()
+    goal = np.array([0.8, 0.0, 0.4])
+    terms, success, info = task.evaluate(None, goal, _monitor(distance), True)
+    assert success is hit
+    # Task I column of table V: lambda_2 = -1 (I_dist = not hit, docs/TASKS.md), lambda_3 = 10.
+    assert _terms(terms) == ((0.0, 0.0, 10.0, 0.0) if hit else (0.0, -1.0, 0.0, 0.0))
+    assert info["min_distance_m"] == distance
+
+
+@pytest.mark.parametrize(("distance", "done"), [(0.0349, True), (0.0351, False)])
+def test_tip_control_multi_step_ends_at_the_hit(distance: float, done: bool) -> None:
+    task = TipControl(multi_step=True)
+    goal = np.array([0.8, 0.0, 0.4])
+    assert task.is_done_early(None, goal, _monitor(distance)) is done
+    terms, success, _ = task.evaluate(None, goal, _monitor(distance, avoid="velocity", height=0.75), True)
+    # Task I multi-step column: lambda_1 = -50, lambda_2 = -1, lambda_3 = 100, lambda_4 = -1, M = 0.75 m.
+    assert success is done
+    assert _terms(terms) == ((-50.0, 0.0, 100.0, -1.0) if done else (-50.0, -1.0, 0.0, -1.0))
+
+
+def test_tip_control_pays_nothing_before_the_end() -> None:
+    task = TipControl(multi_step=True)
+    terms, success, _ = task.evaluate(None, np.zeros(3), _monitor(0.0, avoid="outreach", height=0.9), False)
+    assert _terms(terms) == (0.0, 0.0, 0.0, 0.0) and not success
+
+
+def test_tip_control_terms_with_avoid_and_height() -> None:
+    # A miss with an avoid condition and the TCP at M: -5 - 1 + 0 - 1 = -7 (task I column).
+    terms, success, _ = TipControl().evaluate(
+        None, np.zeros(3), _monitor(0.2, avoid="shoulder", height=0.75), True
+    )
+    assert _terms(terms) == (-5.0, -1.0, 0.0, -1.0) and not success
+    terms, _, _ = TipControl().evaluate(None, np.zeros(3), _monitor(0.2, height=0.7499), True)
+    assert terms["r_dyn"] == 0.0
+
+
+@pytest.mark.parametrize(("distance", "r_distance"), [(0.135, -1.0), (0.085, -0.5), (0.03, 0.0)])
+def test_tip_control_linear_distance_reward(distance: float, r_distance: float) -> None:
+    # The shaped variant: lambda_2 per 10 cm of closest approach beyond the 3.5 cm success radius.
+    task = TipControl(distance_reward="linear")
+    terms, _, _ = task.evaluate(None, np.zeros(3), _monitor(distance), True)
+    assert terms["r_distance"] == pytest.approx(r_distance, abs=1e-12)
+
+
+# ------------------------------------------------------------------------------------------------ task II
+BOX_X, BOX_TOP, FAR_FACE = (
+    0.65,
+    0.14,
+    0.67,
+)  # obstacle centre x, top (0.07 + 0.14 / 2) and far face (0.65 + 0.02)
+
+
+def test_vaulting_obstacle_geometry() -> None:
+    assert OBSTACLE_CENTRE_M == (BOX_X, 0.0, 0.07)
+
+
+@pytest.mark.parametrize(
+    ("middle", "landed"),
+    [
+        ((0.6701, 0.0, 0.01), True),
+        ((0.6699, 0.0, 0.01), False),  # not past the far face
+        ((0.66, 0.0, 0.01), False),  # past the box's centre but not its far face
+        ((0.75, 0.0, 0.1399), True),
+        ((0.75, 0.0, 0.1401), False),  # above the box's top: held in the air
+        ((0.75, 0.3, 0.01), True),  # beside, but beyond: x and z decide
+        ((0.55, 0.0, 0.01), False),  # the robot's side
+    ],
+)
+def test_vaulting_middle_landed_beyond_boundaries(middle: tuple[float, float, float], landed: bool) -> None:
+    assert middle_landed_beyond(np.array(middle)) is landed
+
+
+@pytest.mark.parametrize(
+    ("z_before", "z_after", "over"),
+    [
+        # A segment from x = 0.63 to x = 0.67 crosses the mid-plane x = 0.65 halfway: its height there is the
+        # mean of its ends; it must be >= top - 1 cm = 0.13 m.
+        (0.1405, 0.1205, True),  # 0.1305
+        (0.1395, 0.1195, False),  # 0.1295
+        (0.20, 0.07, True),  # 0.135: one end below the limit, the crossing above it
+        (0.20, 0.05, False),  # 0.125: one end above, the crossing below
+        (0.05, 0.20, False),
+        (0.15, 0.15, True),
+    ],
+)
+def test_vaulting_crossing_height_is_interpolated_at_the_mid_plane(
+    z_before: float, z_after: float, over: bool
+) -> None:
+    nodes = np.array([[0.45, 0.0, 0.25], [0.63, 0.0, z_before], [0.67, 0.0, z_after], [0.85, 0.0, 0.01]])
+    assert crosses_over_obstacle(nodes) is over
+
+
+def test_vaulting_crossing_interpolation_uses_the_x_fraction() -> None:
+    # Crossing 1/4 of the way from (0.64, 0.10) to (0.68, 0.18): z = 0.10 + 0.25 * 0.08 = 0.12 < 0.13.
+    nodes = np.array([[0.45, 0.0, 0.25], [0.64, 0.0, 0.10], [0.68, 0.0, 0.18], [0.85, 0.0, 0.01]])
+    assert not crosses_over_obstacle(nodes)
+    # 3/4 of the way from (0.62, 0.1001) to (0.66, 0.1401): z = 0.1001 + 0.75 * 0.04 = 0.1301 >= 0.13: over.
+    nodes = np.array([[0.45, 0.0, 0.25], [0.62, 0.0, 0.1001], [0.66, 0.0, 0.1401], [0.85, 0.0, 0.01]])
+    assert crosses_over_obstacle(nodes)
+
+
+def test_vaulting_every_crossing_must_be_over_the_box() -> None:
+    over = [[0.45, 0.0, 0.25], [0.63, 0.0, 0.15], [0.67, 0.0, 0.15]]
+    back_low = [[0.63, 0.0, 0.02], [0.70, 0.0, 0.02]]  # back under the box's top, then out again
+    assert crosses_over_obstacle(np.array(over + [[0.85, 0.0, 0.01]]))
+    assert not crosses_over_obstacle(np.array(over + back_low))
+    # Never reaching the mid-plane is no vault.
+    assert not crosses_over_obstacle(np.array([[0.45, 0.0, 0.25], [0.64, 0.0, 0.3]]))
+    assert not crosses_over_obstacle(np.array([[0.70, 0.0, 0.25], [0.85, 0.0, 0.01]]))
+
+
+def _vault_nodes(middle: tuple[float, float, float], crossing_z: float) -> np.ndarray:
+    """61 nodes (the 90 cm, 60-segment cable): TCP, over the mid-plane at ``crossing_z``, middle, support."""
+    tcp, support = np.array([0.40, 0.0, 0.25]), np.array([0.85, 0.0, 0.01])
+    a, b = np.array([0.60, 0.0, crossing_z]), np.array([0.70, 0.0, crossing_z])
+    m = np.array(middle)
+    parts = [
+        np.linspace(tcp, a, 11)[:-1],  # nodes 0-9
+        np.linspace(a, b, 11)[:-1],  # nodes 10-19, crossing x = 0.65 between nodes 14 and 15
+        np.linspace(b, m, 11)[:-1],  # nodes 20-29
+        np.linspace(m, support, 31),  # nodes 30 (the middle) - 60
+    ]
+    nodes = np.vstack(parts)
+    assert nodes.shape == (61, 3) and np.allclose(nodes[30], m)
+    return nodes
+
+
+@pytest.mark.parametrize(
+    ("middle", "crossing_z", "success"),
+    [
+        ((0.75, 0.0, 0.01), 0.15, True),
+        ((0.75, 0.0, 0.01), 0.02, False),  # around the box (crossing at floor height)
+        ((0.75, 0.0, 0.30), 0.35, False),  # middle held up over the far side
+        ((0.66, 0.0, 0.01), 0.15, False),  # middle short of the far face
+    ],
+)
+def test_vaulting_success_and_terms(
+    middle: tuple[float, float, float], crossing_z: float, success: bool
+) -> None:
+    task = Vaulting()
+    scene = _Scene(_vault_nodes(middle, crossing_z))
+    assert task.p_dlo_node(scene) == 30
+    assert task.landed_beyond(scene) is success
+    terms, ok, info = task.evaluate(scene, np.array(OBSTACLE_CENTRE_M), _monitor(height=0.25), True)
+    assert ok is success
+    # Vaulting column of table V: lambda_2 = -1, lambda_3 = 10; M = 0.3 m not reached (0.25 m).
+    assert _terms(terms) == ((0.0, 0.0, 10.0, 0.0) if success else (0.0, -1.0, 0.0, 0.0))
+    assert info["middle_x_m"] == pytest.approx(middle[0])
+
+
+def test_vaulting_avoid_and_height_terms() -> None:
+    task = Vaulting()
+    scene = _Scene(_vault_nodes((0.75, 0.0, 0.01), 0.15))
+    terms, ok, _ = task.evaluate(scene, np.zeros(3), _monitor(avoid="outreach", height=0.30), True)
+    # lambda_1 = -10, lambda_4 = -2 at z_P = M = 0.3 m (>=); the success itself still pays 10.
+    assert ok and _terms(terms) == (-10.0, 0.0, 10.0, -2.0)
+    terms, ok, _ = task.evaluate(scene, np.zeros(3), _monitor(height=0.2999), False)
+    assert not ok and _terms(terms) == (0.0, 0.0, 0.0, 0.0)  # nothing before the end
+
+
+def test_vaulting_ignores_cable_floor_contact_but_the_others_do_not() -> None:
+    # docs/TASKS.md: the vaulting cable lies on the floor by design.
+    assert Vaulting.check_collision is False
+    assert TipControl.check_collision and Hooking.check_collision and TimeOscillation.check_collision
+
+
+# ------------------------------------------------------------------------------------------------ task III
+PRONG_A, PRONG_B = np.array(HOOK_PRONG[0]), np.array(HOOK_PRONG[1])
+
+
+def test_hook_geometry() -> None:
+    assert HOOK_PRONG == ((0.72, 0.0, 0.20), (0.60, 0.0, 0.23))
+
+
+def _on_prong(offset_m: float, along: float = 0.5) -> np.ndarray:
+    """A point ``offset_m`` from the prong's axis, perpendicular to it in the x-z plane (> 0: above)."""
+    axis = PRONG_B - PRONG_A
+    normal = np.array([-axis[2], 0.0, axis[0]])  # (-0.03, 0, -0.12): perpendicular, pointing down; flip it
+    normal = -normal if normal[2] < 0 else normal
+    normal /= np.linalg.norm(normal)
+    return PRONG_A + along * axis + offset_m * normal
+
+
+def _hook_nodes(k: int | None, point: np.ndarray | None = None) -> np.ndarray:
+    """21 nodes (the 50 cm, 20-segment cable) hanging away from the hook, node ``k`` moved to ``point``."""
+    nodes = np.column_stack([np.full(21, 0.40), np.linspace(-0.12, 0.12, 21), np.full(21, 0.05)])
+    if k is not None:
+        nodes[k] = point
+    return nodes
+
+
+@pytest.mark.parametrize(
+    ("offset", "hooked"),
+    [
+        # Reach = prong radius 8 mm + cable radius 2 mm + 1 cm = 2 cm from the axis, above it.
+        (0.0199, True),
+        (0.0201, False),
+        (0.005, True),
+        (-0.005, False),  # below the axis: hanging under the prong, not carried by it
+        (-0.015, False),
+    ],
+)
+def test_hooking_success_distance_and_side(offset: float, hooked: bool) -> None:
+    assert CableParams().radius_m == 0.002
+    task = Hooking()
+    assert task.hooked(_Scene(_hook_nodes(10, _on_prong(offset)))) is hooked
+
+
+@pytest.mark.parametrize(
+    ("k", "hooked"), [(6, False), (7, True), (10, True), (13, True), (15, False), (20, False)]
+)
+def test_hooking_counts_only_the_middle_third(k: int, hooked: bool) -> None:
+    # 21 nodes: the middle third starts at node 7; the first 7 and the last 6 do not count.
+    assert Hooking().hooked(_Scene(_hook_nodes(k, _on_prong(0.01)))) is hooked
+
+
+def test_hooking_not_hooked_at_the_start_pose() -> None:
+    assert not Hooking().hooked(_Scene(_hook_nodes(None)))
+
+
+def test_hooking_reach_grows_with_the_cable_radius() -> None:
+    # A 5 mm cable: reach 8 + 5 + 10 = 23 mm.
+    task = Hooking(cable=CableParams(radius_m=0.005))
+    assert task.hooked(_Scene(_hook_nodes(10, _on_prong(0.0225))))
+    assert not task.hooked(_Scene(_hook_nodes(10, _on_prong(0.0235))))
+
+
+@pytest.mark.parametrize("hooked", [True, False])
+def test_hooking_terms(hooked: bool) -> None:
+    scene = _Scene(_hook_nodes(10, _on_prong(0.01 if hooked else 0.05)))
+    terms, ok, _ = Hooking().evaluate(scene, np.zeros(3), _monitor(avoid="velocity", height=0.31), True)
+    # Hooking column of table V: lambda_1 = -10, lambda_2 = -1, lambda_3 = 10, lambda_4 = -2 (M = 0.3 m).
+    assert ok is hooked
+    assert _terms(terms) == ((-10.0, 0.0, 10.0, -2.0) if hooked else (-10.0, -1.0, 0.0, -2.0))
+
+
+# ------------------------------------------------------------------------------------------------ task IV
+def test_time_oscillation_layouts_keep_the_papers_distances_and_are_feasible() -> None:
+    # Section V-A: the target is 0.55 m from the start (up) and 0.412 m (down).
+    from dyndlo_vision.tasks.rewards import AvoidLimits, avoid_flags
+
+    for layout, targets in LAYOUTS.items():
+        for target, distance in (("up", 0.55), ("down", 0.412)):
+            start, goal = (np.array(p) for p in targets[target])
+            assert np.linalg.norm(goal - start) == pytest.approx(distance, abs=1e-3), (layout, target)
+            task = TimeOscillation(target=target, layout=layout)
+            np.testing.assert_array_equal(task.sample_goal(np.random.default_rng(0)), goal)
+            np.testing.assert_array_equal(task.final_point(goal), goal)
+            for p in (start, goal):  # neither end of the move breaks an avoid condition (tip 0.5 m below)
+                flags = avoid_flags(p[None], np.zeros((1, 3)), p - [0, 0, 0.5], AvoidLimits())
+                assert not any(flags.values()), (layout, target, p, flags)
+    assert LAYOUTS["vertical"]["up"][1][2] > LAYOUTS["vertical"]["up"][0][2]  # "up" goes up
+    assert LAYOUTS["vertical"]["down"][1][2] < LAYOUTS["vertical"]["down"][0][2]
+
+
+def test_time_oscillation_arrival_is_the_tcps_distance_to_the_goal() -> None:
+    task = TimeOscillation()
+    goal = np.array(task.goal_m)
+    tcp = np.array([[goal], [goal + [0.0, 0.0, -0.2]]])  # (K=2, n_g=1, 3)
+    tip = tcp[:, 0] + [0.3, 0.0, -0.5]  # the tip far from the goal does not matter
+    np.testing.assert_allclose(task.goal_distances(tcp, tip, goal), [0.0, 0.2], atol=1e-12)
+
+
+def _run_task_iv(
+    task: TimeOscillation,
+    goal_dist: list[float],
+    osc: list[float],
+    speed: list[float] | None = None,
+    t0: float = 0.0,
+    period: float = 0.04,
+) -> None:
+    """Feed ``task.on_samples`` one sample per entry, at ``period``: TCP above the tip, tip ``osc`` aside."""
+    k = len(osc)
+    times = t0 + period * np.arange(k)
+    start, goal = np.array(task.start_m), np.array(task.goal_m)
+    frac = np.linspace(0.0, 1.0, k)[:, None]
+    tcp = (start + frac * (goal - start))[:, None, :]
+    vel = np.zeros_like(tcp)
+    if speed is not None:
+        vel[:, 0, 2] = speed
+    tip = tcp[:, 0] + np.column_stack([osc, np.zeros(k), np.full(k, -0.5)])
+    task.on_samples(times, tcp, vel, tip, np.asarray(goal_dist, dtype=float), EpisodeMonitor())
+
+
+@pytest.mark.parametrize("target", ["up", "down"])
+def test_time_oscillation_success_and_terms(target: str) -> None:
+    task = TimeOscillation(target=target)
+    task.begin_episode()
+    # 25 Hz samples at t = 0, 0.04, ..., 0.20. Arrival (TCP within 1 cm of the goal) at the 5th, t = 0.16 s:
+    # 1.01 cm does not count, 0.99 cm does.
+    _run_task_iv(task, [0.5, 0.3, 0.1, 0.0101, 0.0099, 0.0], [0.0, 0.30, 0.20, 0.10, 0.03, 0.02])
+    goal = np.array(task.goal_m)
+    scene = _Scene(np.array([goal, goal + [0.02, 0.0, -0.5]]), tcp=goal, time=1.2)
+    terms, success, info = task.evaluate(scene, goal, EpisodeMonitor(), True)
+    # Per sample after arrival (docs/TASKS.md): r_success = 1.5 * 2 samples under eps_oscill = 5 cm,
+    # r_dyn = -2.5 * (0.03 + 0.02) = -0.125; the 0.30 / 0.20 / 0.10 m before arrival cost nothing;
+    # r_distance = lambda_2 * t_traj = -3 * 0.16 = -0.48 (eq. r_distance, explicit).
+    assert _terms(terms) == pytest.approx((0.0, -0.48, 3.0, -0.125), abs=1e-12)
+    assert success
+    assert info["arrived"] and info["trajectory_time_s"] == pytest.approx(0.16)
+    assert info["residual_oscillation_m"] == pytest.approx(0.03)
+    assert info["oscillation_m"] == pytest.approx(0.02)
+
+
+def test_time_oscillation_oscillation_before_arrival_is_not_charged() -> None:
+    task = TimeOscillation()
+    _run_task_iv(task, [0.5, 0.4, 0.3, 0.2], [0.25, 0.4, 0.1, 0.3])
+    terms, success, info = task.evaluate(
+        _Scene(np.zeros((21, 3)), time=0.5), np.zeros(3), EpisodeMonitor(), False
+    )
+    assert _terms(terms) == (0.0, 0.0, 0.0, 0.0)  # not arrived: no r_dyn, no r_success; r_distance at the end
+    assert not success and not info["arrived"] and info["residual_oscillation_m"] == 0.0
+
+
+def test_time_oscillation_residual_over_the_threshold_fails() -> None:
+    task = TimeOscillation()
+    _run_task_iv(task, [0.3, 0.005, 0.0, 0.0], [0.1, 0.02, 0.06, 0.01])
+    terms, success, info = task.evaluate(_Scene(np.zeros((21, 3))), np.zeros(3), EpisodeMonitor(), True)
+    # Arrived at t = 0.04: r_success = 1.5 * 2 (0.02, 0.01 < 0.05, not 0.06), r_dyn = -2.5 * 0.09 = -0.225,
+    # r_distance = -3 * 0.04 = -0.12; max residual 6 cm >= eps_oscill: no success.
+    assert _terms(terms) == pytest.approx((0.0, -0.12, 3.0, -0.225), abs=1e-12)
+    assert not success and info["residual_oscillation_m"] == pytest.approx(0.06)
+
+
+@pytest.mark.parametrize(("residual", "success"), [(0.0499, True), (0.0501, False)])
+def test_time_oscillation_success_at_the_oscillation_threshold(residual: float, success: bool) -> None:
+    # Success: arrived with the largest oscillation after arrival under eps_oscill = 0.05 m (table V).
+    task = TimeOscillation()
+    _run_task_iv(task, [0.2, 0.0, 0.0, 0.0], [0.3, 0.01, residual, 0.0])
+    _, ok, info = task.evaluate(_Scene(np.zeros((21, 3))), np.zeros(3), EpisodeMonitor(), True)
+    assert ok is success and info["residual_oscillation_m"] == pytest.approx(residual)
+
+
+def test_time_oscillation_avoid_is_charged_per_sample_and_blocks_success() -> None:
+    task = TimeOscillation()
+    _run_task_iv(task, [0.3, 0.2, 0.0, 0.0], [0.0, 0.0, 0.01, 0.01], speed=[1.0, 1.81, 1.9, 0.0])
+    monitor = EpisodeMonitor()
+    monitor.avoid["velocity"] = True  # what the environment's monitor records for the same samples
+    terms, success, _ = task.evaluate(_Scene(np.zeros((21, 3))), np.zeros(3), monitor, True)
+    # Two samples over v_max = 1.8 m/s: r_avoid = -50 * 2 (table V, task IV); arrived at t = 0.08.
+    assert _terms(terms) == pytest.approx((-100.0, -0.24, 3.0, -0.05), abs=1e-12)
+    assert not success
+
+
+def test_time_oscillation_never_arriving_pays_the_whole_episode_time() -> None:
+    task = TimeOscillation()
+    _run_task_iv(task, [0.3, 0.2, 0.1, 0.05], [0.0, 0.0, 0.0, 0.0])
+    terms, success, info = task.evaluate(
+        _Scene(np.zeros((21, 3)), time=5.0), np.zeros(3), EpisodeMonitor(), True
+    )
+    assert terms["r_distance"] == pytest.approx(-15.0)  # -3 * 5 s
+    assert not success and not info["arrived"] and info["trajectory_time_s"] is None
+
+
+def test_time_oscillation_is_evaluated_at_25_hz_across_calls() -> None:
+    task = TimeOscillation()
+    # 2 ms monitor samples over 0.1 s (t = 0 ... 0.1), arrived throughout, 1 cm oscillation, in two batches:
+    # evaluated at t = 0, 0.04, 0.08 only -> r_success 3 * 1.5, r_dyn 3 * -2.5 * 0.01.
+    _run_task_iv(task, [0.0] * 26, [0.01] * 26, period=0.002)
+    _run_task_iv(task, [0.0] * 25, [0.01] * 25, period=0.002, t0=0.052)
+    terms, _, _ = task.evaluate(_Scene(np.zeros((21, 3))), np.zeros(3), EpisodeMonitor(), False)
+    assert _terms(terms) == pytest.approx((0.0, 0.0, 4.5, -0.075), abs=1e-12)
+
+
+def test_time_oscillation_pending_terms_are_paid_once() -> None:
+    task = TimeOscillation(multi_step=True)
+    _run_task_iv(task, [0.3, 0.0], [0.0, 0.02])
+    scene = _Scene(np.zeros((21, 3)), time=1.0)
+    first, _, _ = task.evaluate(scene, np.zeros(3), EpisodeMonitor(), False)
+    assert _terms(first) == pytest.approx((0.0, 0.0, 1.5, -0.05), abs=1e-12)
+    last, success, _ = task.evaluate(scene, np.zeros(3), EpisodeMonitor(), True)
+    assert _terms(last) == pytest.approx((0.0, -0.12, 0.0, 0.0), abs=1e-12)  # t_traj = 0.04 s
+    assert success
+    task.begin_episode()
+    again, success, info = task.evaluate(scene, np.zeros(3), EpisodeMonitor(), True)
+    assert not info["arrived"] and not success and again["r_distance"] == pytest.approx(-3.0)
