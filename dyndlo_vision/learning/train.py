@@ -17,6 +17,7 @@ A run folder holds::
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import os
@@ -42,6 +43,43 @@ def algo_class(name: str) -> Any:
     from stable_baselines3 import PPO, SAC
 
     return {"ppo": PPO, "sac": SAC}[name]
+
+
+def has_checkpoint(out: Path) -> bool:
+    """Whether ``out`` holds a complete checkpoint to resume from (state.json is written last)."""
+    ckpt = Path(out) / CHECKPOINT_DIR
+    return (ckpt / "model.zip").is_file() and (ckpt / "state.json").is_file()
+
+
+def check_run(config: RunConfig, out: Path, resume: bool = False) -> RunConfig:
+    """Check a run before anything is written; return the configuration to run with.
+
+    A resumed run takes its stored configuration; ``config.timesteps`` may keep or extend its budget, never
+    shrink it.
+
+    Raises:
+        ValueError: If ``out`` holds another run and ``resume`` is False, holds no checkpoint to resume, or
+            ``config.timesteps`` is below the stored budget or below the steps already done.
+        FileNotFoundError: If ``resume`` and ``out`` holds no ``config.json``.
+    """
+    if resume:
+        stored = RunConfig.from_json(out / "config.json")
+        if not has_checkpoint(out):
+            raise ValueError(
+                f"{out} has no checkpoint to resume from ({out / CHECKPOINT_DIR / 'state.json'} is missing)"
+            )
+        done = _steps_done(out / CHECKPOINT_DIR)
+        # Shrinking the budget would be silently ignored (or, below the steps done, meaningless): refuse it.
+        if config.timesteps != stored.timesteps and config.timesteps < max(stored.timesteps, done):
+            raise ValueError(
+                f"--timesteps {config.timesteps} on --resume: the run in {out} has a budget of "
+                f"{stored.timesteps} steps, {done} done; a resumed run keeps its budget (leave --timesteps "
+                f"out) or extends it (--timesteps {max(stored.timesteps + 1, done)} or more)"
+            )
+        config = dataclasses.replace(stored, timesteps=config.timesteps)
+    elif (out / "config.json").exists():
+        raise ValueError(f"{out} already holds a run; pass --resume to continue it or choose another --out")
+    return config
 
 
 class _RunCallbacks:
@@ -139,22 +177,15 @@ def train(config: RunConfig, out: Path, resume: bool = False, progress_bar: bool
     """Train (or resume) a run in ``out`` and return its summary (also written to ``out/summary.json``).
 
     Raises:
-        ValueError: If ``out`` holds another run and ``resume`` is False, or holds no checkpoint to resume.
+        ValueError: If ``out`` holds another run and ``resume`` is False, holds no checkpoint to resume, or
+            the budget of a resumed run would shrink (see :func:`check_run`).
     """
     import torch
 
     out = Path(out)
+    config = check_run(config, out, resume)
     config_file = out / "config.json"
     ckpt = out / CHECKPOINT_DIR
-    if resume:
-        stored = RunConfig.from_json(config_file)
-        if stored.timesteps != config.timesteps and config.timesteps > stored.timesteps:
-            stored = RunConfig(**{**json.loads(stored.to_json()), "timesteps": config.timesteps})
-        config = stored
-        if not (ckpt / "model.zip").is_file():
-            raise ValueError(f"{out} has no checkpoint to resume from ({ckpt / 'model.zip'} is missing)")
-    elif config_file.exists():
-        raise ValueError(f"{out} already holds a run; pass --resume to continue it or choose another --out")
     out.mkdir(parents=True, exist_ok=True)
     write_atomic(config_file, lambda p: Path(p).write_text(config.to_json()))
     torch.set_num_threads(1)  # one core per process: the environments take the others
