@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import shlex
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -95,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         summary = train(config, out, resume=args.resume, progress_bar=not args.quiet)
     except KeyboardInterrupt:
-        print(f"interrupted; resume with: dyndlo-vision train --resume --out {out}")
+        print(f"interrupted; resume with: dyndlo-vision train --resume --out {shlex.quote(str(out))}")
         return 130
     print(json.dumps(summary, indent=2))
     print(f"wrote {out / 'model.zip'}")

@@ -191,6 +191,8 @@ def train(config: RunConfig, out: Path, resume: bool = False, progress_bar: bool
     torch.set_num_threads(1)  # one core per process: the environments take the others
 
     state: dict[str, Any] = {}
+    if config.vec_env == "subproc" and config.n_envs > 1:  # make_vec_env's condition for worker processes
+        _start_forkserver_ignoring_sigint()
     vec = make_vec_env(
         config,
         config.n_envs,
@@ -248,7 +250,7 @@ def train(config: RunConfig, out: Path, resume: bool = False, progress_bar: bool
             raise KeyboardInterrupt
         write_atomic(out / "model.zip", lambda p: model.save(p))
     finally:
-        vec.close()
+        close_vec_env(vec)
     summary = summarize(
         out,
         wall_s=wall,
@@ -257,6 +259,47 @@ def train(config: RunConfig, out: Path, resume: bool = False, progress_bar: bool
     )
     write_atomic(out / "summary.json", lambda p: Path(p).write_text(json.dumps(summary, indent=2)))
     return summary
+
+
+def _start_forkserver_ignoring_sigint() -> None:
+    """Start multiprocessing's fork server with SIGINT ignored, so the environment workers ignore it too.
+
+    A terminal's Ctrl-C reaches the whole foreground process group. Workers that took it would die
+    mid-step and leave this process unable to close them (EOFError); ignoring it, they live on until
+    :func:`close_vec_env`, while this process turns Ctrl-C into a checkpoint. The fork server is exec'd
+    and keeps an inherited SIG_IGN (Python leaves an ignored SIGINT alone), and every process it forks
+    starts with its SIGINT handling. Only starting it is shielded, a matter of milliseconds, so a Ctrl-C
+    is hardly ever lost; a fork server started earlier by someone else is left as it is (then
+    :func:`close_vec_env` still copes with workers that died).
+    """
+    from multiprocessing import forkserver
+
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        forkserver.ensure_running()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def close_vec_env(vec: Any) -> None:
+    """Close a vectorised environment, also when some of its worker processes are already gone.
+
+    SubprocVecEnv.close() talks to every worker and raises EOFError or BrokenPipeError if one has died
+    (killed, or struck by a signal meant for this process), which would hide the run's own outcome (a
+    checkpoint and a resume hint) behind a traceback: stop the remaining workers instead.
+    """
+    try:
+        vec.close()
+    except (EOFError, OSError) as err:
+        log.warning("environment workers had already exited (%s: %s); stopping the rest",
+                    type(err).__name__, err)
+        for process in getattr(vec, "processes", []):
+            if process.is_alive():
+                process.terminate()
+            process.join()
+        for remote in getattr(vec, "remotes", []):
+            remote.close()
+        vec.closed = True
 
 
 def _raise_keyboard_interrupt(signum: int, frame: Any) -> None:

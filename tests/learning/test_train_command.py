@@ -1,18 +1,24 @@
-"""``train`` when things go wrong: resuming with another budget."""
+"""``train`` when things go wrong: Ctrl-C with worker processes, resuming with another budget."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 from typing import Any
 
 import pytest
 
+import dyndlo_vision
 from dyndlo_vision.cli import main
 from dyndlo_vision.learning import train as train_module
 from dyndlo_vision.learning.config import RunConfig
-from dyndlo_vision.learning.train import check_run
+from dyndlo_vision.learning.train import check_run, close_vec_env
 
 
 def _refuses(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
@@ -75,3 +81,70 @@ def test_resume_keeps_or_extends_the_stored_budget(tmp_path: Path, monkeypatch: 
     assert main(["train", "--resume", "--out", str(out), "--timesteps", "2500"]) == 0
     assert [c.timesteps for c in seen] == [2000, 2500]
     assert seen[0] == _config(timesteps=2000)  # the stored configuration, not one built from the options
+
+
+@pytest.mark.slow
+def test_close_vec_env_copes_with_a_dead_worker() -> None:
+    from dyndlo_vision.learning.envs import make_vec_env
+
+    vec = make_vec_env(_config(n_envs=2, vec_env="subproc"), 2, 0, None, "subproc")
+    vec.reset()
+    victim = vec.processes[1]
+    os.kill(victim.pid, signal.SIGKILL)  # as a signal meant for the trainer could, or the OOM killer
+    victim.join()
+    close_vec_env(vec)  # SubprocVecEnv.close() alone: BrokenPipeError
+    assert vec.closed and not any(p.is_alive() for p in vec.processes)
+
+
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "dyndlo_vision", "train", "--quiet", *args]
+
+
+def _env() -> dict[str, str]:
+    """This process's environment, importing the same dyndlo_vision as this test in the subprocess."""
+    root = str(Path(dyndlo_vision.__file__).resolve().parents[1])
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p)}
+
+
+@pytest.mark.slow
+def test_ctrl_c_with_subprocess_workers_exits_130_and_the_run_resumes(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    log = tmp_path / "train.log"
+    # The first checkpoint comes at step 2; the 38 steps after it (episodes of ~0.1 s of compute each,
+    # slower under load) leave ample time to interrupt the run before it completes.
+    budget = 40
+    command = _cli("--task", "tip-control", "--algo", "sac", "--timesteps", str(budget), "--vec-env",
+                   "subproc", "--n-envs", "2", "--checkpoint-freq", "2", "--eval-freq", "1000",
+                   "--eval-episodes", "1", "--out", str(out))
+    state = out / "checkpoint" / "state.json"
+    with log.open("w") as sink:
+        # Its own process group, which a terminal's Ctrl-C signals as a whole: trainer and workers alike.
+        proc = subprocess.Popen(command, stdout=sink, stderr=subprocess.STDOUT, start_new_session=True,
+                                env=_env())
+        try:
+            deadline = time.monotonic() + 600  # a hang guard only: start-up takes ~20 s on a loaded machine
+            while not state.is_file():
+                assert proc.poll() is None, f"train exited ({proc.returncode}) early:\n{log.read_text()}"
+                assert time.monotonic() < deadline, f"no checkpoint:\n{log.read_text()}"
+                time.sleep(0.1)
+            os.killpg(proc.pid, signal.SIGINT)
+            returncode = proc.wait(timeout=600)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+    output = log.read_text()
+    assert returncode == 130, output
+    assert f"resume with: dyndlo-vision train --resume --out {out}" in output
+    assert "Traceback" not in output
+    assert "workers had already exited" not in output  # the workers ignored Ctrl-C and were closed in order
+    steps = json.loads(state.read_text())["num_timesteps"]
+    assert steps < budget, "the run finished before it was interrupted: raise the budget of this test"
+    assert not (out / "model.zip").exists()
+
+    # The hint's command, as printed: continues to the stored budget and completes.
+    done = subprocess.run(_cli("--resume", "--out", str(out)), capture_output=True, text=True, env=_env(),
+                          timeout=600)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert budget <= json.loads(state.read_text())["num_timesteps"] < budget + 2
+    assert (out / "model.zip").is_file()
