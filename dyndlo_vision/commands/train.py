@@ -85,10 +85,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Resolve the configuration (a new one, or the stored one on ``--resume``), then train.
 
-    Returns 0 when the run completes, 130 when Ctrl-C (or SIGTERM) stopped it.
+    Returns 0 when the run completes, 130 when Ctrl-C (or SIGTERM) stopped it. Bad input raises
+    ValueError (the CLI's exit status 2) before anything is written.
     """
     from dyndlo_vision.learning.config import hyperparams_key
-    from dyndlo_vision.learning.train import train
+    from dyndlo_vision.learning.train import has_checkpoint, train
 
     algo = args.algo or ("sac" if args.task == "time-oscillation" else "ppo")
     out = Path(args.out or f"runs/{hyperparams_key(args.task, args.multi_step)}-{algo}-s{args.seed}")
@@ -96,7 +97,11 @@ def run(args: argparse.Namespace) -> int:
     try:
         summary = train(config, out, resume=args.resume, progress_bar=not args.quiet)
     except KeyboardInterrupt:
-        print(f"interrupted; resume with: dyndlo-vision train --resume --out {shlex.quote(str(out))}")
+        if has_checkpoint(out):
+            print(f"interrupted; resume with: dyndlo-vision train --resume --out {shlex.quote(str(out))}")
+        else:
+            print(f"interrupted before the first checkpoint: nothing to resume (what it wrote in {out} "
+                  "is removed)")
         return 130
     print(json.dumps(summary, indent=2))
     print(f"wrote {out / 'model.zip'}")

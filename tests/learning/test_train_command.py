@@ -1,4 +1,4 @@
-"""``train`` when things go wrong: Ctrl-C with worker processes, resuming with another budget."""
+"""``train`` when things go wrong: bad input refused up front, failed runs cleaned up, Ctrl-C, resuming."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ import dyndlo_vision
 from dyndlo_vision.cli import main
 from dyndlo_vision.learning import train as train_module
 from dyndlo_vision.learning.config import RunConfig
-from dyndlo_vision.learning.train import check_run, close_vec_env
+from dyndlo_vision.learning.train import check_run, close_vec_env, train
 
 
 def _refuses(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
@@ -39,6 +39,64 @@ def no_environments(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(train_module, "make_vec_env", refuse)
 
 
+def _noise_file(tmp_path: Path, text: str) -> str:
+    path = tmp_path / "noise.json"
+    path.write_text(text)
+    return str(path)
+
+
+# Each case: extra arguments, what the message must say. The user's commands: SAC, subprocess workers.
+BAD_INPUT: list[tuple[list[str], list[str]]] = [
+    (["--hp", "bogus=1"], ["'bogus'", "valid:", "learning_starts", "gradient_steps"]),
+    (["--hp", "seed=1"], ["'seed'", "--seed"]),
+    (["--env-option", "bogus=2"], ["'bogus'", "TipControl"]),
+    (["--timesteps", "0"], ["timesteps=0", "positive"]),
+    (["--n-envs", "0"], ["n_envs=0", "positive"]),
+    (["--eval-freq", "0"], ["eval_freq=0", "positive"]),
+    (["--checkpoint-freq", "-5"], ["checkpoint_freq=-5", "positive"]),
+]
+
+
+@pytest.mark.parametrize(("extra", "expected"), BAD_INPUT)
+def test_bad_input_is_refused_before_anything_is_written(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], no_environments: None, extra: list[str],
+    expected: list[str],
+) -> None:
+    out = tmp_path / "run"
+    argv = ["train", "--task", "tip-control", "--algo", "sac", "--timesteps", "50", "--out", str(out), *extra]
+    message = _refuses(argv, capsys)
+    for text in expected:
+        assert text in message, (text, message)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [("{broken", "not valid JSON"), ('{"format": 1}', "format is 1"), ("[1, 2]", "expected a JSON object")],
+)
+def test_a_malformed_noise_file_is_refused_before_anything_is_written(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], no_environments: None, text: str, expected: str
+) -> None:
+    noise = _noise_file(tmp_path, text)
+    out = tmp_path / "run"
+    message = _refuses(["train", "--task", "tip-control", "--algo", "sac", "--obs-noise", noise,
+                        "--out", str(out)], capsys)
+    assert noise in message and expected in message and "Traceback" not in message
+    assert not out.exists()
+
+
+def test_an_out_path_that_cannot_be_a_folder_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], no_environments: None
+) -> None:
+    regular = tmp_path / "notes.txt"
+    regular.write_text("mine")
+    message = _refuses(["train", "--out", str(regular)], capsys)
+    assert str(regular) in message and "not a folder" in message
+    message = _refuses(["train", "--out", str(regular / "run")], capsys)
+    assert str(regular) in message and "not a folder" in message
+    assert regular.read_text() == "mine"
+
+
 def _config(**changes: Any) -> RunConfig:
     """A tiny SAC run on the cheapest task, in this process."""
     base = RunConfig(
@@ -47,6 +105,69 @@ def _config(**changes: Any) -> RunConfig:
         eval_freq=100, eval_episodes=1, checkpoint_freq=2,
     )
     return dataclasses.replace(base, **changes)
+
+
+@pytest.mark.parametrize("error", [RuntimeError("simulated crash"), KeyboardInterrupt()])
+def test_a_run_failing_before_its_first_checkpoint_takes_back_what_it_wrote(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, error: BaseException
+) -> None:
+    def fail(config: RunConfig, out: Path) -> None:  # after config.json, monitor/ and the model exist
+        assert (out / "config.json").is_file() and (out / "monitor").is_dir()
+        raise error
+
+    monkeypatch.setattr(train_module, "_eval_callback", fail)
+    # A new folder (and a new parent): all of it goes.
+    with pytest.raises(type(error)):
+        train(_config(), tmp_path / "new" / "run", progress_bar=False)
+    assert not (tmp_path / "new").exists()
+    # ... unless another run has meanwhile started in the new parent (seeds launched together).
+    def fail_beside_another(config: RunConfig, out: Path) -> None:
+        (out.parent / "seed1" / "config.json").parent.mkdir()
+        (out.parent / "seed1" / "config.json").write_text("another run's")
+        raise error
+
+    monkeypatch.setattr(train_module, "_eval_callback", fail_beside_another)
+    with pytest.raises(type(error)):
+        train(_config(), tmp_path / "runs" / "seed0", progress_bar=False)
+    assert [p.name for p in (tmp_path / "runs").iterdir()] == ["seed1"]
+    assert (tmp_path / "runs" / "seed1" / "config.json").read_text() == "another run's"
+    # A folder that was there, with something of the user's in it: only what the run added goes.
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep me")
+    with pytest.raises(type(error)):
+        train(_config(), mine, progress_bar=False)
+    assert [p.name for p in mine.iterdir()] == ["notes.txt"] and (mine / "notes.txt").read_text() == "keep me"
+    check_run(_config(), mine)  # the same run can start again
+
+
+def test_a_folder_left_by_an_older_failed_run_gets_a_clear_message(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], no_environments: None
+) -> None:
+    out = tmp_path / "run"
+    (out / "monitor").mkdir(parents=True)
+    (out / "config.json").write_text(_config().to_json())
+    message = _refuses(["train", "--out", str(out)], capsys)
+    assert "before its first checkpoint" in message and "delete the folder" in message
+    message = _refuses(["train", "--resume", "--out", str(out)], capsys)
+    assert "no checkpoint" in message
+    assert sorted(p.name for p in out.iterdir()) == ["config.json", "monitor"]  # never deleted for the user
+
+
+@pytest.mark.slow
+def test_a_resumed_run_that_fails_keeps_its_folder(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    out = tmp_path / "run"
+    train(_config(), out, progress_bar=False)
+    before = sorted(p.relative_to(out) for p in out.rglob("*"))
+
+    def fail(config: RunConfig, out: Path) -> None:
+        raise RuntimeError("simulated crash")
+
+    monkeypatch.setattr(train_module, "_eval_callback", fail)
+    with pytest.raises(RuntimeError, match="simulated crash"):
+        train(_config(timesteps=8), out, resume=True, progress_bar=False)
+    after = sorted(p.relative_to(out) for p in out.rglob("*"))
+    assert set(before) <= set(after)
 
 
 def _fake_run(out: Path, timesteps: int, done: int) -> None:
@@ -81,6 +202,18 @@ def test_resume_keeps_or_extends_the_stored_budget(tmp_path: Path, monkeypatch: 
     assert main(["train", "--resume", "--out", str(out), "--timesteps", "2500"]) == 0
     assert [c.timesteps for c in seen] == [2000, 2500]
     assert seen[0] == _config(timesteps=2000)  # the stored configuration, not one built from the options
+
+
+def test_ctrl_c_before_the_first_checkpoint_says_there_is_nothing_to_resume(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    def interrupted(config: RunConfig, out: Path, **kwargs: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(train_module, "train", interrupted)
+    assert main(["train", "--out", str(tmp_path / "run")]) == 130
+    printed = capsys.readouterr().out
+    assert "nothing to resume" in printed and "--resume" not in printed
 
 
 @pytest.mark.slow
