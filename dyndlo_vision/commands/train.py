@@ -3,11 +3,16 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+import shlex
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import yaml
+
+if TYPE_CHECKING:
+    from dyndlo_vision.learning.config import RunConfig
 
 HELP = "train a policy (PPO/SAC) on a task; resumable"
 
@@ -78,16 +83,40 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Resolve the configuration, then train."""
-    from dyndlo_vision.control.noise_model import resolve_noise_model_path
-    from dyndlo_vision.learning.config import RunConfig, load_hyperparams
-    from dyndlo_vision.learning.train import train
+    """Resolve the configuration (a new one, or the stored one on ``--resume``), then train.
+
+    Returns 0 when the run completes, 130 when Ctrl-C (or SIGTERM) stopped it. Bad input raises
+    ValueError (the CLI's exit status 2) before anything is written.
+    """
+    from dyndlo_vision.learning.config import hyperparams_key
+    from dyndlo_vision.learning.train import has_checkpoint, train
 
     algo = args.algo or ("sac" if args.task == "time-oscillation" else "ppo")
+    out = Path(args.out or f"runs/{hyperparams_key(args.task, args.multi_step)}-{algo}-s{args.seed}")
+    config = _resumed_config(args, out) if args.resume else _new_config(args, algo)
+    try:
+        summary = train(config, out, resume=args.resume, progress_bar=not args.quiet)
+    except KeyboardInterrupt:
+        if has_checkpoint(out):
+            print(f"interrupted; resume with: dyndlo-vision train --resume --out {shlex.quote(str(out))}")
+        else:
+            print(f"interrupted before the first checkpoint: nothing to resume (what it wrote in {out} "
+                  "is removed)")
+        return 130
+    print(json.dumps(summary, indent=2))
+    print(f"wrote {out / 'model.zip'}")
+    return 0
+
+
+def _new_config(args: argparse.Namespace, algo: str) -> RunConfig:
+    """The RunConfig of a new run: the YAML entry of the task and mode, overridden by the options."""
+    from dyndlo_vision.control.noise_model import resolve_noise_model_path
+    from dyndlo_vision.learning.config import RunConfig, load_hyperparams
+
     obs_noise = resolve_noise_model_path(args.obs_noise)
     entry = load_hyperparams(algo, args.task, args.multi_step)
     hyperparams = {**entry["hyperparams"], **parse_assignments(args.hp, "--hp")}
-    config = RunConfig(
+    return RunConfig(
         task=args.task,
         multi_step=args.multi_step,
         algo=algo,
@@ -105,12 +134,15 @@ def run(args: argparse.Namespace) -> int:
         checkpoint_freq=args.checkpoint_freq,
         demonstrations=args.demonstrations,
     )
-    out = Path(args.out or f"runs/{config.key}-{algo}-s{args.seed}")
-    try:
-        summary = train(config, out, resume=args.resume, progress_bar=not args.quiet)
-    except KeyboardInterrupt:
-        print(f"interrupted; resume with: dyndlo-vision train --resume --out {out}")
-        return 130
-    print(json.dumps(summary, indent=2))
-    print(f"wrote {out / 'model.zip'}")
-    return 0
+
+
+def _resumed_config(args: argparse.Namespace, out: Path) -> RunConfig:
+    """The stored RunConfig of the run in ``out``, with ``--timesteps`` as its new budget if given.
+
+    Without ``--timesteps`` the stored budget stands: the YAML's (the paper's) budget is not a request to
+    train on, and taking it would turn a resumed 2 000-step run into a 400 000-step one.
+    """
+    from dyndlo_vision.learning.config import RunConfig
+
+    stored = RunConfig.from_json(out / "config.json")
+    return stored if args.timesteps is None else dataclasses.replace(stored, timesteps=args.timesteps)

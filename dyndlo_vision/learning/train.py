@@ -12,14 +12,20 @@ A run folder holds::
     model.zip, summary.json  the final policy and the run's figures (wall time, env steps/s, success)
     demonstrations.json      (``--demonstrations N``) the baseline episodes that seeded SAC's replay buffer
 
+Everything that can be checked is checked before the folder is touched (:func:`check_run`); a new run that
+fails before its first checkpoint takes back what it wrote, so the same command can simply be run again.
+
 ``python -m dyndlo_vision.learning.train`` is the same as ``dyndlo-vision train``.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import inspect
 import json
 import logging
 import os
+import shutil
 import signal
 import time
 from pathlib import Path
@@ -29,12 +35,14 @@ import numpy as np
 
 from dyndlo_vision._atomic import write_atomic
 from dyndlo_vision.learning.config import RunConfig
-from dyndlo_vision.learning.envs import make_vec_env
+from dyndlo_vision.learning.envs import make_env, make_vec_env
 
 log = logging.getLogger(__name__)
 
 CHECKPOINT_DIR = "checkpoint"
 DEMONSTRATIONS_FILE = "demonstrations.json"
+#: Constructor arguments of the algorithm that :func:`train` sets itself, so hyperparameters may not.
+RESERVED_HYPERPARAMS = ("policy", "env", "seed", "verbose", "tensorboard_log")
 
 
 def algo_class(name: str) -> Any:
@@ -42,6 +50,142 @@ def algo_class(name: str) -> Any:
     from stable_baselines3 import PPO, SAC
 
     return {"ppo": PPO, "sac": SAC}[name]
+
+
+def valid_hyperparams(algo: str) -> list[str]:
+    """Names the hyperparameters of ``algo`` may have: its constructor's keyword arguments, less reserved."""
+    params = inspect.signature(algo_class(algo).__init__).parameters
+    return sorted(
+        name
+        for name, param in params.items()
+        if param.kind in (param.POSITIONAL_OR_KEYWORD, param.KEYWORD_ONLY)
+        and name != "self"
+        and not name.startswith("_")
+        and name not in RESERVED_HYPERPARAMS
+    )
+
+
+def check_hyperparams(algo: str, hyperparams: dict[str, Any]) -> None:
+    """Refuse hyperparameter names the algorithm's constructor does not take.
+
+    Raises:
+        ValueError: Naming the bad keys and listing the valid ones.
+    """
+    reserved = [key for key in hyperparams if key in RESERVED_HYPERPARAMS]
+    if reserved:
+        raise ValueError(
+            f"hyperparameter(s) {reserved} cannot be set with --hp: train sets "
+            f"{list(RESERVED_HYPERPARAMS)} itself (the seed with --seed)"
+        )
+    valid = valid_hyperparams(algo)
+    unknown = [key for key in hyperparams if key not in valid]
+    if unknown:
+        raise ValueError(f"unknown {algo} hyperparameter(s) {unknown}; valid: {', '.join(valid)}")
+
+
+def has_checkpoint(out: Path) -> bool:
+    """Whether ``out`` holds a complete checkpoint to resume from (state.json is written last)."""
+    ckpt = Path(out) / CHECKPOINT_DIR
+    return (ckpt / "model.zip").is_file() and (ckpt / "state.json").is_file()
+
+
+def _check_out(out: Path) -> None:
+    """Refuse an output path that cannot become a run folder, before anything is created."""
+    if out.exists() and not out.is_dir():
+        raise ValueError(
+            f"--out {out}: exists and is not a folder (expected a run folder to create or resume)"
+        )
+    existing = next(p for p in (out.absolute(), *out.absolute().parents) if p.exists())
+    if not existing.is_dir():
+        raise ValueError(f"--out {out}: cannot create it, {existing} is not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise ValueError(f"--out {out}: cannot write in {existing} (permission denied)")
+
+
+def check_run(config: RunConfig, out: Path, resume: bool = False) -> RunConfig:
+    """Check a run before anything is written; return the configuration to run with.
+
+    A new run needs an output path that can become a folder and holds no other run, hyperparameters the
+    algorithm takes, and environments that can be made (task options, observation-noise file). A resumed
+    run takes its stored configuration; ``config.timesteps`` may keep or extend its budget, never shrink it.
+
+    Raises:
+        ValueError: Naming what is wrong: the path, a hyperparameter, a task option, the noise-model file,
+            a budget below the stored one or below the steps already done, a run without checkpoint.
+        FileNotFoundError: If ``resume`` and ``out`` holds no ``config.json``, or the noise-model file is
+            missing.
+    """
+    _check_out(out)
+    if resume:
+        stored = RunConfig.from_json(out / "config.json")
+        if not has_checkpoint(out):
+            raise ValueError(
+                f"{out} has no checkpoint to resume from ({out / CHECKPOINT_DIR / 'state.json'} is missing)"
+            )
+        done = _steps_done(out / CHECKPOINT_DIR)
+        # Shrinking the budget would be silently ignored (or, below the steps done, meaningless): refuse it.
+        if config.timesteps != stored.timesteps and config.timesteps < max(stored.timesteps, done):
+            raise ValueError(
+                f"--timesteps {config.timesteps} on --resume: the run in {out} has a budget of "
+                f"{stored.timesteps} steps, {done} done; a resumed run keeps its budget (leave --timesteps "
+                f"out) or extends it (--timesteps {max(stored.timesteps + 1, done)} or more)"
+            )
+        config = dataclasses.replace(stored, timesteps=config.timesteps)
+    else:
+        if (out / "config.json").exists():
+            if has_checkpoint(out):
+                raise ValueError(
+                    f"{out} already holds a run; pass --resume to continue it or choose another --out"
+                )
+            raise ValueError(
+                f"{out} holds a run that stopped before its first checkpoint (config.json, no "
+                f"{CHECKPOINT_DIR}/): there is nothing to resume; delete the folder or choose another --out"
+            )
+        check_hyperparams(config.algo, config.hyperparams)  # (a resumed run loads its model instead)
+    if config.obs_noise:
+        from dyndlo_vision.control.noise_model import ObservationNoiseModel
+
+        if not Path(config.obs_noise).is_file():
+            raise FileNotFoundError(f"observation-noise model {config.obs_noise}: no such file")
+        ObservationNoiseModel.load(config.obs_noise)  # ValueError naming the file and what is wrong
+    # One environment made here, in this process: a bad task option (or anything else an environment
+    # refuses) is a clean ValueError now, instead of a dead worker process after the folder exists.
+    make_env(config).close()
+    return config
+
+
+class _Footprint:
+    """What a new run adds to the file system, so that a run failing before its first checkpoint can
+    take back exactly that: the folders it created, or the entries it added to a folder that existed."""
+
+    def __init__(self, out: Path) -> None:
+        self.out = out.absolute()
+        self.new_folders: list[Path] = []  # the folders this run creates, ``out`` first, then its parents
+        path = self.out
+        while not path.exists() and not path.is_symlink():
+            self.new_folders.append(path)
+            path = path.parent
+        self.before = set() if self.new_folders else set(self.out.iterdir())
+
+    def remove(self) -> None:
+        """Delete what was created since ``__init__``; nothing that was there before."""
+        if self.new_folders:
+            shutil.rmtree(self.out, ignore_errors=True)
+            # A new parent may meanwhile hold other runs (seeds started together into a new runs/):
+            # remove it only while empty.
+            for parent in self.new_folders[1:]:
+                try:
+                    parent.rmdir()
+                except OSError:
+                    break
+            return
+        for entry in self.out.iterdir():
+            if entry in self.before:
+                continue
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry, ignore_errors=True)
+            else:
+                entry.unlink(missing_ok=True)
 
 
 class _RunCallbacks:
@@ -138,28 +282,45 @@ def _restore_evaluations(callback: Any, path: Path) -> None:
 def train(config: RunConfig, out: Path, resume: bool = False, progress_bar: bool = True) -> dict[str, Any]:
     """Train (or resume) a run in ``out`` and return its summary (also written to ``out/summary.json``).
 
+    Everything is checked first (:func:`check_run`). A new run that fails or is interrupted before its
+    first checkpoint removes what it wrote; after that, it leaves a checkpoint to resume from. SIGTERM
+    ends the run like Ctrl-C: checkpoint, then KeyboardInterrupt.
+
     Raises:
-        ValueError: If ``out`` holds another run and ``resume`` is False, or holds no checkpoint to resume.
+        ValueError: If ``out`` holds another run and ``resume`` is False, holds no checkpoint to resume,
+            or the configuration is refused (see :func:`check_run`).
+        KeyboardInterrupt: On Ctrl-C or SIGTERM, after saving a checkpoint when training had started.
     """
+    out = Path(out)
+    config = check_run(config, out, resume)
+    footprint = None if resume else _Footprint(out)
+    previous = signal.signal(signal.SIGTERM, _raise_keyboard_interrupt)
+    try:
+        return _train(config, out, resume, progress_bar)
+    except BaseException:
+        if footprint is not None and not has_checkpoint(out):
+            # Nothing to resume from: a folder holding only config.json and monitor/ could be neither
+            # resumed nor started again, so take it back and let the same command run afresh.
+            footprint.remove()
+            log.warning("the run stopped before its first checkpoint: removed what it wrote in %s", out)
+        raise
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _train(config: RunConfig, out: Path, resume: bool, progress_bar: bool) -> dict[str, Any]:
+    """The body of :func:`train`, on a checked configuration."""
     import torch
 
-    out = Path(out)
     config_file = out / "config.json"
     ckpt = out / CHECKPOINT_DIR
-    if resume:
-        stored = RunConfig.from_json(config_file)
-        if stored.timesteps != config.timesteps and config.timesteps > stored.timesteps:
-            stored = RunConfig(**{**json.loads(stored.to_json()), "timesteps": config.timesteps})
-        config = stored
-        if not (ckpt / "model.zip").is_file():
-            raise ValueError(f"{out} has no checkpoint to resume from ({ckpt / 'model.zip'} is missing)")
-    elif config_file.exists():
-        raise ValueError(f"{out} already holds a run; pass --resume to continue it or choose another --out")
     out.mkdir(parents=True, exist_ok=True)
     write_atomic(config_file, lambda p: Path(p).write_text(config.to_json()))
     torch.set_num_threads(1)  # one core per process: the environments take the others
 
     state: dict[str, Any] = {}
+    if config.vec_env == "subproc" and config.n_envs > 1:  # make_vec_env's condition for worker processes
+        _start_forkserver_ignoring_sigint()
     vec = make_vec_env(
         config,
         config.n_envs,
@@ -177,14 +338,20 @@ def train(config: RunConfig, out: Path, resume: bool = False, progress_bar: bool
                 model.load_replay_buffer(ckpt / "replay_buffer.pkl")
             log.info("resuming %s at step %d", out, model.num_timesteps)
         else:
-            model = cls(
-                config.policy,
-                vec,
-                seed=config.seed,
-                verbose=0,
-                tensorboard_log=str(out / "tb"),
-                **config.hyperparams,
-            )
+            try:
+                model = cls(
+                    config.policy,
+                    vec,
+                    seed=config.seed,
+                    verbose=0,
+                    tensorboard_log=str(out / "tb"),
+                    **config.hyperparams,
+                )
+            # A hyperparameter of the right name but a wrong value (SB3 checks some values with assert).
+            except (TypeError, ValueError, AssertionError) as err:
+                raise ValueError(
+                    f"{config.algo} refused the hyperparameters {config.hyperparams}: {err}"
+                ) from err
             if config.demonstrations:
                 from dyndlo_vision.learning.demonstrations import seed_replay_buffer
 
@@ -201,23 +368,19 @@ def train(config: RunConfig, out: Path, resume: bool = False, progress_bar: bool
         t0 = time.perf_counter()
         steps0 = int(model.num_timesteps)
         interrupted = False
-        # SIGTERM (kill, a cluster's pre-emption) ends the run like Ctrl-C: checkpoint first, then exit.
-        previous = signal.signal(signal.SIGTERM, _raise_keyboard_interrupt)
         try:
             if remaining > 0:
                 model.learn(remaining, callback=callbacks, reset_num_timesteps=not resume, tb_log_name="run")
         except KeyboardInterrupt:
             interrupted = True
             log.warning("interrupted at step %d: checkpoint saved, resume with --resume", model.num_timesteps)
-        finally:
-            signal.signal(signal.SIGTERM, previous)
         wall = float(state.get("wall_s", 0.0)) + time.perf_counter() - t0
         save_checkpoint(model, out, wall)
         if interrupted:
             raise KeyboardInterrupt
         write_atomic(out / "model.zip", lambda p: model.save(p))
     finally:
-        vec.close()
+        close_vec_env(vec)
     summary = summarize(
         out,
         wall_s=wall,
@@ -226,6 +389,47 @@ def train(config: RunConfig, out: Path, resume: bool = False, progress_bar: bool
     )
     write_atomic(out / "summary.json", lambda p: Path(p).write_text(json.dumps(summary, indent=2)))
     return summary
+
+
+def _start_forkserver_ignoring_sigint() -> None:
+    """Start multiprocessing's fork server with SIGINT ignored, so the environment workers ignore it too.
+
+    A terminal's Ctrl-C reaches the whole foreground process group. Workers that took it would die
+    mid-step and leave this process unable to close them (EOFError); ignoring it, they live on until
+    :func:`close_vec_env`, while this process turns Ctrl-C into a checkpoint. The fork server is exec'd
+    and keeps an inherited SIG_IGN (Python leaves an ignored SIGINT alone), and every process it forks
+    starts with its SIGINT handling. Only starting it is shielded, a matter of milliseconds, so a Ctrl-C
+    is hardly ever lost; a fork server started earlier by someone else is left as it is (then
+    :func:`close_vec_env` still copes with workers that died).
+    """
+    from multiprocessing import forkserver
+
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        forkserver.ensure_running()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def close_vec_env(vec: Any) -> None:
+    """Close a vectorised environment, also when some of its worker processes are already gone.
+
+    SubprocVecEnv.close() talks to every worker and raises EOFError or BrokenPipeError if one has died
+    (killed, or struck by a signal meant for this process), which would hide the run's own outcome (a
+    checkpoint and a resume hint) behind a traceback: stop the remaining workers instead.
+    """
+    try:
+        vec.close()
+    except (EOFError, OSError) as err:
+        log.warning("environment workers had already exited (%s: %s); stopping the rest",
+                    type(err).__name__, err)
+        for process in getattr(vec, "processes", []):
+            if process.is_alive():
+                process.terminate()
+            process.join()
+        for remote in getattr(vec, "remotes", []):
+            remote.close()
+        vec.closed = True
 
 
 def _raise_keyboard_interrupt(signum: int, frame: Any) -> None:

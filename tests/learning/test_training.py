@@ -92,7 +92,7 @@ def test_interrupted_run_keeps_a_checkpoint_and_resumes(
     monkeypatch.setattr(train_module, "_eval_callback", lambda config, out: Interrupt())
     out = tmp_path / "run"
     with pytest.raises(KeyboardInterrupt):
-        train(_config("ppo", 400), out, progress_bar=False)
+        train(_config("ppo", 64), out, progress_bar=False)
     state = json.loads((out / "checkpoint" / "state.json").read_text())
     assert state["num_timesteps"] == 40
     assert not (out / "model.zip").exists()  # the final policy appears only when the run completes
