@@ -7,6 +7,7 @@ from __future__ import annotations
 COMMANDS: dict[str, str] = {
     "demo": "demo",
     "track": "track",
+    "calib": "calib",
     "evaluate": "evaluate",
     "plot": "plot",
     "train": "train",

@@ -5,13 +5,18 @@ Per frame: segment the cable (automatic background model, or an HSV range), extr
 and filter it with a constant-velocity Kalman filter: in world coordinates when a calibration and the motion
 plane are given (rays through the pixels are intersected with the plane), else in pixels.
 
+The automatic background is by default the per-pixel median of frames sampled across the video (any static
+background, a moving cable), or one colour per frame for videos too short for it. Segmented regions too thick
+to be cable (a floor the background model does not describe) are ignored, and a cable end that runs into one
+is not taken for the tip: the tool reports the point unmeasured rather than following such a region.
+
 CSV columns ``frame,time_s,visible,u,v,x,y,z``: ``visible`` is 1 when the tracked point was measured in that
 frame; ``u,v`` is the measured pixel (raw, unfiltered; empty when not measured); ``x,y,z`` is the filtered
 world position (m) at the frame's time, empty without ``--calib``, before the first measurement and while the
 filter is lost (no measurement for longer than its coasting limit). The tracked point is not measured where
-the centreline cannot place it: the point's nodes are invisible, or the cable runs out of the image at the
-end the point is measured from. Without a calibration the filter runs in pixels and only draws the annotated
-video's point and uncertainty ellipse.
+the centreline cannot place it: the point's nodes are invisible, or the cable runs out of the image (or into a
+region too thick to be cable) at the end the point is measured from. Without a calibration the filter runs in
+pixels and only draws the annotated video's point and uncertainty ellipse.
 
 Outputs are written to temporary files beside their destinations and renamed at the end, so after any error
 neither the CSV nor the video exists.
@@ -47,8 +52,15 @@ HELP = "track a cable in a video or image folder and write the tracked point per
 _PX_PER_M_NOMINAL = 500.0
 _WORLD_SIGMA_ACCEL = 20.0  # m/s^2, PointFilter's default; the fastest whips exceed it and get gated
 _WORLD_SIGMA_MEAS = 0.003  # m, PointFilter's default
-#: Frames sampled across the video for ``--background median``.
+#: Frames sampled across the video for ``--background median`` (and ``auto``).
 _MEDIAN_FRAMES = 64
+#: ``--background auto`` learns the median background from videos with at least this many frames: from fewer,
+#: a moving cable covers a pixel in too large a share of them for the median to be background.
+_AUTO_MIN_FRAMES = 8
+#: Mask regions thicker than this share of the image's shorter side are not cable (at 640x480: 48 px). A
+#: per-frame background colour segments a whole floor in front of a dark backdrop, and its skeleton is a line
+#: the tracker would otherwise follow with confidence.
+_MAX_CABLE_WIDTH_SHARE = 0.1
 CSV_COLUMNS = ("frame", "time_s", "visible", "u", "v", "x", "y", "z")
 
 
@@ -76,21 +88,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--anchor",
         metavar="U,V",
         help="pixel near the held end in the first frame with a cable: the end nearest it is the held end, "
-        "followed from frame to frame after that. Without it the tracker picks an end (printed) there",
+        "followed from frame to frame after that. Without it the upper end there is (a hanging cable's; "
+        "printed)",
     )
     p.add_argument(
         "--background",
-        choices=("frame", "median"),
-        default="frame",
-        help="automatic segmentation's background: 'frame' estimates one colour from each frame (uniform "
-        "backgrounds); 'median' learns a per-pixel median from frames sampled across the whole video (any "
-        "static background, e.g. MuJoCo renders; reads the video twice)",
+        choices=("auto", "median", "frame"),
+        default=None,
+        help="automatic segmentation's background: 'median' learns a per-pixel median from frames sampled "
+        "across the whole video (any static background, e.g. MuJoCo renders; the cable must move; reads the "
+        "video twice); 'frame' estimates one colour from each frame (uniform backgrounds, a still cable); "
+        f"'auto' (default) is 'median' for videos of at least {_AUTO_MIN_FRAMES} frames, else 'frame'",
     )
     p.add_argument(
         "--open-radius",
         type=int,
-        default=1,
-        help="radius of the mask opening that removes speckle (default 1; 0 keeps cables only 1-2 px wide)",
+        default=0,
+        help="radius of the mask opening that removes speckle (default 0, none: an opening erases cables "
+        "only 1-2 px wide, like the simulator's; 1 for noisy footage of thicker cables)",
     )
     p.add_argument("--nodes", type=int, default=20, help="centreline nodes (default 20)")
     p.add_argument("--annotated", metavar="OUT.mp4", help="also write an annotated MP4")
@@ -229,7 +244,7 @@ def _settings(args: argparse.Namespace) -> _Settings:
             raise ValueError(
                 f"--hsv-lower S,V must not exceed --hsv-upper S,V: {args.hsv_lower} vs {args.hsv_upper}"
             )
-    if hsv is not None and args.background != "frame":
+    if hsv is not None and args.background is not None:
         raise ValueError(
             "--background applies to automatic segmentation; it cannot be used with an HSV range"
         )
@@ -265,7 +280,7 @@ def _settings(args: argparse.Namespace) -> _Settings:
         fraction=parse_point(args.point),
         plane=plane,
         hsv=hsv,
-        background=str(args.background),
+        background=str(args.background or "auto"),
         open_radius=int(args.open_radius),
         anchor=None if args.anchor is None else parse_floats(args.anchor, 2, "--anchor"),
         nodes=int(args.nodes),
@@ -315,19 +330,118 @@ def sample_evenly(items: Iterable[T], max_items: int) -> list[T]:
     return kept
 
 
-def _segmenter(cfg: _Settings) -> Callable[[NDArray[np.uint8]], NDArray[np.bool_]]:
-    """The frame -> mask function the settings ask for (learns the median background when asked)."""
+def _segmenter(cfg: _Settings) -> tuple[Callable[[NDArray[np.uint8]], NDArray[np.bool_]], str]:
+    """The frame -> mask function the settings ask for, and its kind: 'median', 'frame' or 'hsv'.
+
+    Learns the median background when asked ('median', or 'auto' on a video long enough).
+    """
     from dyndlo_vision.control.cameras import VideoFileCamera
     from dyndlo_vision.tracking.segmentation import BackgroundSegmenter, segment_hsv
 
     if cfg.hsv is not None:
         lo, hi = cfg.hsv
-        return lambda rgb: segment_hsv(rgb, lo, hi, clean=True)
+        return (lambda rgb: segment_hsv(rgb, lo, hi, clean=True)), "hsv"
     segmenter = BackgroundSegmenter(open_radius=cfg.open_radius)
-    if cfg.background == "median":
-        with VideoFileCamera(cfg.video, fps=cfg.fps) as first_pass:
-            segmenter.learn(sample_evenly((f.rgb for f in first_pass), _MEDIAN_FRAMES))
-    return segmenter
+    if cfg.background == "frame":
+        return segmenter, "frame"
+    with VideoFileCamera(cfg.video, fps=cfg.fps) as first_pass:
+        samples = sample_evenly((f.rgb for f in first_pass), _MEDIAN_FRAMES)
+    if cfg.background == "auto" and len(samples) < _AUTO_MIN_FRAMES:
+        print(
+            f"note: {cfg.video} has {len(samples)} frames, too few to learn its background from "
+            f"(--background auto needs {_AUTO_MIN_FRAMES}); estimating one background colour per frame",
+            file=sys.stderr,
+        )
+        return segmenter, "frame"
+    if samples:  # no frames: the tracking pass reports the empty video
+        segmenter.learn(samples)
+    return segmenter, "median"
+
+
+class CableShapedMask:
+    """Removes mask regions too thick to be a cable, and remembers where they were.
+
+    A background model that does not fit the scene (one colour per frame in front of a floor and a dark
+    backdrop, a lighting change under a median background) segments whole surfaces; the skeleton of such a
+    region is a line as long as the region, which the tracker would follow as the cable. Pixels of regions
+    thicker than the widest cable (a morphological opening with a disk of that diameter, by distance
+    transforms), and a band of half that width around them, are removed from the mask; :meth:`ends_in_zone`
+    tells whether a centreline ran into that zone, where the cable may continue unseen, so that the end is not
+    its tip.
+
+    Args:
+        segment: The frame -> mask function.
+        max_width_share: Widest cable as a share of the image's shorter side.
+    """
+
+    def __init__(
+        self, segment: Callable[[NDArray[np.uint8]], NDArray[np.bool_]], max_width_share: float
+    ) -> None:
+        self.segment = segment
+        self.max_width_share = float(max_width_share)
+        #: The last frame's excluded zone (regions too thick plus the band), None where there was none.
+        self.zone: NDArray[np.bool_] | None = None
+        #: Frames in which a zone was found.
+        self.frames_with_zone = 0
+
+    def __call__(self, rgb: NDArray[np.uint8]) -> NDArray[np.bool_]:
+        import cv2
+
+        mask = np.asarray(self.segment(rgb), dtype=bool)
+        radius = 0.5 * self.max_width_share * min(mask.shape)
+        # Distance of each mask pixel to the nearest non-mask pixel (OpenCV counts the image's outside as
+        # mask, so a floor cut by the image border stays thick up to the border).
+        depth = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5)
+        core = depth > radius
+        if not core.any():
+            self.zone = None
+            return mask
+        # Disks of the radius around the core pixels are the opening; the band beyond them swallows the
+        # slivers an opening leaves at the region's corners.
+        to_core = cv2.distanceTransform((~core).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5)
+        self.zone = to_core <= 1.5 * radius
+        self.frames_with_zone += 1
+        return mask & ~self.zone
+
+    def ends_in_zone(
+        self, path_uv: NDArray[np.float64], width_px: float, mask: NDArray[np.bool_]
+    ) -> tuple[bool, bool]:
+        """Whether the start and the end of a centreline path run into the last frame's zone.
+
+        The mask components the path lies on are looked up; their pixels next to the zone are where the cable
+        was cut, and each is assigned to the nearest point of the path: near its start or its end, that end is
+        cut (a skeleton stops short of its mask's end, so the end point itself may lie a little away from the
+        zone; cuts between bridged gaps in the middle of the path do not count).
+        """
+        import cv2
+
+        if self.zone is None or path_uv.shape[0] < 2:
+            return False, False
+        h, w = mask.shape
+        m8 = mask.astype(np.uint8)
+        _, labels = cv2.connectedComponents(m8, connectivity=8)
+        px = np.rint(path_uv).astype(np.int64)
+        px[:, 0] = np.clip(px[:, 0], 0, w - 1)
+        px[:, 1] = np.clip(px[:, 1], 0, h - 1)
+        on_path = np.unique(labels[px[:, 1], px[:, 0]])
+        on_path = on_path[on_path > 0]
+        if on_path.size == 0:
+            return False, False
+        beside_zone = cv2.dilate(self.zone.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        rows, cols = np.nonzero(beside_zone & np.isin(labels, on_path))
+        if rows.size == 0:
+            return False, False
+        seg = np.hypot(*np.diff(path_uv, axis=0).T)
+        s = np.concatenate(([0.0], np.cumsum(seg)))
+        contact = np.column_stack((cols, rows)).astype(np.float64)
+        nearest = np.empty(contact.shape[0], dtype=np.int64)
+        for i0 in range(0, contact.shape[0], 256):  # bounded memory for long contacts
+            chunk = contact[i0 : i0 + 256]
+            d2 = np.sum((chunk[:, None, :] - path_uv[None, :, :]) ** 2, axis=2)
+            nearest[i0 : i0 + 256] = np.argmin(d2, axis=1)
+        s_contact = s[nearest]
+        tol = 2.0 * width_px + 2.0
+        return bool(np.any(s_contact <= tol)), bool(np.any(s_contact >= s[-1] - tol))
 
 
 class _AtomicOutputs:
@@ -380,9 +494,11 @@ class _PointTracker:
         self.cfg = cfg
         self.calib = calib
         self.world = calib is not None
+        segment, self.background = _segmenter(cfg)
+        self.shape_filter = CableShapedMask(segment, _MAX_CABLE_WIDTH_SHARE)
         self.tracker = CableTracker(
             camera=calib,
-            segmenter=_segmenter(cfg),
+            segmenter=self.shape_filter,
             n_nodes=cfg.nodes,
             plane=None if cfg.plane is None else Plane(cfg.plane[0], cfg.plane[1]),
         )
@@ -396,6 +512,8 @@ class _PointTracker:
         self.held_end_found = False
         self.n_frames = 0
         self.n_measured = 0
+        #: Frames whose point was not measured because the cable ran into a region too thick to be cable.
+        self.n_cut_by_zone = 0
 
     def step(self, frame: Frame, video: Path, draw: bool) -> tuple[list[object], NDArray[np.uint8] | None]:
         """Tracks one frame; returns its CSV row and, when ``draw``, the annotated RGB image."""
@@ -414,17 +532,29 @@ class _PointTracker:
         if not self.held_end_found and cl is not None and cl.any_visible:
             self.held_end_found = True
             if cfg.anchor is None:
+                # Either end could be node 0 (the walk's start), and a tip taken for the held end is a
+                # confident wrong answer: take the upper end, a hanging cable's held end.
+                if cl.path_uv[-1, 1] < cl.path_uv[0, 1]:
+                    meas = self.tracker.process(frame.rgb, frame.t_capture, anchor_uv=cl.path_uv[-1])
+                    cl = meas.centerline
                 u0, v0 = meas.nodes_uv[0]
                 print(
-                    f"note: no --anchor; took the cable end at pixel ({u0:.0f}, {v0:.0f}) in frame "
-                    f"{frame.index} as the held end",
+                    f"note: no --anchor; took the upper cable end, at pixel ({u0:.0f}, {v0:.0f}) in frame "
+                    f"{frame.index}, as the held end",
                     file=sys.stderr,
                 )
-        # Arc-length fractions mean nothing where the cable runs out of the image at the end they are counted
-        # from: the last pixel before the border is not the tip.
-        cut = cl is not None and (
-            (cl.end_at_border and cfg.fraction > 0) or (cl.start_at_border and cfg.fraction < 1)
-        )
+        # Arc-length fractions mean nothing where the cable runs out of the image, or into a region too thick
+        # to be cable, at the end they are counted from: the last pixel before it is not the tip.
+        cut = False
+        if cl is not None and cl.any_visible:
+            start_in_zone, end_in_zone = self.shape_filter.ends_in_zone(
+                cl.path_uv, cl.width_px, self.tracker.last_mask
+            )
+            ends = ((cl.end_at_border, end_in_zone), (cl.start_at_border, start_in_zone))
+            need = (cfg.fraction > 0, cfg.fraction < 1)
+            cut_border = any(n and e[0] for n, e in zip(need, ends, strict=True))
+            cut = cut_border or any(n and e[1] for n, e in zip(need, ends, strict=True))
+            self.n_cut_by_zone += int(cut and not cut_border)
         uv = None if cut else point_on_nodes(meas.nodes_uv, meas.visible, cfg.fraction)
         z = None  # what the filter measures: world metres, or (u, v, 0) pixels without a calibration
         if uv is not None:
@@ -451,8 +581,13 @@ class _PointTracker:
             else:
                 point_uv, cov_uv = est.position[:2], est.covariance[:2, :2]
         state = "measured" if measured else ("lost" if est.lost else "predicted")
+        rgb = frame.rgb
+        zone = self.shape_filter.zone
+        if zone is not None:  # shows where the cable cannot be seen: regions too thick to be cable
+            rgb = rgb.copy()
+            rgb[zone] = (0.6 * rgb[zone] + np.array([0.0, 0.0, 100.0])).astype(np.uint8)
         image = annotate_frame(
-            frame.rgb,
+            rgb,
             meas.nodes_uv,
             meas.visible,
             point_uv=point_uv,
@@ -535,6 +670,24 @@ def _run(args: argparse.Namespace) -> int:
                 raise ValueError(f"{cfg.video} has no frames that OpenCV can decode")
             outputs.commit()
     share = 100.0 * pipeline.n_measured / pipeline.n_frames
+    zone_frames = pipeline.shape_filter.frames_with_zone
+    if zone_frames:
+        hint = (
+            "; if the background is static, try --background median" if pipeline.background == "frame" else ""
+        )
+        print(
+            f"note: in {zone_frames} of {pipeline.n_frames} frames the segmentation ({pipeline.background}) "
+            f"found regions too thick to be cable (wider than {100 * _MAX_CABLE_WIDTH_SHARE:g}% of the "
+            f"image's shorter side), which were ignored; the point was not measured in "
+            f"{pipeline.n_cut_by_zone} frames where the cable ran into them{hint}",
+            file=sys.stderr,
+        )
+    if pipeline.n_measured == 0 and pipeline.background == "median":
+        print(
+            "note: the point was never measured; a cable that hardly moves is part of the median background "
+            "(try --background frame on a uniform background, or an HSV range)",
+            file=sys.stderr,
+        )
     print(
         f"tracked {pipeline.n_frames} frames ({'world, m' if calib is not None else 'pixels'}); point "
         f"measured in {pipeline.n_measured} ({share:.1f}%); wrote {', '.join(str(p) for p in destinations)}"

@@ -150,6 +150,12 @@ class CenterlineParams:
     border_margin_px: float = 2.0
     #: Without a start hint, walks are tried from the ends of this many longest branches.
     max_start_candidates: int = 8
+    #: With a start hint, free ends up to this many widths (at least 20 px) farther from it than the nearest
+    #: end are start candidates too, and one whose walk is ``hint_longer_walk`` times longer than the nearest
+    #: end's wins: a blob at the held end (a gripper) cut off from the cable by a pixel or two thins into a
+    #: stub, whose end is nearest the hint but whose walk is a few pixels long.
+    hint_radius_widths: float = 5.0
+    hint_longer_walk: float = 1.5
     #: A path at least this share of ``expected_length_px`` short is still the whole cable (its nodes are
     #: spread over it): skeletons stop short of the mask ends, and a rendered 2 px cable measured 2.7 px
     #: (median) / 6.4 px (p95) short of its 200 px (benchmarks/tracking_accuracy.py).
@@ -740,9 +746,17 @@ def _choose_start(
     if not end_ports:
         return None, []
     if hint is not None:
-        d = [float(np.hypot(*(g.branches[bi].oriented(e)[0] - hint))) for bi, e in end_ports]
-        start = end_ports[int(np.argmin(d))]
-        return _walk(g, ports, start, width, prm), end_ports
+        d = np.array([float(np.hypot(*(g.branches[bi].oriented(e)[0] - hint))) for bi, e in end_ports])
+        nearest = int(np.argmin(d))
+        chosen = _walk(g, ports, end_ports[nearest], width, prm)
+        radius = d[nearest] + max(20.0, prm.hint_radius_widths * width)
+        for i in np.argsort(d, kind="stable")[1 : prm.max_start_candidates]:
+            if d[i] > radius:
+                break
+            w = _walk(g, ports, end_ports[int(i)], width, prm)
+            if w.length > prm.hint_longer_walk * chosen.length:
+                chosen = w
+        return chosen, end_ports
     # The longest walk starts at an end of a long branch; trying a few keeps clutter cheap.
     end_ports.sort(key=lambda p: -g.branches[p[0]].length)
     best: _Walk | None = None

@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 
 from dyndlo_vision.cli import main
-from dyndlo_vision.commands.track import parse_point, point_on_nodes, sample_evenly
+from dyndlo_vision.commands.track import CableShapedMask, parse_point, point_on_nodes, sample_evenly
 from dyndlo_vision.tracking.annotate import annotate_frame, covariance_ellipse, project_point_covariance
 from dyndlo_vision.tracking.camera_model import PinholeCamera
+from dyndlo_vision.tracking.centerline import extract_centerline
 from dyndlo_vision.tracking.synthetic import render_cable
 
 from .helpers import look_at_camera
@@ -180,7 +181,7 @@ def test_pixel_mode_on_an_image_folder(clip: Clip, tmp_path: Path, capsys: pytes
     assert main(["track", str(clip.folder), "--out", str(out), "--quiet"]) == 0
     err = capsys.readouterr().err
     assert "note: image folder" in err and "assuming 25 fps" in err
-    assert "no --anchor; took the cable end at pixel" in err
+    assert "no --anchor; took the upper cable end, at pixel" in err
     _, rows = _read_csv(out)
     assert len(rows) == N_FRAMES
     np.testing.assert_allclose(_column(rows, "time_s")[:, 0], np.arange(N_FRAMES) / 25.0)
@@ -188,11 +189,9 @@ def test_pixel_mode_on_an_image_folder(clip: Clip, tmp_path: Path, capsys: pytes
     visible = np.array([int(r["visible"]) for r in rows], dtype=bool)
     np.testing.assert_array_equal(~visible, np.isin(np.arange(N_FRAMES), BLANK_FRAMES))
     uv = _column(rows, "u,v")[visible]
-    truth = clip.camera.project(clip.tip_world[visible])
-    # Without an anchor the tracker may take either end as the held end; it must then keep it.
-    err_tip = np.linalg.norm(uv - truth, axis=1)
-    err_held = np.linalg.norm(uv - clip.camera.project(clip.held_world[visible]), axis=1)
-    assert err_tip.max() < TIP_TOL_PX or err_held.max() < TIP_TOL_PX
+    # Without an anchor the upper end, where the cable hangs from, is the held end: the tip is measured.
+    err_tip = np.linalg.norm(uv - clip.camera.project(clip.tip_world[visible]), axis=1)
+    assert err_tip.max() < TIP_TOL_PX, err_tip
 
 
 def test_point_fraction_zero_is_the_held_end(clip: Clip, tmp_path: Path) -> None:
@@ -215,6 +214,287 @@ def test_median_background_handles_a_split_background(clip: Clip, tmp_path: Path
     np.testing.assert_array_equal(~visible, np.isin(np.arange(N_FRAMES), BLANK_FRAMES))
     err = np.linalg.norm(_column(rows, "x,y,z")[visible] - clip.tip_world[visible], axis=1)
     assert err.max() < TIP_TOL_M, err
+
+
+def test_frame_background_does_not_follow_a_floor(
+    clip: Clip, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """One background colour per frame cannot describe a dark sky over a light floor: the floor differs.
+
+    Its skeleton, a line across the image, was once reported as the cable in every frame; the floor is now too
+    thick to be cable, and the point is measured only where the cable itself is seen, never on the floor.
+    """
+    video = _write_mp4(tmp_path / "split.mp4", _frames(clip.camera, split_background=True))
+    out = tmp_path / "split.csv"
+    args = ["--calib", str(clip.calib), "--plane", "0,1,0,0", "--anchor", _anchor(clip), "--quiet"]
+    assert main(["track", str(video), *args, "--background", "frame", "--out", str(out)]) == 0
+    assert "regions too thick to be cable" in capsys.readouterr().err
+    _, rows = _read_csv(out)
+    visible = np.array([int(r["visible"]) for r in rows], dtype=bool)
+    err_px = np.linalg.norm(
+        _column(rows, "u,v")[visible] - clip.camera.project(clip.tip_world[visible]), axis=1
+    )
+    assert np.all(err_px < TIP_TOL_PX), err_px
+
+
+def test_auto_background_needs_enough_frames(
+    clip: Clip, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """Too short a video for a median background: one colour per frame instead, said so, still tracked."""
+    folder = tmp_path / "short"
+    folder.mkdir()
+    for k in range(5):
+        (folder / f"f{k}.png").write_bytes((clip.folder / f"frame_{k}.png").read_bytes())
+    out = tmp_path / "short.csv"
+    args = ["--calib", str(clip.calib), "--plane", "0,1,0,0", "--anchor", _anchor(clip), "--quiet"]
+    assert main(["track", str(folder), *args, "--out", str(out)]) == 0
+    assert "too few to learn its background" in capsys.readouterr().err
+    _, rows = _read_csv(out)
+    assert all(r["visible"] == "1" for r in rows)
+    err = np.linalg.norm(_column(rows, "x,y,z") - clip.tip_world[:5], axis=1)
+    assert err.max() < TIP_TOL_M, err
+
+
+def test_a_still_cable_under_the_median_background_is_reported_unseen(
+    clip: Clip, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """A cable that never moves is part of the median background: nothing is measured, and a note says why."""
+    folder = tmp_path / "still"
+    folder.mkdir()
+    for k in range(10):
+        (folder / f"f{k:02d}.png").write_bytes((clip.folder / "frame_0.png").read_bytes())
+    out = tmp_path / "still.csv"
+    assert main(["track", str(folder), "--out", str(out), "--quiet"]) == 0
+    captured = capsys.readouterr()
+    assert "point measured in 0 (0.0%)" in captured.out
+    assert "hardly moves is part of the median background" in captured.err
+    assert main(["track", str(folder), "--background", "frame", "--out", str(out), "--quiet"]) == 0
+    assert "point measured in 10 (100.0%)" in capsys.readouterr().out
+
+
+def test_without_an_anchor_the_upper_end_is_the_held_end(
+    clip: Clip, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """A gap just below the held end (an occluder) made the longest walk start at the tip, which was then
+    taken for the held end. The upper end is taken now, as a hanging cable's.
+
+    Only the first frame is checked: in later ones, the walk from the held end must cross the gap, which it
+    does not always do (a limitation of the centreline walk, not of the choice of end).
+    """
+    folder = tmp_path / "gap"
+    folder.mkdir()
+    held_uv = clip.camera.project(clip.held_world[0])[0]
+    rgb = cv2.imread(str(clip.folder / "frame_0.png"))
+    v = int(round(held_uv[1])) + 25
+    rgb[v : v + 4] = (50, 60, 40)  # the background's colour (BGR), noise-free
+    cv2.imwrite(str(folder / "f0.png"), rgb)
+    out = tmp_path / "gap.csv"
+    assert main(["track", str(folder), "--out", str(out), "--quiet"]) == 0
+    note = re.search(r"took the upper cable end, at pixel \((\d+), (\d+)\)", capsys.readouterr().err)
+    assert note is not None
+    assert np.hypot(int(note[1]) - held_uv[0], int(note[2]) - held_uv[1]) < 10
+    _, rows = _read_csv(out)
+    err = np.linalg.norm(_column(rows, "u,v")[0] - clip.camera.project(clip.tip_world[0])[0])
+    assert err < TIP_TOL_PX, err
+
+
+def _shaped_mask(mask: np.ndarray) -> tuple[CableShapedMask, np.ndarray]:
+    shaped = CableShapedMask(lambda _: mask.copy(), 0.1)
+    return shaped, shaped(np.zeros((*mask.shape, 3), np.uint8))
+
+
+def test_cable_shaped_mask_removes_a_floor_and_cuts_the_ends_that_enter_it() -> None:
+    mask = np.zeros((480, 640), bool)
+    mask[330:, :] = True  # a floor, 150 px thick
+    mask[100:330, 300:303] = True  # a 3 px cable hanging into it
+    mask[60:200, 500:503] = True  # a cable clear of it
+    shaped, out = _shaped_mask(mask)
+    assert shaped.zone is not None and shaped.frames_with_zone == 1
+    # The floor is gone, with a band of half the widest cable (24 px) around its thick part (which begins
+    # 24 px below its edge): 12 px of the cable above the floor are removed with it.
+    assert not out[318:].any() and out[100:317, 300:303].all()
+    assert out[60:200, 500:503].all()  # the other cable is untouched
+    # The hanging cable: its lower end (where the path ends, or stops a little short of) runs into the zone.
+    down = np.column_stack((np.full(40, 301.0), np.linspace(101.0, 270.0, 40)))
+    assert shaped.ends_in_zone(down, 3.0, out) == (False, True)
+    assert shaped.ends_in_zone(down[::-1], 3.0, out) == (True, False)
+    clear = np.column_stack((np.full(40, 501.0), np.linspace(61.0, 198.0, 40)))
+    assert shaped.ends_in_zone(clear, 3.0, out) == (False, False)
+    # Nothing thick, nothing removed.
+    thin = np.zeros((480, 640), bool)
+    thin[100:300, 200:206] = True
+    shaped, out = _shaped_mask(thin)
+    assert shaped.zone is None and np.array_equal(out, thin)
+    assert shaped.ends_in_zone(clear, 3.0, out) == (False, False)
+
+
+def test_cable_shaped_mask_ignores_a_cut_in_the_middle_of_a_bridged_path() -> None:
+    """A cable dipping into the zone and out again: the walk bridges the gap; neither end is cut."""
+    mask = np.zeros((480, 640), bool)
+    mask[400:, :] = True
+    for u0, u1 in ((100, 250), (330, 480)):
+        mask[300:303, u0:u1] = True  # two pieces along a row ...
+    mask[303:400, 247:250] = True  # ... each running down into the floor near the gap
+    mask[303:400, 330:333] = True
+    shaped, out = _shaped_mask(mask)
+    path = np.vstack(
+        (
+            np.column_stack((np.linspace(101, 248, 30), np.full(30, 301.0))),
+            np.column_stack((np.linspace(331, 478, 30), np.full(30, 301.0))),
+        )
+    )
+    assert shaped.ends_in_zone(path, 3.0, out) == (False, False)
+
+
+def test_a_stub_at_the_held_end_does_not_hide_the_cable() -> None:
+    """A gripper blob cut off from the cable by a 3 px gap thins into a stub whose end is nearest the anchor.
+
+    The walk from there is a few pixels long; it was taken as the whole cable and its end as the tip, 188 px
+    from the true tip in a render of the simulated scene.
+    """
+    for angle, axes in ((30, (12, 6)), (45, (10, 6)), (135, (12, 6))):
+        mask = np.zeros((480, 640), np.uint8)
+        cv2.ellipse(mask, (300, 100), axes, angle, 0, 360, 1, -1)  # the blob ...
+        mask[100 + max(axes) + 3 : 400, 299:302] = 1  # ... and the cable, from 3 px below it
+        cl = extract_centerline(mask > 0, 20, anchor_uv=(300.0, 100.0))
+        assert cl.length_px > 250, (angle, axes, cl.length_px)
+        assert cl.nodes_uv[-1, 1] > 390  # the tip is the far end, not the blob
+    # Both ends of one path near the anchor (a tip swung up beside the gripper): the nearer is the held end.
+    loop = np.zeros((480, 640), np.uint8)
+    cv2.ellipse(loop, (300, 200), (100, 100), 0, -80, 250, 1, 3)
+    ends = np.array(
+        [[300 + 100 * np.cos(np.radians(a)), 200 + 100 * np.sin(np.radians(a))] for a in (-80, 250)]
+    )
+    cl = extract_centerline(loop > 0, 20, anchor_uv=ends[0] + [0.0, 2.0])
+    assert np.linalg.norm(cl.nodes_uv[0] - ends[0]) < 5 and np.linalg.norm(cl.nodes_uv[-1] - ends[1]) < 5
+
+
+# ------------------------------------------------------------------------------------------------ simulation
+
+
+#: The single-step tip-control policy's action for seed 100000 (fixed here: retraining it changes nothing).
+WHIP_ACTION = np.array([0.738, 0.317, -0.487, 0.207, 0.569, -0.286, -0.284, 0.885, -0.125], dtype=np.float32)
+#: Measured tip within this many pixels in most frames: 1 px is 2.5 mm at the cable, 8 px 2 cm.
+SIM_TIP_TOL_PX = 8.0
+#: No measured tip this far from the true one. The floor line was 95-330 px away; the worst honest miss, the
+#: tip curled behind the translucent target sphere, 43 px.
+SIM_FAR_PX = 75.0
+
+
+@dataclass(frozen=True)
+class SimClip:
+    """Frames of the tip-control scene as the demo's camera renders them, and the true tip per frame."""
+
+    video: Path
+    calib: Path
+    tip_uv: np.ndarray  # (n, 2) the true tip projected with the camera's own model
+
+
+@pytest.fixture(scope="module")
+def sim_clip(tmp_path_factory: pytest.TempPathFactory) -> SimClip:
+    import gymnasium as gym
+
+    from dyndlo_vision.control.cameras import MujocoCamera
+
+    root = tmp_path_factory.mktemp("sim")
+    env = gym.make("DynDLO/TipControl-v0")
+    base = env.unwrapped
+    env.reset(seed=100000)
+    frames: list[np.ndarray] = []
+    tips: list[np.ndarray] = []
+    try:
+        with MujocoCamera(base.model, base.data, "tracking") as camera:
+
+            def grab(e: object) -> None:
+                frames.append(camera.read().rgb)
+                tips.append(base.cable_nodes()[-1])
+
+            grab(base)
+            base.frame_hook = grab  # every 40 ms of simulated time, the demo's camera rate
+            env.step(WHIP_ACTION)
+            tip_uv = camera.calibration.project(np.array(tips))
+    finally:
+        base.frame_hook = None
+        env.close()
+    calib = root / "camera.json"
+    assert main(["calib", "--camera", "tracking", "--task", "tip-control", "--out", str(calib)]) == 0
+    return SimClip(_write_mp4(root / "sim.mp4", frames), calib, tip_uv)
+
+
+def _sim_errors(sim: SimClip, csv_path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(measured per frame, pixel error of the measured tip per frame, NaN where not measured)."""
+    _, rows = _read_csv(csv_path)
+    assert len(rows) == len(sim.tip_uv)
+    visible = np.array([int(r["visible"]) for r in rows], dtype=bool)
+    err = np.linalg.norm(_column(rows, "u,v") - sim.tip_uv, axis=1)
+    return visible, err
+
+
+@pytest.mark.slow
+def test_defaults_track_the_cable_in_the_simulated_scene(sim_clip: SimClip, tmp_path: Path) -> None:
+    """The demo's scene (2 mm red cable, dark sky, grey floor, gripper, target) with every default option."""
+    out = tmp_path / "sim.csv"
+    args = ["--calib", str(sim_clip.calib), "--plane", "0,1,0,0", "--quiet"]
+    assert main(["track", str(sim_clip.video), *args, "--out", str(out)]) == 0
+    visible, err = _sim_errors(sim_clip, out)
+    print(f"sim defaults: measured {visible.mean():.2f}, error px {np.round(err, 1).tolist()}")
+    # Measured: 38 of 38 frames, 36 within 8 px (median 1.8 px); 17.8 px where the tip passes behind the
+    # translucent target sphere, 45 px where it curls behind it.
+    assert visible.mean() >= 0.9
+    assert np.mean(visible & (err <= SIM_TIP_TOL_PX)) >= 0.8, err
+    assert np.all(err[visible] < SIM_FAR_PX), err
+
+
+@pytest.mark.slow
+def test_frame_background_on_the_simulated_scene_measures_only_what_it_sees(
+    sim_clip: SimClip, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """One colour per frame segments the whole floor: the tip is measured only while it is above it."""
+    out = tmp_path / "sim.csv"
+    args = ["--calib", str(sim_clip.calib), "--plane", "0,1,0,0", "--background", "frame", "--quiet"]
+    assert main(["track", str(sim_clip.video), *args, "--out", str(out)]) == 0
+    assert "regions too thick to be cable" in capsys.readouterr().err
+    visible, err = _sim_errors(sim_clip, out)
+    print(f"sim frame: measured {visible.mean():.2f}, error px {np.round(err, 1).tolist()}")
+    assert np.all(err[visible] < SIM_TIP_TOL_PX), err
+
+
+@pytest.mark.slow
+def test_defaults_on_the_demo_video_follow_the_cable(tmp_path: Path) -> None:
+    """The user's case: ``track`` with defaults on the annotated video ``demo`` writes.
+
+    The demo draws its tracked polyline over the cable and markers at the tip, so what is tracked is partly
+    the drawing: measured 16 of 16 frames, 0.6-11.5 px from the true tip (median 8 px). Before, the
+    skeleton of the floor: 157-308 px away in every frame.
+    """
+    import gymnasium as gym
+
+    from dyndlo_vision import policies
+    from dyndlo_vision._atomic import write_video_atomic
+    from dyndlo_vision.commands.demo import run_episode
+    from dyndlo_vision.control.sim_perception import MOTION_PLANE
+
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    model = policies.load("tip-control-multi-step", env=env)
+    frames: list[np.ndarray] = []
+    record = run_episode(env, model, 100000, "tracked", "tracking", frames)
+    env.close()
+    video, calib, out = tmp_path / "demo.mp4", tmp_path / "camera.json", tmp_path / "demo.csv"
+    write_video_atomic(video, frames, rgb=False)  # as the demo writes it
+    assert main(["calib", "--out", str(calib)]) == 0
+    plane = ",".join(f"{c:g}" for c in (*MOTION_PLANE.normal, MOTION_PLANE.d))
+    assert (
+        main(["track", str(video), "--calib", str(calib), "--plane", plane, "--out", str(out), "--quiet"])
+        == 0
+    )
+    tip_uv = PinholeCamera.from_json(calib).project(np.array(record["trace"]["true"]))
+    _, rows = _read_csv(out)
+    assert len(rows) == len(tip_uv) == len(frames)
+    visible = np.array([int(r["visible"]) for r in rows], dtype=bool)
+    err = np.linalg.norm(_column(rows, "u,v") - tip_uv, axis=1)
+    print(f"demo video: measured {visible.mean():.2f}, error px {np.round(err, 1).tolist()}")
+    assert visible.mean() >= 0.8
+    assert np.all(err[visible] < 20.0), err
 
 
 # ------------------------------------------------------------------------------------------------ bad input
@@ -261,6 +541,20 @@ BAD_INPUTS = {
     "hsv out of range": (
         ["{video}", "--hsv-lower", "200,0,0", "--hsv-upper", "10,255,255", "--out", "{out}"],
         "H in 0..179",
+    ),
+    "background with hsv": (
+        [
+            "{video}",
+            "--hsv-lower",
+            "0,100,100",
+            "--hsv-upper",
+            "10,255,255",
+            "--background",
+            "auto",
+            "--out",
+            "{out}",
+        ],
+        "cannot be used with an HSV range",
     ),
     "hsv malformed": (
         ["{video}", "--hsv-lower", "1,2", "--hsv-upper", "10,255,255", "--out", "{out}"],
