@@ -31,7 +31,7 @@ def _in_ci() -> bool:
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    config.addinivalue_line("markers", "ci_may_skip(reason): this test may skip under CI, for the reason given")
+    config.addinivalue_line("markers", "ci_may_skip(reason): this test may skip under CI, for that reason")
 
 
 @pytest.hookimpl(hookwrapper=True)

@@ -41,7 +41,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="default: the policy's own mode",
     )
-    p.add_argument("--episodes", type=int, default=100)
+    p.add_argument("--episodes", type=int, default=100, help="episodes to run, seeds --seed, --seed+1, ...")
     p.add_argument("--seed", type=int, default=100_000, help="first episode seed (default: 100000, unseen)")
     p.add_argument("--env-option", action="append", metavar="KEY=VALUE", help="task option (repeatable)")
     p.add_argument(

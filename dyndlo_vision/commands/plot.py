@@ -12,7 +12,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``plot``."""
     p.add_argument("runs", nargs="+", help="run folders written by `dyndlo-vision train`")
     p.add_argument("--out", default="learning_curves.png", help="PNG path (default: learning_curves.png)")
-    p.add_argument("--title", default=None)
+    p.add_argument("--title", default=None, help="figure title (default: none)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -35,7 +35,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``train``."""
     from dyndlo_vision.learning.config import TASK_NAMES
 
-    p.add_argument("--task", choices=sorted(TASK_NAMES), default="tip-control")
+    p.add_argument("--task", choices=sorted(TASK_NAMES), default="tip-control", help="the task to learn")
     p.add_argument("--multi-step", action="store_true", help="re-plan every 0.04 s (default: plan once)")
     p.add_argument(
         "--algo",
@@ -46,12 +46,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--timesteps", type=int, default=None, help="total decisions (default: the paper's budget)"
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of the learner; training episodes use seed + k")
     p.add_argument(
         "--out", default=None, help="run folder (default: runs/<task>[-multi-step]-<algo>-s<seed>)"
     )
     p.add_argument("--n-envs", type=int, default=None, help="parallel environments (default: from the YAML)")
-    p.add_argument("--vec-env", choices=["subproc", "dummy"], default="subproc")
+    p.add_argument("--vec-env", choices=["subproc", "dummy"], default="subproc",
+                   help="environments in worker processes or in this one")
     p.add_argument(
         "--hp", action="append", metavar="KEY=VALUE", help="override a hyperparameter (repeatable)"
     )
@@ -74,7 +75,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
              "in the paper)",
     )
     p.add_argument("--eval-freq", type=int, default=2000, help="evaluate every N steps (default 2000)")
-    p.add_argument("--eval-episodes", type=int, default=20)
+    p.add_argument("--eval-episodes", type=int, default=20,
+                   help="episodes per evaluation (seeds seed + 10000 on)")
     p.add_argument(
         "--checkpoint-freq", type=int, default=2000, help="checkpoint every N steps (default 2000)"
     )
