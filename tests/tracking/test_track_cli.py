@@ -487,7 +487,7 @@ def test_defaults_on_the_demo_video_follow_the_cable(tmp_path: Path) -> None:
         main(["track", str(video), "--calib", str(calib), "--plane", plane, "--out", str(out), "--quiet"])
         == 0
     )
-    tip_uv = PinholeCamera.from_json(calib).project(np.array(record["trace"]["true"]))
+    tip_uv = PinholeCamera.from_json(calib).project(np.array(record["trace"]["truth"]).reshape(-1, 3))
     _, rows = _read_csv(out)
     assert len(rows) == len(tip_uv) == len(frames)
     visible = np.array([int(r["visible"]) for r in rows], dtype=bool)
