@@ -1,7 +1,13 @@
 """Cable (deformable linear object) parameters.
 
-The cable is a MuJoCo 4 discrete elastic rod: a 1D ``flexcomp`` with ``<elasticity>`` (bending and torsion)
-and inextensible edges (edge equality constraints). Defaults follow the DynDLO paper (section III-A and V-B):
+Two models of the cable (``CableParams.model``):
+
+* ``"rod"`` (default): a MuJoCo 4 discrete elastic rod, a 1D ``flexcomp`` with ``<elasticity>`` (bending and
+  torsion) and inextensible edges (edge equality constraints).
+* ``"chain"``: the paper's discretisation (section III-A), rigid capsules joined by ball joints with bending
+  and torsional springs (``dyndlo_vision.sim.chain``).
+
+Defaults follow the DynDLO paper (section III-A and V-B):
 a 50 cm cable of 20 segments, 10 g, Young's modulus 2 MPa. The paper gives no radius; we take 2 mm, which
 for 10 g over 50 cm gives a density of about 1.6 g/cm^3, that of a PVC-insulated cable.
 """
@@ -17,6 +23,11 @@ PAPER_YOUNG_PA = 2.0e6
 # Paper, section III-A: number of bodies by cable length.
 PAPER_SHORT_CABLE = (0.50, 20)
 PAPER_LONG_CABLE = (0.90, 60)
+CABLE_MODELS = ("rod", "chain")
+#: Default damping of each model (``CableParams.damping_s`` / ``damping_quadratic_s2`` left as None).
+#: Chain: the smallest measured to keep random-action episodes free of divergence at 1 ms (docs/CHAIN.md).
+DEFAULT_DAMPING_S = {"rod": 0.002, "chain": 0.005}
+DEFAULT_DAMPING_QUADRATIC_S2 = {"rod": 0.0, "chain": 0.05}
 
 
 @dataclass(frozen=True)
@@ -25,13 +36,21 @@ class CableParams:
 
     Attributes:
         length_m: Rest length of the cable.
-        num_segments: Number of rod edges (the cable has ``num_segments + 1`` nodes).
-        mass_kg: Total mass, spread evenly over the nodes.
+        num_segments: Number of rod edges or chain capsules (the cable has ``num_segments + 1`` nodes).
+        mass_kg: Total mass, spread evenly over the nodes (rod) or the capsules (chain).
         radius_m: Radius of the circular cross-section (sets bending stiffness, collisions, rendering).
         young_pa: Young's modulus E.
         poisson: Poisson's ratio (sets the shear modulus used for torsion, G = E / (2 (1 + nu))).
-        damping_s: Rayleigh damping coefficient of the rod elasticity, in seconds.
+        damping_s: Rayleigh damping coefficient of the elasticity, in seconds (chain: joint damping is
+            ``damping_s`` times the joint's bending stiffness). None: the model's default
+            (``DEFAULT_DAMPING_S``).
         rgba: Colour used for rendering (a saturated colour keeps the tracker's job well defined).
+        model: ``"rod"`` (discrete elastic rod flex) or ``"chain"`` (capsules on ball joints).
+        damping_quadratic_s2: Chain only: quadratic joint damping, in s^2. Each joint gets the damping
+            torque ``-k (damping_s w + damping_quadratic_s2 w |w|)``, ``k`` its bending stiffness and ``w``
+            its angular velocity. A drag-like term, small at the rates of whips within v_max, that keeps
+            the chain from diverging at 1 ms when random actions whip it far beyond (docs/CHAIN.md).
+            None: the model's default (``DEFAULT_DAMPING_QUADRATIC_S2``); the rod takes only 0.
     """
 
     length_m: float = 0.50
@@ -40,16 +59,27 @@ class CableParams:
     radius_m: float = 0.002
     young_pa: float = PAPER_YOUNG_PA
     poisson: float = 0.3
-    damping_s: float = 0.002
+    damping_s: float | None = None  # resolved to a float in __post_init__
     rgba: tuple[float, float, float, float] = (0.85, 0.15, 0.1, 1.0)
+    model: str = "rod"
+    damping_quadratic_s2: float | None = None  # resolved to a float in __post_init__
 
     def __post_init__(self) -> None:
+        if self.model not in CABLE_MODELS:
+            raise ValueError(f"cable model={self.model!r}; expected one of {CABLE_MODELS}")
+        if self.damping_s is None:
+            object.__setattr__(self, "damping_s", DEFAULT_DAMPING_S[self.model])
+        if self.damping_quadratic_s2 is None:
+            object.__setattr__(self, "damping_quadratic_s2", DEFAULT_DAMPING_QUADRATIC_S2[self.model])
+        if self.model == "rod" and self.damping_quadratic_s2 != 0:
+            raise ValueError("damping_quadratic_s2 applies to the chain cable only (model='chain')")
         checks = {
             "length_m": (self.length_m, 0.05, 5.0),
             "mass_kg": (self.mass_kg, 1e-4, 2.0),
             "radius_m": (self.radius_m, 2e-4, 0.03),
             "young_pa": (self.young_pa, 1e3, 1e10),
-            "damping_s": (self.damping_s, 0.0, 0.1),
+            "damping_s": (self.damping_s, 0.0, 1.0 if self.model == "chain" else 0.1),
+            "damping_quadratic_s2": (self.damping_quadratic_s2, 0.0, 1.0),
         }
         for name, (value, low, high) in checks.items():
             if not (isinstance(value, int | float) and math.isfinite(value) and low <= value <= high):
@@ -89,12 +119,22 @@ class CableParams:
         return self.young_pa * self.second_moment_m4
 
     @property
+    def shear_modulus_pa(self) -> float:
+        """Shear modulus G = E / (2 (1 + nu))."""
+        return self.young_pa / (2.0 * (1.0 + self.poisson))
+
+    @property
+    def torsional_stiffness_nm2(self) -> float:
+        """Torsional rigidity G*J, with J = pi r^4 / 2 = 2 I for a circular section."""
+        return self.shear_modulus_pa * 2.0 * self.second_moment_m4
+
+    @property
     def linear_density_kg_m(self) -> float:
         """Mass per unit length."""
         return self.mass_kg / self.length_m
 
 
-def paper_cable(length_m: float = 0.5, **overrides: float) -> CableParams:
+def paper_cable(length_m: float = 0.5, **overrides: float | str) -> CableParams:
     """Return the paper's cable of the given length (0.5 m: 20 segments, 0.9 m: 60 segments)."""
     segments = {PAPER_SHORT_CABLE[0]: PAPER_SHORT_CABLE[1], PAPER_LONG_CABLE[0]: PAPER_LONG_CABLE[1]}
     if length_m not in segments:

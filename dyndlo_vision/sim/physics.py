@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-_INTEGRATORS = ("discrete", "Euler", "RK4")
+_INTEGRATORS = ("discrete", "Euler", "RK4", "implicitfast", "implicit")
+#: Integrators MuJoCo 4 accepts for 1D rod (flex) elasticity; the chain cable takes every integrator.
+ROD_INTEGRATORS = ("discrete", "Euler", "RK4")
 _SOLVERS = ("Newton", "CG")
 
 
@@ -18,15 +20,18 @@ class PhysicsOptions:
     diverged in none; an RL sandbox explores with random actions, so robustness wins.
 
     Rod elasticity in MuJoCo 4 runs under ``discrete`` (implicit in the effective metric), ``Euler`` or
-    ``RK4`` (explicit); ``implicit``/``implicitfast`` are rejected by MuJoCo for rods.
+    ``RK4`` (explicit); ``implicit``/``implicitfast`` are rejected by MuJoCo for rods (and by
+    :class:`~dyndlo_vision.sim.SceneConfig`). The chain cable (``CableParams(model="chain")``) takes them all.
 
     Attributes:
         timestep_s: Physics step.
-        integrator: ``"discrete"``, ``"Euler"`` or ``"RK4"``.
+        integrator: ``"discrete"``, ``"Euler"``, ``"RK4"``, ``"implicitfast"`` or ``"implicit"`` (the last two
+            for the chain cable only).
         solver: ``"Newton"`` or ``"CG"`` (PGS does not support flexes).
         iterations: Maximum constraint-solver iterations.
         tolerance: Solver early-termination tolerance.
-        twist_armature_kg_m2: Armature (added rotational inertia) of the rod's per-edge twist hinges. MuJoCo
+        twist_armature_kg_m2: Armature (added rotational inertia) of the rod's per-edge twist hinges, or of
+            the chain's twist DOFs (the third DOF of each ball joint, about the capsule's axis). MuJoCo
             gives them bodies of 1e-9 kg m^2, stiff in torsion: the explicit integrators diverge on them
             (``Euler`` at 1 ms in 7 of 20 random tip-control episodes). 1e-8 removes that (0 of 20) and
             leaves planar motion unchanged; 3D motion changes a little (benchmarks/twist_armature.py,
@@ -43,8 +48,7 @@ class PhysicsOptions:
     def __post_init__(self) -> None:
         if self.integrator not in _INTEGRATORS:
             raise ValueError(
-                f"integrator={self.integrator!r} is not supported for elastic rods; "
-                f"expected one of {_INTEGRATORS}"
+                f"integrator={self.integrator!r} is not supported; expected one of {_INTEGRATORS}"
             )
         if self.solver not in _SOLVERS:
             raise ValueError(f"solver={self.solver!r}; expected one of {_SOLVERS}")

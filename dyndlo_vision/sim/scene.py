@@ -1,4 +1,4 @@
-"""The MuJoCo scene: grippers (TCPs) holding a discrete-elastic-rod cable, and task props.
+"""The MuJoCo scene: grippers (TCPs) holding a cable (discrete elastic rod or ball-joint chain), and props.
 
 The model is generated as MJCF from frozen configuration dataclasses, so every body, joint, geom, site,
 camera and actuator has a name, and indices are looked up by name once.
@@ -22,8 +22,9 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from dyndlo_vision.sim import chain as chain_model
 from dyndlo_vision.sim.cable import CableParams
-from dyndlo_vision.sim.physics import PhysicsOptions
+from dyndlo_vision.sim.physics import ROD_INTEGRATORS, PhysicsOptions
 
 CABLE_NAME = "cable"
 FLOOR_NAME = "floor"
@@ -107,6 +108,11 @@ class SceneConfig:
             raise ValueError(f"cable_axis={self.cable_axis} must be a non-zero direction")
         if self.far_end == "support" and self.support_m is None:
             raise ValueError("far_end='support' needs support_m")
+        if self.cable.model == "rod" and self.physics.integrator not in ROD_INTEGRATORS:
+            raise ValueError(
+                f"integrator={self.physics.integrator!r} does not support the rod cable (MuJoCo 4 rejects "
+                f"implicit integrators for rod elasticity); use one of {ROD_INTEGRATORS} or the chain cable"
+            )
 
     @property
     def num_grippers(self) -> int:
@@ -123,11 +129,28 @@ def gripper_name(index: int) -> str:
     return f"tcp_{index}"
 
 
+def _cable_rotation(config: SceneConfig) -> NDArray[np.float64]:
+    """Quaternion rotating z onto ``config.cable_axis`` (the straight cable's direction at qpos0)."""
+    axis = np.asarray(config.cable_axis, dtype=float)
+    axis = axis / np.linalg.norm(axis)
+    quat = np.zeros(4)
+    mujoco.mju_quatZ2Vec(quat, axis)
+    return quat
+
+
+def far_end_body(config: SceneConfig) -> str:
+    """Name of the body that carries the cable's last node (rod: its vertex body; chain: the last capsule)."""
+    if config.cable.model == "chain":
+        return chain_model.body_name(CABLE_NAME, config.cable.num_segments - 1)
+    return f"{CABLE_NAME}_{config.cable.num_segments}"
+
+
 def build_mjcf(config: SceneConfig) -> str:
     """Return the MJCF text of the scene described by ``config``.
 
-    In this text the cable's flexcomp sits in the world body with its first two points pinned to the world;
-    :func:`build_spec` moves those points onto the first TCP, which is how :class:`Scene` compiles it.
+    Rod: in this text the cable's flexcomp sits in the world body with its first two points pinned to the
+    world; :func:`build_spec` moves those points onto the first TCP, which is how :class:`Scene` compiles it.
+    Chain: the capsules are nested in the first TCP's body (``dyndlo_vision.sim.chain``).
     """
     cable = config.cable
     g = config.gains
@@ -135,9 +158,13 @@ def build_mjcf(config: SceneConfig) -> str:
     seg = cable.segment_length_m
     bodies = []
     flex = ""
+    chain_xml = ""
+    is_chain = cable.model == "chain"
     for i, pos in enumerate(config.grippers_m):
         name = gripper_name(i)
-        if i == 0:
+        if i == 0 and is_chain:
+            chain_xml = chain_model.chain_bodies_mjcf(cable, CABLE_NAME, _cable_rotation(config))
+        elif i == 0:
             # The grid runs along its local x axis, centred on `pos`: rotate x onto cable_axis and shift the
             # grid so node 0 sits at the TCP.
             axis = np.asarray(config.cable_axis, dtype=float)
@@ -170,7 +197,7 @@ def build_mjcf(config: SceneConfig) -> str:
       <joint name="{name}_z" type="slide" axis="0 0 1"/>
       <geom name="{name}_geom" type="sphere" size="0.02" mass="{g.mass_kg}" rgba="0.2 0.2 0.2 1"
             contype="0" conaffinity="0"/>
-      <site name="{name}_site" size="0.005"/>
+      <site name="{name}_site" size="0.005"/>{chain_xml if i == 0 else ""}
     </body>""")
     props = []
     if config.far_end == "support":
@@ -204,8 +231,10 @@ def build_mjcf(config: SceneConfig) -> str:
                 f'\n    <general name="{jn}_servo" joint="{jn}" gainprm="{g.kv_ns_per_m}" '
                 f'biastype="affine" biasprm="0 {-g.kv_ns_per_m * g.kp_per_s} {-g.kv_ns_per_m}"/>'
             )
+    if is_chain:
+        actuators.append(chain_model.chain_actuators_mjcf(cable, CABLE_NAME))
     equality = ""
-    last = f"{CABLE_NAME}_{cable.num_segments}"
+    last = far_end_body(config)
     if config.far_end == "gripper":
         equality = f'\n    <connect name="far_end" body1="{gripper_name(1)}" body2="{last}" anchor="0 0 0"/>'
     elif config.far_end == "support":
@@ -252,6 +281,8 @@ def build_spec(config: SceneConfig) -> mujoco.MjSpec:
     assembles 3x3 vertex blocks instead (measured on the tip-control scene: 1.6x fewer CPU-us per step).
     """
     spec = mujoco.MjSpec.from_string(build_mjcf(config))
+    if config.cable.model == "chain":
+        return spec
     flex = spec.flex(CABLE_NAME)
     bodies = list(flex.vertbody)
     verts = np.array(flex.vert, dtype=float).reshape(-1, 3)
@@ -283,10 +314,16 @@ class Scene:
         except ValueError as exc:  # MuJoCo reports compile errors as ValueError
             raise ValueError(f"the scene does not compile: {exc}") from exc
         m = self.model
+        self._is_chain = config.cable.model == "chain"
         if config.physics.twist_armature_kg_m2 > 0:
-            # MuJoCo names the rod's per-edge twist hinges <flex name>_twist_<edge>.
-            prefix = f"{CABLE_NAME}_twist"
-            twist = [m.jnt_dofadr[j] for j in range(m.njnt) if m.joint(j).name.startswith(prefix)]
+            if self._is_chain:
+                # The third DOF of a ball joint rotates about the child's z axis: the capsule's own axis.
+                twist = [m.joint(chain_model.joint_name(CABLE_NAME, i)).dofadr[0] + 2
+                         for i in range(1, config.cable.num_segments)]
+            else:
+                # MuJoCo names the rod's per-edge twist hinges <flex name>_twist_<edge>.
+                prefix = f"{CABLE_NAME}_twist"
+                twist = [m.jnt_dofadr[j] for j in range(m.njnt) if m.joint(j).name.startswith(prefix)]
             m.dof_armature[twist] = config.physics.twist_armature_kg_m2
             mujoco.mj_setConst(m, mujoco.MjData(m))  # the mass matrix of simple bodies is precomputed
         self.data = mujoco.MjData(m)
@@ -301,17 +338,26 @@ class Scene:
         )
         self._tcp_home = np.array(config.grippers_m, dtype=float)
         self._kp = config.gains.kp_per_s
-        self._flex_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_FLEX, CABLE_NAME)
-        self._vert_adr = int(m.flex_vertadr[self._flex_id])
-        self._vert_num = int(m.flex_vertnum[self._flex_id])
+        self._vert_num = config.cable.num_nodes
         self._target_mocap = int(m.body("target").mocapid[0]) if config.target_radius_m > 0 else -1
         if config.far_end != "free":
-            # The connect constraint's second anchor is computed from qpos0, where the rod is straight; put it
-            # at the node itself so that the node, not a point offset from it, is held.
+            # The connect constraint's second anchor is computed from qpos0, where the cable is straight; put
+            # it at the last node itself (rod: the vertex body's origin; chain: the last capsule's free end)
+            # so that the node, not a point offset from it, is held.
             eq = m.equality("far_end").id
-            m.eq_data[eq, 3:6] = 0.0
+            m.eq_data[eq, 3:6] = [0.0, 0.0, config.cable.segment_length_m] if self._is_chain else 0.0
         self._state_spec = mujoco.mjtState.mjSTATE_INTEGRATION
-        self._node_offset, self._node_jacobian = self._linear_node_map()
+        self._chain: chain_model.ChainKinematics | None = None
+        if self._is_chain:
+            self._chain = chain_model.ChainKinematics(
+                m, CABLE_NAME, config.cable.num_segments, config.cable.segment_length_m, gripper_name(0)
+            )
+            if self._chain.check(np.random.default_rng(0)) > 1e-9:
+                raise RuntimeError("the chain's batched kinematics disagree with MuJoCo's")
+        else:
+            self._flex_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_FLEX, CABLE_NAME)
+            self._vert_adr = int(m.flex_vertadr[self._flex_id])
+            self._node_offset, self._node_jacobian = self._linear_node_map()
         self._rollout: Any = None
         self._initial_state = self._settle()
 
@@ -365,7 +411,11 @@ class Scene:
         return state
 
     def _place_cable_along_path(self) -> None:
-        """Move the free nodes (via their slide joints) onto the initial path, resampled by arc length."""
+        """Move the free nodes (via their slide joints) onto the initial path, resampled by arc length.
+
+        Chain: the capsules follow the path instead, each link's far end on the path at one segment length
+        (chord) from its start (:func:`dyndlo_vision.sim.chain.walk_polyline`), without twist.
+        """
         path = self.config.initial_path_m
         if path is None:
             return
@@ -379,6 +429,9 @@ class Scene:
             raise ValueError(
                 f"initial_path_m is {arc[-1]:.3f} m long, shorter than the cable ({cable.length_m} m)"
             )
+        if self._is_chain:
+            self._place_chain_along(pts)
+            return
         s = np.linspace(0.0, cable.length_m, cable.num_nodes)
         target = np.stack([np.interp(s, arc, pts[:, k]) for k in range(3)], axis=1)
         m, d = self.model, self.data
@@ -390,6 +443,33 @@ class Scene:
                 qadr = m.jnt_qposadr[jadr + k]
                 axis = m.jnt_axis[jadr + k]
                 d.qpos[qadr] = float(np.dot(axis, target[node] - (d.xpos[body.id] - d.qpos[qadr] * axis)))
+        mujoco.mj_kinematics(m, d)
+
+    def _place_chain_along(self, pts: NDArray[np.float64]) -> None:
+        m, d = self.model, self.data
+        cable = self.config.cable
+        mujoco.mj_kinematics(m, d)
+        first = m.body(chain_model.body_name(CABLE_NAME, 0)).id
+        node0, rot0 = d.xpos[first].copy(), d.xquat[first].copy()
+        # The first capsule is clamped to the TCP: node 1 is where it ends, whatever the path.
+        node1 = node0 + d.xmat[first].reshape(3, 3) @ [0.0, 0.0, cable.segment_length_m]
+        seg_len = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        # Start the walk at the path point closest to node 1.
+        best, best_dist = (0, node1), np.inf
+        for j in range(len(pts) - 1):
+            if seg_len[j] <= 0:
+                continue
+            t = float(np.clip(np.dot(node1 - pts[j], pts[j + 1] - pts[j]) / seg_len[j] ** 2, 0.0, 1.0))
+            p = pts[j] + t * (pts[j + 1] - pts[j])
+            if np.linalg.norm(p - node1) < best_dist:
+                best, best_dist = (j, p), float(np.linalg.norm(p - node1))
+        rest = chain_model.walk_polyline(pts, best[1], best[0], cable.segment_length_m,
+                                         cable.num_segments - 1)
+        nodes = np.vstack([node0, node1, rest])
+        quats = chain_model.ball_quats_along(nodes, rot0)
+        for i, q in enumerate(quats, start=1):
+            adr = m.joint(chain_model.joint_name(CABLE_NAME, i)).qposadr[0]
+            d.qpos[adr:adr + 4] = q
         mujoco.mj_kinematics(m, d)
 
     def reset(self) -> None:
@@ -431,7 +511,8 @@ class Scene:
     def cable_nodes(self) -> NDArray[np.float64]:
         """World positions of the cable nodes from the held end to the far end, (N, 3).
 
-        Computed from the current ``qpos`` (``mjData.flexvert_xpos`` lags one step behind after ``mj_step``).
+        Computed from the current ``qpos`` (``mjData.flexvert_xpos`` and ``xpos`` lag one step behind after
+        ``mj_step``). Chain: the ball-joint positions, then the last capsule's free end.
         """
         return self.nodes_from_qpos(self.data.qpos[None])[0]
 
@@ -487,15 +568,28 @@ class Scene:
         expected_time = state0[0] + m.opt.timestep * np.arange(1, k + 1)
         good = np.abs(states[:, 0] - expected_time) < 0.5 * m.opt.timestep
         good &= np.all(np.isfinite(states), axis=1)
-        good &= np.abs(self.nodes_from_qpos(qpos)).max(axis=(1, 2)) < 50.0
+        good &= self._in_bounds(qpos)
         finite = k if good.all() else int(np.argmin(good))
         if finite < k:
             self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number += 1
         return qpos, qvel, finite
 
+    def _in_bounds(self, qpos: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Whether every cable node of each configuration (K, nq) lies within 50 m of the origin, (K,).
+
+        The chain's nodes are within a cable length of its TCP (rigid links), so its TCPs alone are checked,
+        which spares the batched forward kinematics of every step.
+        """
+        if self._is_chain:
+            tcp = self._tcp_home + qpos[:, self._tcp_qpos]
+            return np.abs(tcp).max(axis=(1, 2)) < 50.0 - self.config.cable.length_m
+        return np.abs(self.nodes_from_qpos(qpos)).max(axis=(1, 2)) < 50.0
+
     def nodes_from_qpos(self, qpos: ArrayLike) -> NDArray[np.float64]:
         """Cable node positions for a batch of configurations, (K, nq) -> (K, N, 3)."""
         q = np.asarray(qpos, dtype=float)
+        if self._chain is not None:
+            return self._chain.nodes(q)
         return (self._node_offset + (q @ self._node_jacobian).reshape(q.shape[0], self._vert_num, 3))
 
     def tcp_from_state(
