@@ -22,8 +22,8 @@ import time
 import numpy as np
 
 from dyndlo_vision.control.clocks import ClockSync
-from dyndlo_vision.control.kinematics import ArmKinematics, abb_gofa_crb15000
-from dyndlo_vision.control.robots import EgmRobot, FakeEgmController
+from dyndlo_vision.robots import EgmRobot, FakeEgmController
+from dyndlo_vision.robots.kinematics import ArmKinematics, abb_gofa_crb15000
 
 PERIOD_S = 0.04
 

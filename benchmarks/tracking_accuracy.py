@@ -56,11 +56,11 @@ from numpy.typing import NDArray  # noqa: E402
 
 import dyndlo_vision  # noqa: E402, F401  (chooses the GL backend before mujoco is imported)
 from dyndlo_vision._atomic import write_atomic  # noqa: E402
-from dyndlo_vision.control.noise_model import ObservationNoiseModel  # noqa: E402
 from dyndlo_vision.control.sim_perception import LOOP_SIGMA_ACCEL  # noqa: E402
 from dyndlo_vision.sim.scene import CABLE_NAME  # noqa: E402
 from dyndlo_vision.tasks import make_env  # noqa: E402
 from dyndlo_vision.tasks.base import DynDLOEnv  # noqa: E402
+from dyndlo_vision.tasks.noise import ObservationNoiseModel  # noqa: E402
 from dyndlo_vision.tracking import (  # noqa: E402
     BackgroundSegmenter,
     CableTracker,

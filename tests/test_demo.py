@@ -66,7 +66,7 @@ def test_demo_hits_and_its_video_plot_and_metrics_agree(
     """
     import gymnasium as gym
 
-    from dyndlo_vision.control.cameras import MujocoCamera
+    from dyndlo_vision.cameras.simulated import MujocoCamera
 
     seen = spy_outputs(monkeypatch)
     out = tmp_path / "demo"

@@ -1,7 +1,7 @@
 """``dyndlo-vision calib``: the calibration JSON of a simulated camera, in the format ``track --calib`` reads.
 
 The task's scene is built as the other commands build it, and the named MuJoCo camera's pinhole model is taken
-from :attr:`dyndlo_vision.control.cameras.MujocoCamera.calibration` (the model the demo's tracker uses):
+from :attr:`dyndlo_vision.cameras.MujocoCamera.calibration` (the model the demo's tracker uses):
 ``width``, ``height``, ``K`` (``fx = fy`` from the vertical field of view, principal point at the image
 centre), ``dist`` (empty: MuJoCo renders without lens distortion), ``R`` and ``t`` with
 ``x_cam = R @ x_world + t`` in OpenCV's camera axes (x right, y down, z forward), and ``fps``.
@@ -86,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
 
     import dyndlo_vision  # noqa: F401  (registers the environments)
     from dyndlo_vision._atomic import write_atomic
-    from dyndlo_vision.control.cameras import MujocoCamera
+    from dyndlo_vision.cameras.simulated import MujocoCamera
     from dyndlo_vision.learning.config import env_id
 
     env = gym.make(env_id(cfg.task))

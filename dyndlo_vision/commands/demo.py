@@ -288,7 +288,7 @@ def run_episode(
     else:
         source = TrueState(env)
     if video is not None and camera is None:
-        from dyndlo_vision.control.cameras import MujocoCamera
+        from dyndlo_vision.cameras.simulated import MujocoCamera
 
         camera = MujocoCamera(base.model, base.data, camera_name)
     robot = SimRobot(env)

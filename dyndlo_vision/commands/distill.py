@@ -54,8 +54,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Resolve the options, then run the rounds."""
-    from dyndlo_vision.control.noise_model import resolve_noise_model_path
     from dyndlo_vision.learning.distill import DistillConfig, distill
+    from dyndlo_vision.tasks.noise import resolve_noise_model_path
 
     noise = resolve_noise_model_path(args.obs_noise)
     config = DistillConfig(

@@ -222,7 +222,7 @@ def _make_env(
 
     env = gym.make(gym_id, multi_step=multi_step, render_mode=render_mode, **options)
     if randomize_cable:
-        from dyndlo_vision.control.wrappers import CableRandomization
+        from dyndlo_vision.tasks.wrappers import CableRandomization
 
         env = CableRandomization(env, every_episodes=1)
     return env

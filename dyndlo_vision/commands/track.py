@@ -40,7 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 if TYPE_CHECKING:
-    from dyndlo_vision.control.protocols import Frame
+    from dyndlo_vision.cameras.protocol import Frame
     from dyndlo_vision.tracking.camera_model import PinholeCamera
 
 T = TypeVar("T")
@@ -335,7 +335,7 @@ def _segmenter(cfg: _Settings) -> tuple[Callable[[NDArray[np.uint8]], NDArray[np
 
     Learns the median background when asked ('median', or 'auto' on a video long enough).
     """
-    from dyndlo_vision.control.cameras import VideoFileCamera
+    from dyndlo_vision.cameras.files import VideoFileCamera
     from dyndlo_vision.tracking.segmentation import BackgroundSegmenter, segment_hsv
 
     if cfg.hsv is not None:
@@ -616,7 +616,7 @@ def _run(args: argparse.Namespace) -> int:
     import cv2
     from tqdm import tqdm
 
-    from dyndlo_vision.control.cameras import VideoFileCamera
+    from dyndlo_vision.cameras.files import VideoFileCamera
     from dyndlo_vision.tracking.camera_model import PinholeCamera
 
     cfg = _settings(args)

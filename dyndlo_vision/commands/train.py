@@ -112,8 +112,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _new_config(args: argparse.Namespace, algo: str) -> RunConfig:
     """The RunConfig of a new run: the YAML entry of the task and mode, overridden by the options."""
-    from dyndlo_vision.control.noise_model import resolve_noise_model_path
     from dyndlo_vision.learning.config import RunConfig, load_hyperparams
+    from dyndlo_vision.tasks.noise import resolve_noise_model_path
 
     obs_noise = resolve_noise_model_path(args.obs_noise)
     entry = load_hyperparams(algo, args.task, args.multi_step)

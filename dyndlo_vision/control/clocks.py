@@ -1,8 +1,8 @@
 """Putting a live camera's time stamps on the robot's clock.
 
 On hardware the loop has two clocks. A live camera stamps its frames with this process's
-``time.monotonic()`` (:class:`~dyndlo_vision.control.cameras.OpenCVDeviceCamera`,
-:class:`~dyndlo_vision.control.cameras.RealSenseCamera`); a robot driver reports its state on the
+``time.monotonic()`` (:class:`~dyndlo_vision.cameras.OpenCVDeviceCamera`,
+:class:`~dyndlo_vision.cameras.RealSenseCamera`); a robot driver reports its state on the
 controller's clock (EGM's header time, RTDE's ``timestamp``: seconds since the controller started). The
 Kalman filter must update at a frame's capture time and predict to the controller's time on *one* clock;
 left apart, the two differ by anything from seconds to days, and the filter either calls the estimate lost
@@ -15,7 +15,8 @@ one robot cycle plus transport). The largest difference over a sliding window is
 (the freshest pair), the idea behind minimum-delay clock synchronisation; the window lets it follow a slow
 drift.
 
-Cameras say which clock they stamp with in their ``clock`` attribute (:data:`CAMERA_CLOCKS`).
+Cameras say which clock they stamp with in their ``clock`` attribute
+(:data:`dyndlo_vision.cameras.protocol.CAMERA_CLOCKS`).
 """
 
 from __future__ import annotations
@@ -25,12 +26,8 @@ import time
 from collections import deque
 from collections.abc import Callable
 
-__all__ = ["CAMERA_CLOCKS", "ClockSync"]
+__all__ = ["ClockSync"]
 
-#: Values of a camera's ``clock`` attribute: ``"simulation"`` (the simulator's time, which is also the
-#: simulated robot's clock), ``"video"`` (a file's own time line; no robot shares it) and ``"monotonic"``
-#: (this process's ``time.monotonic()``, which a robot driver's clock must be mapped onto).
-CAMERA_CLOCKS = ("simulation", "video", "monotonic")
 
 
 class ClockSync:

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from dyndlo_vision.control.protocols import Robot, Setpoints
+from dyndlo_vision.robots.protocol import Robot, Setpoints
 from dyndlo_vision.tasks.base import observation_vector
 from dyndlo_vision.trajectory import Replanner
 

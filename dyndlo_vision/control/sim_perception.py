@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
-from dyndlo_vision.control.cameras import DelayedCamera, MujocoCamera, checked_latency_s
+from dyndlo_vision.cameras.simulated import DelayedCamera, MujocoCamera, checked_latency_s
 from dyndlo_vision.control.state_sources import TrackedState
 from dyndlo_vision.sim.scene import CABLE_NAME
 from dyndlo_vision.tasks.base import CONTROL_PERIOD_S

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from dyndlo_vision.control.protocols import Setpoints, TcpState
+from dyndlo_vision.robots.protocol import Setpoints, TcpState
 
 log = logging.getLogger(__name__)
 

@@ -15,8 +15,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from dyndlo_vision.cameras.protocol import Camera
 from dyndlo_vision.control.clocks import ClockSync
-from dyndlo_vision.control.protocols import Camera, TcpState
+from dyndlo_vision.robots.protocol import TcpState
 
 log = logging.getLogger(__name__)
 
@@ -66,7 +67,7 @@ class TrueState:
 class NoisyState:
     """The simulator's P_DLO corrupted by a fitted observation-noise model, as in noisy-observation training.
 
-    Uses the same corruption as :class:`~dyndlo_vision.control.wrappers.NoisyObservation` (latency, bias,
+    Uses the same corruption as :class:`~dyndlo_vision.tasks.wrappers.NoisyObservation` (latency, bias,
     speed-dependent noise, dropouts that coast), one draw per control cycle.
 
     Args:
@@ -76,8 +77,8 @@ class NoisyState:
     """
 
     def __init__(self, env: Any, model: Any = None, seed: int | None = None) -> None:
-        from dyndlo_vision.control.noise_model import packaged_noise_model_path
-        from dyndlo_vision.control.wrappers import NoisyObservation
+        from dyndlo_vision.tasks.noise import packaged_noise_model_path
+        from dyndlo_vision.tasks.wrappers import NoisyObservation
 
         self.env = env.unwrapped
         self.noise = NoisyObservation(env, model if model is not None else packaged_noise_model_path())

@@ -15,7 +15,7 @@ the current position and velocity.
 * :func:`fit_student` regresses the mean of a stable-baselines3 PPO policy onto the aggregated labels, so the
   result is an ordinary PPO zip that ``policies.load``, ``evaluate`` and the control loop take.
 
-With ``noise_model`` the episodes run under :class:`~dyndlo_vision.control.wrappers.NoisyObservation`: the
+With ``noise_model`` the episodes run under :class:`~dyndlo_vision.tasks.wrappers.NoisyObservation`: the
 student sees the corrupted P_DLO (and learns to act on it), the expert is unaffected (it reads no P_DLO).
 """
 
@@ -225,7 +225,7 @@ def make_distill_env(task_options: dict[str, Any], noise_model: str | None) -> A
 
     env = gym.make("DynDLO/TipControl-v0", multi_step=True, **task_options)
     if noise_model:
-        from dyndlo_vision.control.wrappers import NoisyObservation
+        from dyndlo_vision.tasks.wrappers import NoisyObservation
 
         env = NoisyObservation(env, noise_model)
     return env

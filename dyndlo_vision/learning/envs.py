@@ -31,12 +31,12 @@ def make_env(
 
     env = gym.make(config.env_id, multi_step=config.multi_step, render_mode=render_mode, **config.env_options)
     if config.randomize_cable if randomize is None else randomize:
-        from dyndlo_vision.control.wrappers import CableRandomization
+        from dyndlo_vision.tasks.wrappers import CableRandomization
 
         env = CableRandomization(env, every_episodes=10)
     if config.obs_noise:
-        from dyndlo_vision.control.noise_model import ObservationNoiseModel
-        from dyndlo_vision.control.wrappers import NoisyObservation
+        from dyndlo_vision.tasks.noise import ObservationNoiseModel
+        from dyndlo_vision.tasks.wrappers import NoisyObservation
 
         env = NoisyObservation(env, ObservationNoiseModel.load(Path(config.obs_noise)))
     return Monitor(env, str(monitor_file) if monitor_file else None, info_keywords=MONITOR_KEYWORDS,

@@ -91,7 +91,7 @@ def _cable_summary(cable: Any) -> dict[str, float]:
     """The randomised parameters of the episode's cable (``info["cable"]`` of ``CableRandomization``)."""
     if cable is None:
         return {}
-    from dyndlo_vision.control.wrappers import DEFAULT_CABLE_RANGES
+    from dyndlo_vision.tasks.wrappers import DEFAULT_CABLE_RANGES
 
     return {name: float(getattr(cable, name)) for name in DEFAULT_CABLE_RANGES}
 

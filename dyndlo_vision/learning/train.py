@@ -143,7 +143,7 @@ def check_run(config: RunConfig, out: Path, resume: bool = False) -> RunConfig:
             )
         check_hyperparams(config.algo, config.hyperparams)  # (a resumed run loads its model instead)
     if config.obs_noise:
-        from dyndlo_vision.control.noise_model import ObservationNoiseModel
+        from dyndlo_vision.tasks.noise import ObservationNoiseModel
 
         if not Path(config.obs_noise).is_file():
             raise FileNotFoundError(f"observation-noise model {config.obs_noise}: no such file")

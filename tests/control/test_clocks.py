@@ -5,8 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dyndlo_vision.control.cameras import DelayedCamera, MujocoCamera, OpenCVDeviceCamera, VideoFileCamera
-from dyndlo_vision.control.clocks import CAMERA_CLOCKS, ClockSync
+from dyndlo_vision.cameras.devices import OpenCVDeviceCamera
+from dyndlo_vision.cameras.files import VideoFileCamera
+from dyndlo_vision.cameras.protocol import CAMERA_CLOCKS
+from dyndlo_vision.cameras.simulated import DelayedCamera, MujocoCamera
+from dyndlo_vision.control.clocks import ClockSync
 
 
 def test_offset_is_the_freshest_pair_and_never_ahead_of_the_truth() -> None:

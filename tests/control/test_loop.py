@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 
 import dyndlo_vision  # noqa: F401
+from dyndlo_vision.cameras.protocol import Frame
 from dyndlo_vision.control.loop import ControlLoop
-from dyndlo_vision.control.protocols import Frame, Robot, Setpoints
 from dyndlo_vision.control.sim_robot import SimRobot
 from dyndlo_vision.control.state_sources import TrackedState, TrueState
+from dyndlo_vision.robots.protocol import Robot, Setpoints
 
 
 class ScriptedPolicy:
@@ -219,7 +220,7 @@ class TipAtCapture:
 
 
 def test_a_delayed_camera_is_tracked_with_the_gripper_where_it_was_and_predicted_to_now() -> None:
-    from dyndlo_vision.control.cameras import DelayedCamera
+    from dyndlo_vision.cameras.simulated import DelayedCamera
     from dyndlo_vision.tracking import PointFilter
 
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
@@ -341,8 +342,8 @@ def test_exception_stops_the_robot() -> None:
 
 
 def test_noisy_state_with_an_identity_model_is_the_truth_and_the_fitted_one_is_not() -> None:
-    from dyndlo_vision.control.noise_model import ObservationNoiseModel
     from dyndlo_vision.control.state_sources import NoisyState
+    from dyndlo_vision.tasks.noise import ObservationNoiseModel
 
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
     env.reset(seed=5)
@@ -367,7 +368,7 @@ class WallClockRobot:
         pass
 
     def state(self) -> object:
-        from dyndlo_vision.control.protocols import TcpState
+        from dyndlo_vision.robots.protocol import TcpState
 
         return TcpState(np.array([[0.45, 0.0, 0.6]]), np.zeros((1, 3)), time.monotonic())
 

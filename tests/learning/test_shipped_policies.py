@@ -72,7 +72,7 @@ def test_shipped_task_iv_policy_beats_the_geometric_lift_at_equal_time(name: str
 @pytest.mark.slow
 def test_shipped_hooking_policy_hooks_on_the_nominal_cable_and_on_cables_it_never_saw() -> None:
     """Hooking starts from one fixed state; cable variation is what tells (100/100 in its metadata)."""
-    from dyndlo_vision.control.wrappers import CableRandomization
+    from dyndlo_vision.tasks.wrappers import CableRandomization
 
     meta = policies.metadata("hooking")
     assert meta["evaluation"]["success_rate"] >= 0.9
@@ -90,7 +90,7 @@ def test_shipped_hooking_policy_hooks_on_the_nominal_cable_and_on_cables_it_neve
 def test_shipped_vaulting_policy_vaults_and_replays_its_recorded_cables() -> None:
     """Vaulting starts from one fixed state: the nominal cable is one episode. On random cables the policy
     succeeds only on some (stiff cables need another throw); the first recorded episodes must replay."""
-    from dyndlo_vision.control.wrappers import CableRandomization
+    from dyndlo_vision.tasks.wrappers import CableRandomization
 
     meta = policies.metadata("vaulting")
     env = gym.make(env_id("vaulting"))

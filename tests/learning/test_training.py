@@ -144,8 +144,8 @@ def test_evaluate_random_actions_and_the_scripted_vault_by_name(tmp_path: Path) 
 
 
 def test_evaluate_with_cable_randomization_draws_one_cable_per_episode_from_its_seed(tmp_path: Path) -> None:
-    from dyndlo_vision.control.wrappers import DEFAULT_CABLE_RANGES
     from dyndlo_vision.tasks.tip_control import TipControl
+    from dyndlo_vision.tasks.wrappers import DEFAULT_CABLE_RANGES
 
     nominal = TipControl().cable
     report = tmp_path / "report.json"
@@ -248,8 +248,8 @@ def test_runs_group_by_everything_but_the_seed() -> None:
 
 
 def test_training_with_the_fitted_observation_noise_and_cable_randomization(tmp_path: Path) -> None:
-    from dyndlo_vision.control.noise_model import packaged_noise_model_path
     from dyndlo_vision.learning.envs import make_env
+    from dyndlo_vision.tasks.noise import packaged_noise_model_path
 
     config = _config("sac", 32, obs_noise=str(packaged_noise_model_path()), randomize_cable=True)
     env = make_env(config)

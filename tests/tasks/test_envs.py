@@ -229,7 +229,7 @@ def test_geometric_lift_oscillation_by_layout(layout: str) -> None:
 @pytest.mark.parametrize("length_factor", [0.9, 1.1])
 def test_every_task_takes_the_randomised_cable_lengths(env_id: str, length_factor: float) -> None:
     """`--randomize-cable` draws lengths of 0.9-1.1x; every scene must lay such a cable out and settle it."""
-    from dyndlo_vision.control.wrappers import CableRandomization
+    from dyndlo_vision.tasks.wrappers import CableRandomization
 
     env = CableRandomization(gym.make(env_id), ranges={"length_m": (length_factor, length_factor)})
     obs, info = env.reset(seed=0)

@@ -23,7 +23,7 @@ def _render_scene(camera_name: str, width: int, height: int, targets: np.ndarray
     import gymnasium as gym
     import mujoco
 
-    from dyndlo_vision.control.cameras import MujocoCamera
+    from dyndlo_vision.cameras.simulated import MujocoCamera
 
     env = gym.make("DynDLO/TipControl-v0")
     try:

@@ -394,7 +394,7 @@ class SimClip:
 def sim_clip(tmp_path_factory: pytest.TempPathFactory) -> SimClip:
     import gymnasium as gym
 
-    from dyndlo_vision.control.cameras import MujocoCamera
+    from dyndlo_vision.cameras.simulated import MujocoCamera
 
     root = tmp_path_factory.mktemp("sim")
     env = gym.make("DynDLO/TipControl-v0")

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 import dyndlo_vision  # noqa: F401  (registers the environment ids)
-from dyndlo_vision.control.noise_model import ObservationNoiseModel, dropout_runs, packaged_noise_model_path
-from dyndlo_vision.control.wrappers import NoisyObservation
+from dyndlo_vision.tasks.noise import ObservationNoiseModel, dropout_runs, packaged_noise_model_path
+from dyndlo_vision.tasks.wrappers import NoisyObservation
 
 DT = 0.04
 
@@ -383,7 +383,7 @@ def test_latency_in_the_real_environment_is_whole_control_steps() -> None:
 def test_cable_randomization_draws_new_cables_deterministically() -> None:
     import gymnasium as gym
 
-    from dyndlo_vision.control.wrappers import CableRandomization
+    from dyndlo_vision.tasks.wrappers import CableRandomization
 
     def lengths(seed: int) -> list[float]:
         env = CableRandomization(gym.make("DynDLO/TipControl-v0"), every_episodes=2)
@@ -406,7 +406,7 @@ def test_cable_randomization_draws_new_cables_deterministically() -> None:
 
 
 def test_noise_model_paths_from_the_command_line(tmp_path) -> None:
-    from dyndlo_vision.control.noise_model import packaged_noise_model_path, resolve_noise_model_path
+    from dyndlo_vision.tasks.noise import packaged_noise_model_path, resolve_noise_model_path
 
     assert resolve_noise_model_path(None) is None
     assert resolve_noise_model_path("packaged") == str(packaged_noise_model_path())

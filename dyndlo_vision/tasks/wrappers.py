@@ -2,7 +2,7 @@
 
 :class:`NoisyObservation` replaces the true P_DLO in a DynDLO observation (table II layout: gripper
 positions ``3 n_g``, gripper velocities ``3 n_g``, P_DLO ``3``, target ``3``) by a corrupted one drawn from an
-:class:`~dyndlo_vision.control.noise_model.ObservationNoiseModel`: delayed, biased, noisy, and missing in
+:class:`~dyndlo_vision.tasks.noise.ObservationNoiseModel`: delayed, biased, noisy, and missing in
 runs, during which the last value is extrapolated at constant velocity like a coasting tracking filter.
 """
 
@@ -17,8 +17,8 @@ import gymnasium as gym
 import numpy as np
 from numpy.typing import NDArray
 
-from dyndlo_vision.control.noise_model import ObservationNoiseModel
 from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
+from dyndlo_vision.tasks.noise import ObservationNoiseModel
 
 __all__ = ["NoisyObservation"]
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dyndlo_vision.control.protocols import Setpoints, TcpState
-from dyndlo_vision.control.safety import ClampedRobot, WorkspaceBox, clamp_setpoints
+from dyndlo_vision.robots.protocol import Setpoints, TcpState
+from dyndlo_vision.robots.safety import ClampedRobot, WorkspaceBox, clamp_setpoints
 
 BOX = WorkspaceBox((0.2, -0.4, 0.1), (0.9, 0.4, 0.9))
 HOME = np.array([0.45, 0.0, 0.60])

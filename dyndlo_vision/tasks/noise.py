@@ -13,7 +13,7 @@ with the true P_DLO at that time the estimate is, per observation (one per 40 ms
 
 :meth:`ObservationNoiseModel.fit` estimates all of this from per-frame records (truth, estimate, true
 velocity), as ``benchmarks/tracking_accuracy.py --fit-out`` does;
-:class:`dyndlo_vision.control.wrappers.NoisyObservation` applies it to the observations of an environment.
+:class:`dyndlo_vision.tasks.wrappers.NoisyObservation` applies it to the observations of an environment.
 """
 
 from __future__ import annotations

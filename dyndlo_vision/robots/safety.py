@@ -3,12 +3,12 @@
 * :func:`clamp_setpoints` keeps every setpoint inside a workspace box and limits the TCP speed, both of the
   feed-forward velocities and of the motion between successive positions (a rate limiter, so a jump in the
   positions becomes a ramp at the speed limit). It logs one warning line per call when it changes anything.
-  :class:`ClampedRobot` applies it in front of any :class:`~dyndlo_vision.control.protocols.Robot`.
+  :class:`ClampedRobot` applies it in front of any :class:`~dyndlo_vision.robots.protocol.Robot`.
 * :class:`Watchdog` watches named channels (camera frames, robot state) and calls a stop callback, once,
   with a log line, when one of them has not been fed within its timeout. Poll it from the control loop
   (``check``) or let it run its own thread (``start``).
 
-These clamps are Cartesian; the drivers check the joint limits (``dyndlo_vision.control.kinematics``).
+These clamps are Cartesian; the drivers check the joint limits (``dyndlo_vision.robots.kinematics``).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from dyndlo_vision.control.protocols import Robot, Setpoints, TcpState
+from dyndlo_vision.robots.protocol import Robot, Setpoints, TcpState
 
 __all__ = ["ClampReport", "ClampedRobot", "Watchdog", "WorkspaceBox", "clamp_setpoints"]
 
@@ -173,7 +173,7 @@ def clamp_setpoints(
 
 
 class ClampedRobot:
-    """A :class:`~dyndlo_vision.control.protocols.Robot` that clamps setpoints before passing them on.
+    """A :class:`~dyndlo_vision.robots.protocol.Robot` that clamps setpoints before passing them on.
 
     Args:
         robot: The robot (simulated TCP or a driver).

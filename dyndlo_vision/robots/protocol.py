@@ -1,11 +1,6 @@
-"""The two small protocols at the hardware edge of the control loop, and the records they exchange.
-
-The loop (``dyndlo_vision.control.loop``) depends only on these: a :class:`Camera` that yields time-stamped
-:class:`Frame` objects and a :class:`Robot` that reports its TCP state and follows Cartesian setpoints. The
-same loop therefore runs in simulation (MuJoCo camera, simulated TCP) and on hardware (a video device, a robot
-driver). Times are seconds on the source's own clock; in simulation that clock is the simulator's time. A
-camera may name its clock in a ``clock`` attribute (``"monotonic"`` for live cameras), and the tracked state
-source then maps its frames onto the robot's clock (:mod:`dyndlo_vision.control.clocks`).
+"""The robot edge of the loop: a :class:`Robot` reports its TCP state (:class:`TcpState`) and follows
+Cartesian setpoints (:class:`Setpoints`). The simulated TCP and the EGM/RTDE drivers implement it, so the
+same loop runs in simulation and on hardware. Times are seconds on the robot's clock.
 """
 
 from __future__ import annotations
@@ -15,36 +10,6 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
-
-
-@dataclass(frozen=True)
-class Frame:
-    """One camera image with the time it was captured.
-
-    Attributes:
-        rgb: (H, W, 3) uint8 image, RGB channel order.
-        t_capture: Capture time in seconds (the simulator's time in simulation).
-        index: Running frame number from the source, starting at 0.
-        depth: Optional (H, W) float32 depth in metres along the optical axis (NaN or 0 where unknown).
-    """
-
-    rgb: NDArray[np.uint8]
-    t_capture: float
-    index: int = 0
-    depth: NDArray[np.float32] | None = None
-
-
-@runtime_checkable
-class Camera(Protocol):
-    """A source of time-stamped frames: MuJoCo off-screen camera, video file, OpenCV device, RGB-D sensor."""
-
-    def read(self) -> Frame | None:
-        """The next frame, or None when the source has no more frames (end of a video file)."""
-        ...
-
-    def close(self) -> None:
-        """Release the device or file."""
-        ...
 
 
 @dataclass(frozen=True)

@@ -10,14 +10,17 @@ import pytest
 
 pytest.importorskip("abb_robot_client")
 
-from dyndlo_vision.control.kinematics import (  # noqa: E402
+from dyndlo_vision.robots import EgmRobot, FakeEgmController  # noqa: E402
+from dyndlo_vision.robots.kinematics import (  # noqa: E402
     ArmKinematics,
     JointLimitError,
     abb_gofa_crb15000,
     check_joint_limits,
 )
-from dyndlo_vision.control.protocols import Robot, Setpoints  # noqa: E402
-from dyndlo_vision.control.robots import EgmRobot, FakeEgmController  # noqa: E402
+from dyndlo_vision.robots.protocol import (
+    Robot,
+    Setpoints,  # noqa: E402
+)
 from dyndlo_vision.tasks.tip_control import TCP_HOME_M  # noqa: E402
 from dyndlo_vision.trajectory import BSplineTrajectory  # noqa: E402
 

@@ -13,10 +13,10 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from dyndlo_vision.control.kinematics import ArmKinematics, JointLimitError, check_joint_limits, ur5e
-from dyndlo_vision.control.protocols import Robot
-from dyndlo_vision.control.robots import FakeRtdeController, RtdeRobot
-from dyndlo_vision.control.robots.rtde import (
+from dyndlo_vision.robots import FakeRtdeController, RtdeRobot
+from dyndlo_vision.robots.kinematics import ArmKinematics, JointLimitError, check_joint_limits, ur5e
+from dyndlo_vision.robots.protocol import Robot
+from dyndlo_vision.robots.rtde import (
     COMMAND_SERVO,
     DATA_PACKAGE,
     PackageStream,
@@ -197,8 +197,8 @@ def test_register_layout_validation() -> None:
 _UR_RTDE_SERVER = textwrap.dedent(
     """
     import sys
-    from dyndlo_vision.control.kinematics import ur5e
-    from dyndlo_vision.control.robots import FakeRtdeController
+    from dyndlo_vision.robots.kinematics import ur5e
+    from dyndlo_vision.robots import FakeRtdeController
     arm = ur5e()
     try:
         fake = FakeRtdeController(arm, arm.seed_rad, rtde_port=30004, reply_timeout_s=0.0).start()

@@ -33,9 +33,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from dyndlo_vision.control.kinematics import ArmModel
-from dyndlo_vision.control.robots import rtde as rtde_protocol
-from dyndlo_vision.control.robots._streaming import FloatArray
+from dyndlo_vision.robots import rtde as rtde_protocol
+from dyndlo_vision.robots._streaming import FloatArray
+from dyndlo_vision.robots.kinematics import ArmModel
 
 __all__ = ["FakeEgmController", "FakeRtdeController", "ReceivedTarget"]
 
@@ -215,7 +215,7 @@ class FakeEgmController(_FakeController):
         realtime: bool = True,
         reply_timeout_s: float = 0.05,
     ) -> None:
-        from dyndlo_vision.control.robots.egm import load_egm_module
+        from dyndlo_vision.robots.egm import load_egm_module
 
         super().__init__(_JointRobotSim(arm, q0, period_s, tau_s), realtime, reply_timeout_s)
         self._pb = load_egm_module().egm_pb2

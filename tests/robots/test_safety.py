@@ -1,4 +1,4 @@
-"""Tests for dyndlo_vision.control.safety: workspace and speed clamps, the watchdog."""
+"""Tests for dyndlo_vision.robots.safety: workspace and speed clamps, the watchdog."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import threading
 import numpy as np
 import pytest
 
-from dyndlo_vision.control.protocols import Robot, Setpoints, TcpState
-from dyndlo_vision.control.safety import ClampedRobot, Watchdog, WorkspaceBox, clamp_setpoints
+from dyndlo_vision.robots.protocol import Robot, Setpoints, TcpState
+from dyndlo_vision.robots.safety import ClampedRobot, Watchdog, WorkspaceBox, clamp_setpoints
 
 BOX = WorkspaceBox((0.2, -0.4, 0.1), (0.9, 0.4, 0.9))
 

@@ -35,8 +35,8 @@ from typing import Any
 
 import numpy as np
 
-from dyndlo_vision.control.kinematics import ArmKinematics, ur5e
-from dyndlo_vision.control.robots._streaming import FloatArray, JointSample, JointStreamingDriver
+from dyndlo_vision.robots._streaming import FloatArray, JointSample, JointStreamingDriver
+from dyndlo_vision.robots.kinematics import ArmKinematics, ur5e
 
 __all__ = [
     "COMMAND_IDLE",

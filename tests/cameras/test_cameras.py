@@ -1,4 +1,4 @@
-"""Tests of dyndlo_vision.control.cameras: MuJoCo off-screen camera, video files, image folders, devices."""
+"""Tests of dyndlo_vision.cameras: MuJoCo off-screen camera, video files, image folders, devices."""
 
 from __future__ import annotations
 
@@ -10,16 +10,11 @@ import cv2
 import numpy as np
 import pytest
 
-from dyndlo_vision.control.cameras import (
-    DelayedCamera,
-    MujocoCamera,
-    OpenCVDeviceCamera,
-    RealSenseCamera,
-    TruncatedVideoError,
-    VideoFileCamera,
-    average_frames,
-)
-from dyndlo_vision.control.protocols import Camera, Frame
+from dyndlo_vision.cameras._base import average_frames
+from dyndlo_vision.cameras.devices import OpenCVDeviceCamera, RealSenseCamera
+from dyndlo_vision.cameras.files import TruncatedVideoError, VideoFileCamera
+from dyndlo_vision.cameras.protocol import Camera, Frame
+from dyndlo_vision.cameras.simulated import DelayedCamera, MujocoCamera
 from dyndlo_vision.sim.scene import BoxProp, Scene, SceneConfig
 from dyndlo_vision.tracking.tracker import lift_with_depth
 

@@ -31,8 +31,8 @@ from typing import ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from dyndlo_vision.control.kinematics import ArmKinematics, JointLimitError, check_joint_limits
-from dyndlo_vision.control.protocols import Setpoints, TcpState
+from dyndlo_vision.robots.kinematics import ArmKinematics, JointLimitError, check_joint_limits
+from dyndlo_vision.robots.protocol import Setpoints, TcpState
 
 __all__ = ["JointSample", "JointStreamingDriver", "braking_tail", "resample_setpoints"]
 
@@ -109,7 +109,7 @@ def braking_tail(
 
 
 class JointStreamingDriver:
-    """Base of the EGM and RTDE drivers: a :class:`~dyndlo_vision.control.protocols.Robot` for one TCP.
+    """Base of the EGM and RTDE drivers: a :class:`~dyndlo_vision.robots.protocol.Robot` for one TCP.
 
     Subclasses provide the transport (``_open``, ``_receive``, ``_send_target``, ``_send_halt``,
     ``_close_transport``); everything about plans, limits, stopping and faults is here.

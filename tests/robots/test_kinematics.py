@@ -1,4 +1,4 @@
-"""Tests for dyndlo_vision.control.kinematics: DH tables, FK/IK, Jacobian, joint trajectories, limit check."""
+"""Tests for dyndlo_vision.robots.kinematics: DH tables, FK/IK, Jacobian, joint trajectories, limit check."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from dyndlo_vision.control.kinematics import (
+from dyndlo_vision.robots.kinematics import (
     TOOL_DOWN,
     TOOL_FORWARD,
     ArmKinematics,

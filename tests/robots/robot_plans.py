@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from dyndlo_vision.control.protocols import Setpoints
+from dyndlo_vision.robots.protocol import Setpoints
 from dyndlo_vision.tasks.tip_control import TCP_HOME_M, TipControl
 from dyndlo_vision.trajectory import BSplineTrajectory
 

@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from dyndlo_vision.control.kinematics import ArmKinematics, abb_gofa_crb15000
-from dyndlo_vision.control.robots._streaming import FloatArray, JointSample, JointStreamingDriver
+from dyndlo_vision.robots._streaming import FloatArray, JointSample, JointStreamingDriver
+from dyndlo_vision.robots.kinematics import ArmKinematics, abb_gofa_crb15000
 
 __all__ = ["EGM_DEFAULT_PORT", "EgmRobot", "load_egm_module"]
 
