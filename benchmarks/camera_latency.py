@@ -58,10 +58,10 @@ def main() -> int:
     parser.add_argument("--policy", default=None, help="policy (default: the demo's)")
     parser.add_argument("--out", default=None)
     args = parser.parse_args()
-    from dyndlo_vision.commands.demo import run_episode
+    from dyndlo_vision.control.episode import run_loop_episode
     from dyndlo_vision.tracking import PointFilter
 
-    name, env, model = pinned_demo_policy(args.policy)
+    name, env, act = pinned_demo_policy(args.policy)
     rows = []
     print(f"# {platform.machine()}, {os.cpu_count()} cpus, pinned to one core; policy {name}; "
           f"{args.episodes} episodes per row, seeds {args.seed}+")
@@ -77,8 +77,8 @@ def main() -> int:
                 for i in range(args.episodes):
                     base_filter = PointFilter(sigma_accel=sigma, max_coast_s=0.3 + 1e-3 * latency_ms)
                     point_filter = base_filter if read == "predict" else HoldAtCapture(base_filter)
-                    r = run_episode(env, model, args.seed + i, "tracked", "tracking", None,
-                                    latency_s=1e-3 * latency_ms, point_filter=point_filter)
+                    r = run_loop_episode(env, act, args.seed + i, "tracked", "tracking",
+                                         latency_s=1e-3 * latency_ms, point_filter=point_filter)
                     hits += bool(r["success"])
                     if r["estimate_rmse_m"] is not None:
                         rmse.append(r["estimate_rmse_m"])

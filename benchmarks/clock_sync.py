@@ -60,7 +60,7 @@ def main() -> None:
         "robot_clock_minus_monotonic_s": round(float(e[-1]), 6),
         "raw_pair_spread_ms": round(1e3 * float(r.max() - r.min()), 3),
         "raw_pair_median_below_estimate_ms": round(1e3 * float(e[-1] - np.median(r)), 3),
-        "estimate_below_true_offset_ms": round(1e3 * float(-fake._origin - e[-1]), 3),
+        "estimate_below_true_offset_ms": round(1e3 * float(-fake.clock_origin - e[-1]), 3),
         "estimate_change_after_1s_ms": round(1e3 * float(e[-1] - e[one_s]), 3),
     }, indent=1))
 

@@ -20,16 +20,15 @@ from typing import Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 
-import dyndlo_vision  # noqa: E402,F401
+from dyndlo_vision.tasks import make_env  # noqa: E402
 
 
 def pinned_demo_policy(policy: str | None) -> tuple[str, Any, Any]:
     """One core, one torch thread, no warnings; the tip-control env and the policy (default: the demo's).
 
-    Returns the policy's name, the environment in the policy's mode and the loaded model.
+    Returns the policy's name, the environment in the policy's mode and the policy as ``obs -> action``.
     """
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
@@ -38,12 +37,12 @@ def pinned_demo_policy(policy: str | None) -> tuple[str, Any, Any]:
     torch.set_num_threads(1)
     logging.disable(logging.WARNING)
     from dyndlo_vision import policies
-    from dyndlo_vision.commands.demo import _default_policy
 
-    name = policy or _default_policy()
+    name = policy or policies.default_for("tip-control")
     _, meta = policies.resolve(name)
-    env = gym.make("DynDLO/TipControl-v0", multi_step=bool(meta.get("multi_step", False)))
-    return str(name), env, policies.load(name, env=env)
+    env = make_env("tip-control", multi_step=bool(meta.get("multi_step", False)))
+    model = policies.load(name, env=env)
+    return str(name), env, lambda obs: model.predict(obs, deterministic=True)[0]
 
 
 def main() -> int:
@@ -53,15 +52,15 @@ def main() -> int:
     parser.add_argument("--policy", default=None, help="policy (default: the demo's)")
     parser.add_argument("--out", default=None)
     args = parser.parse_args()
-    from dyndlo_vision.commands.demo import run_episode
+    from dyndlo_vision.control.episode import run_loop_episode
 
-    name, env, model = pinned_demo_policy(args.policy)
+    name, env, act = pinned_demo_policy(args.policy)
     stages: dict[str, list[float]] = {}
     cycle: list[float] = []
     misses = cycles = 0
     rmse = []
     for i in range(args.episodes):
-        r = run_episode(env, model, args.seed + i, "tracked", "tracking", None)
+        r = run_loop_episode(env, act, args.seed + i, "tracked", "tracking")
         rmse.append(r["estimate_rmse_m"])
         misses += r["deadline_misses"]
         cycles += r["cycles"]

@@ -92,7 +92,7 @@ def robustness(
         sim_s += info["sim_time_s"]
         if info.get("diverged"):
             diverged += 1
-            speeds.append(round(env._monitor.max_tcp_speed_m_s, 1))  # noqa: SLF001
+            speeds.append(round(env.monitor.max_tcp_speed_m_s, 1))
     return diverged, speeds, sim_s / (time.process_time() - start)
 
 

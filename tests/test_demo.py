@@ -205,7 +205,7 @@ def fake_episodes(monkeypatch: pytest.MonkeyPatch) -> list[int]:
         return fake_record(seed, seed % 10 != 1, [1.0, 2.0, 3.0])
 
     monkeypatch.setattr(policies, "load", lambda *args, **kwargs: object())
-    monkeypatch.setattr(demo, "run_episode", run_episode)
+    monkeypatch.setattr(demo, "film_episode", run_episode)
     return seeds
 
 
@@ -332,7 +332,7 @@ def test_demo_loop_on_true_state_is_the_environment_episode(seed: int) -> None:
     import gymnasium as gym
 
     from dyndlo_vision import policies
-    from dyndlo_vision.commands.demo import run_episode
+    from dyndlo_vision.commands.demo import film_episode
 
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
     model = policies.load("tip-control-multi-step", env=env)
@@ -344,7 +344,7 @@ def test_demo_loop_on_true_state_is_the_environment_episode(seed: int) -> None:
         steps += 1
     end_time = env.unwrapped.scene.time
     end_tip = env.unwrapped.p_dlo()
-    record = run_episode(env, model, seed, "true", "tracking", None)
+    record = film_episode(env, model, seed, "true", "tracking", None)
     assert record["cycles"] == steps
     assert record["success"] == info["is_success"] and record["avoid"] == info["avoid"]
     assert record["min_distance_m"] == pytest.approx(info["min_distance_m"], abs=1e-9)

@@ -23,7 +23,7 @@ DEFAULT_FPS = 25.0
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``calib``."""
-    from dyndlo_vision.learning.config import TASK_NAMES
+    from dyndlo_vision.tasks.registry import TASKS
 
     p.add_argument(
         "--camera",
@@ -31,7 +31,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="MuJoCo camera of the task's scene (default: tracking, the demo's)",
     )
     p.add_argument(
-        "--task", choices=sorted(TASK_NAMES), default="tip-control", help="whose scene (default: tip-control)"
+        "--task", choices=sorted(TASKS), default="tip-control", help="whose scene (default: tip-control)"
     )
     p.add_argument("--width", type=int, default=640, help="image width in pixels (default 640, as the demo)")
     p.add_argument(
@@ -60,10 +60,10 @@ class _Settings:
 
 def _settings(args: argparse.Namespace) -> _Settings:
     """Validates every argument that needs no scene (raises ValueError naming the bad one)."""
-    from dyndlo_vision.learning.config import TASK_NAMES
+    from dyndlo_vision.tasks.registry import TASKS
 
-    if args.task not in TASK_NAMES:
-        raise ValueError(f"--task {args.task!r} is not a task; expected one of {sorted(TASK_NAMES)}")
+    if args.task not in TASKS:
+        raise ValueError(f"--task {args.task!r} is not a task; expected one of {sorted(TASKS)}")
     for option, value in (("--width", args.width), ("--height", args.height)):
         if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
             raise ValueError(f"{option} must be a positive number of pixels, got {value!r}")
@@ -81,15 +81,13 @@ def run(args: argparse.Namespace) -> int:
     """Build the task's scene, take the camera's calibration and write it."""
     cfg = _settings(args)
 
-    import gymnasium as gym
     import mujoco
 
-    import dyndlo_vision  # noqa: F401  (registers the environments)
     from dyndlo_vision._atomic import write_atomic
     from dyndlo_vision.cameras.simulated import MujocoCamera
-    from dyndlo_vision.learning.config import env_id
+    from dyndlo_vision.tasks.registry import make_env
 
-    env = gym.make(env_id(cfg.task))
+    env = make_env(cfg.task)
     try:
         model, data = env.unwrapped.model, env.unwrapped.data
         names = [model.camera(i).name for i in range(model.ncam)]

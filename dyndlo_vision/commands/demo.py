@@ -26,7 +26,6 @@ import numpy as np
 from dyndlo_vision._atomic import check_output_folder, staged_folder, write_atomic, write_video_atomic
 
 HELP = "closed-loop tip control in simulation on tracked state: video, plot and metrics"
-DEFAULT_POLICIES = ("tip-control-multi-step", "tip-control-single-step")
 FPS = 25.0  # one frame per 40 ms control period
 
 # Overlay colours (RGB). ``tracking.annotate`` draws the tracked cable cyan and the estimate magenta. The
@@ -56,10 +55,13 @@ _PLOT_TARGET = "#c8a000"
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``demo``."""
+    from dyndlo_vision.tasks.registry import task_entry
+
     p.add_argument(
         "--policy",
         default=None,
-        help=f"shipped policy name or .zip (default: the first shipped of {list(DEFAULT_POLICIES)})",
+        help="shipped policy name or .zip (default: the first shipped of "
+        f"{list(task_entry('tip-control').shipped_policies)})",
     )
     p.add_argument(
         "--observation",
@@ -90,16 +92,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _default_policy() -> str:
-    from dyndlo_vision import policies
-
-    shipped = policies.available()
-    for name in DEFAULT_POLICIES:
-        if name in shipped:
-            return name
-    raise ValueError(f"no shipped tip-control policy found (have {shipped}); pass --policy PATH.zip")
-
-
 def check_camera(env: Any, camera_name: str) -> None:
     """Raise ValueError unless ``camera_name`` is a camera of the environment's scene (the names listed)."""
     model = env.unwrapped.model
@@ -125,19 +117,18 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     check_output_folder(out)
 
-    import gymnasium as gym
     from tqdm import tqdm
 
-    import dyndlo_vision  # noqa: F401  (registers the environments)
     from dyndlo_vision import policies
+    from dyndlo_vision.tasks.registry import make_env
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    name = args.policy or _default_policy()
+    name = args.policy or policies.default_for("tip-control")
     _, meta = policies.resolve(name)
     if meta.get("task", "tip-control") != "tip-control":
         raise ValueError(f"the demo runs tip control; policy {name} is for {meta.get('task')}")
     multi_step = bool(meta.get("multi_step", False))
-    env = gym.make("DynDLO/TipControl-v0", multi_step=multi_step, render_mode=None)
+    env = make_env("tip-control", multi_step=multi_step)
     check_camera(env, args.camera)
     model = policies.load(name, env=env)
 
@@ -147,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
                disable=args.quiet or args.episodes == 1)
     with bar:
         for i in range(args.episodes):
-            record = run_episode(
+            record = film_episode(
                 env,
                 model,
                 args.seed + i,
@@ -247,7 +238,7 @@ def summarize(episodes: list[dict[str, Any]]) -> dict[str, Any]:
     return metrics
 
 
-def run_episode(
+def film_episode(
     env: Any,
     model: Any,
     seed: int,
@@ -257,143 +248,38 @@ def run_episode(
     latency_s: float = 0.0,
     point_filter: Any = None,
 ) -> dict[str, Any]:
-    """One closed-loop episode; appends annotated BGR frames to ``video`` when given.
+    """One closed-loop episode (:func:`~dyndlo_vision.control.episode.run_loop_episode`), filmed.
 
-    Frames (and the true P_DLO of the record's ``trace``) are taken at the start of every control period
-    until the outcome, and once more at the outcome, where ``final_distance_m`` is measured: after the cycle
-    in which the target was hit, after the last plan has been followed (multi-step episode that ran its
-    full length), or when the estimate was lost. Without re-planning there is nothing new to track, so
-    those frames show the truth and the target only.
-
-    ``latency_s`` and ``point_filter`` (tracked observation): the camera's delay and the tip filter (default:
-    ``tracked_state``'s). With a delay the video shows the present, with the polyline the tracker found in
-    the delayed frame.
+    When ``video`` is given, an annotated BGR frame is appended at the start of every control period until
+    the outcome, and once more at the outcome, where ``final_distance_m`` is measured. Without re-planning
+    there is nothing new to track, so those frames show the truth and the target only. With a camera delay
+    the video shows the present, with the polyline the tracker found in the delayed frame.
     """
-    from dyndlo_vision.control.loop import ControlLoop
-    from dyndlo_vision.control.sim_robot import SimRobot
-    from dyndlo_vision.control.state_sources import TrueState
+    from dyndlo_vision.control.episode import run_loop_episode
 
-    base = env.unwrapped
-    env.reset(seed=seed)
-    goal = base.goal
-    camera = None
-    if observation == "tracked":
-        from dyndlo_vision.control.sim_perception import tracked_state
-
-        source, camera = tracked_state(env, camera_name, point_filter=point_filter, latency_s=latency_s)
-    elif observation == "noisy":
-        from dyndlo_vision.control.state_sources import NoisyState
-
-        source = NoisyState(env, seed=seed)
-    else:
-        source = TrueState(env)
-    if video is not None and camera is None:
-        from dyndlo_vision.cameras.simulated import MujocoCamera
-
-        camera = MujocoCamera(base.model, base.data, camera_name)
-    robot = SimRobot(env)
-    robot.connect()
-    period_s = 0.04
-    loop = ControlLoop(
-        source,
-        robot,
-        lambda obs: model.predict(obs, deterministic=True)[0],
-        base.replanner,
-        goal,
-        period_s=period_s,
-        setpoint_period_s=base.scene.timestep,
-        truth=base.p_dlo,
-    )
-    calib = camera.calibration if camera is not None and video is not None else None
-    truth_t: list[float] = []
-    truth: list[np.ndarray] = []
     legend = LEGEND if observation == "tracked" else LEGEND_UNTRACKED
 
-    def on_cycle(record: Any, frame: Any) -> None:
-        truth_t.append(float(record.t))
-        truth.append(np.asarray(record.p_dlo_true, dtype=float))
-        if video is None or calib is None:
-            return
-        rgb = frame.rgb if frame is not None and not latency_s else camera.read().rgb
-        video.append(_annotate(rgb, record, calib, goal, legend))
-
-    def snapshot(status: str) -> None:
-        # The truth (and a frame) where no cycle records one: while the last plan finishes, and at the end.
-        truth_t.append(float(base.scene.time))
-        truth.append(np.asarray(base.p_dlo(), dtype=float))
-        if video is not None and calib is not None:
-            video.append(
-                _annotate_truth(camera.read().rgb, truth_t[-1], truth[-1], calib, goal, status, legend)
-            )
-
-    try:
-        if base.multi_step:
-            report = loop.run(base.task.episode_s, done=base.is_done_early, on_cycle=on_cycle)
-            replan_end_t = float(base.scene.time)
-            if report.stop_reason == "duration":
-                # As in the environment: after the last re-plan the TCP follows that plan for the settle time
-                # (it ends at rest). Sent one period at a time (the same setpoints as in one piece) so the
-                # video and plot go on to the outcome.
-                dt = base.scene.timestep
-                remaining = int(round(base.task.settle_s / dt))
-                per_period = int(round(period_s / dt))
-                while remaining > 0:
-                    snapshot("following the last plan")
-                    steps = min(per_period, remaining)
-                    loop.finish_plan(steps * dt)
-                    remaining -= steps
+    def film(moment: Any) -> None:
+        assert video is not None and moment.camera is not None
+        calib = moment.camera.calibration
+        rgb = moment.frame.rgb if moment.frame is not None else moment.camera.read().rgb
+        if moment.cycle is not None:
+            video.append(_annotate(rgb, moment.cycle, calib, moment.goal, legend))
         else:
-            report = loop.run(
-                10.0,
-                done=lambda: base.scene.time >= base.trajectory.t_end + base.task.settle_s - 1e-9,
-                on_cycle=on_cycle,
-                replan_every_cycle=False,
-            )
-            replan_end_t = float(base.scene.time)
-        _, success, info = base.outcome()
-        final_distance = float(np.linalg.norm(base.p_dlo() - goal))
-        snapshot(f"{'HIT' if success else 'miss'}, tip {100 * final_distance:.1f} cm from target centre")
-    finally:
-        if camera is not None:
-            camera.close()
-    errors = report.estimate_errors()
-    controller = report.controller_ms()
-    trace = {
-        "t": [c.t for c in report.cycles],
-        "estimate": [c.p_dlo_estimate.tolist() for c in report.cycles],
-        "measured": [c.measured for c in report.cycles],
-        "truth_t": truth_t,
-        "truth": [p.tolist() for p in truth],
-        "goal": goal.tolist(),
-        "success_radius_m": getattr(base.task, "success_radius_m", None),
-        "replan_end_t": replan_end_t,
-        "success": bool(success),
-        "min_distance_m": float(info["min_distance_m"]),
-    }
-    return {
-        "seed": seed,
-        "success": bool(success),
-        # The last point of the trace and the last video frame are this state.
-        "final_distance_m": float(np.linalg.norm(truth[-1] - goal)),
-        "final_p_dlo_m": truth[-1].tolist(),
-        "end_time_s": truth_t[-1],
-        "min_distance_m": float(info["min_distance_m"]),
-        "estimate_rmse_m": float(np.sqrt(np.mean(errors**2))) if errors.size else None,
-        "cycle_ms_p50": float(np.percentile(controller, 50)),
-        "cycle_ms_p95": float(np.percentile(controller, 95)),
-        "stage_ms_p50": report.stage_percentiles(50),
-        "stage_ms_p95": report.stage_percentiles(95),
-        "deadline_misses": int(sum(c.deadline_missed for c in report.cycles)),
-        "cycles": len(report.cycles),
-        "stop_reason": report.stop_reason,
-        "avoid": info["avoid"],
-        "trace": trace,
-        "_cycle_ms": controller.tolist(),
-        "_stage_ms": {
-            k: [c.stage_ms.get(k, 0.0) for c in report.cycles]
-            for k in sorted({k for c in report.cycles for k in c.stage_ms})
-        },
-    }
+            video.append(_annotate_truth(rgb, moment.t, moment.p_dlo_true, calib, moment.goal, moment.status,
+                                         legend))
+
+    return run_loop_episode(
+        env,
+        lambda obs: model.predict(obs, deterministic=True)[0],
+        seed,
+        observation,
+        camera_name,
+        latency_s=latency_s,
+        point_filter=point_filter,
+        watch=film if video is not None else None,
+        open_camera=video is not None,
+    )
 
 
 def _pixel(calib: Any, p: Any) -> tuple[int, int] | None:

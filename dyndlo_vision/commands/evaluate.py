@@ -15,13 +15,21 @@ from dyndlo_vision._atomic import write_atomic, write_video_atomic
 HELP = "evaluate a policy (shipped name, .zip, 'geometric', 'flick-vault' or 'random') over N episodes"
 
 
-#: Scripted policies ``evaluate`` takes by name, with the task each belongs to (None: any task).
-SCRIPTED = {"geometric": "time-oscillation", "flick-vault": "vaulting", "random": None}
+#: The chance-level policy, for any task; the scripted baselines come from the task registry.
+RANDOM = "random"
+
+
+def scripted_policies() -> dict[str, str | None]:
+    """Scripted policies ``evaluate`` takes by name, with the task each belongs to (None: any task)."""
+    from dyndlo_vision.tasks.registry import TASKS
+
+    own = {entry.baseline: name for name, entry in TASKS.items() if entry.baseline is not None}
+    return {**own, RANDOM: None}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``evaluate``."""
-    from dyndlo_vision.learning.config import TASK_NAMES
+    from dyndlo_vision.tasks.registry import TASKS
 
     p.add_argument(
         "policy",
@@ -31,7 +39,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--task",
-        choices=sorted(TASK_NAMES),
+        choices=sorted(TASKS),
         default=None,
         help="default: the policy's own task (from its metadata)",
     )
@@ -72,31 +80,28 @@ def run(args: argparse.Namespace) -> int:
     import dyndlo_vision  # noqa: F401
     from dyndlo_vision import policies
     from dyndlo_vision.commands.train import parse_assignments
-    from dyndlo_vision.learning.config import env_id
     from dyndlo_vision.learning.evaluate import evaluate, records_as_dicts
+    from dyndlo_vision.tasks.baselines import GeometricLift, RandomActions
+    from dyndlo_vision.tasks.registry import task_entry
 
     # Every option is checked before any episode runs: a bad one must not cost the minutes of a long run.
     video_episodes = check_options(args)
     options = parse_assignments(args.env_option, "--env-option")
     meta: dict[str, Any] = {}
-    if args.policy not in SCRIPTED:
+    if args.policy not in scripted_policies():
         _, meta = policies.resolve(args.policy)
     task = policy_task(args.policy, args.task, meta)
     multi_step = args.multi_step if args.multi_step is not None else bool(meta.get("multi_step", False))
     options = {**meta.get("env_options", {}), **options}
-    env = _make_env(env_id(task), multi_step, options, args.randomize_cable)
-    if args.policy == "geometric":
-        from dyndlo_vision.tasks.baselines import GeometricLift
-
-        policy: Any = GeometricLift(env, args.geometric_time)
-    elif args.policy == "flick-vault":
-        from dyndlo_vision.tasks.baselines import FlickVault
-
-        policy = FlickVault(env)
-    elif args.policy == "random":
-        from dyndlo_vision.tasks.baselines import RandomActions
-
+    env = _make_env(task, multi_step, options, args.randomize_cable)
+    entry = task_entry(task)
+    policy: Any
+    if args.policy == RANDOM:
         policy = RandomActions(env, seed=args.seed)
+    elif args.policy == entry.baseline and entry.baseline_class is not None:
+        # The geometric lift's trajectory time is its one option on the command line.
+        extra = {"total_time_s": args.geometric_time} if entry.baseline_class is GeometricLift else {}
+        policy = entry.baseline_class(env, **extra)
     else:
         policy = policies.load(args.policy, env=env, algo=meta.get("algo"))
     with _progress_bar(args.episodes, f"evaluate {args.policy}", args.quiet) as bar:
@@ -116,11 +121,11 @@ def run(args: argparse.Namespace) -> int:
         write_atomic(Path(args.out), lambda p: Path(p).write_text(json.dumps(full, indent=2)))
         print(f"wrote {args.out}")
     if args.video:
-        if args.policy == "random":
+        if args.policy == RANDOM:
             policy = RandomActions(env, seed=args.seed)  # the video replays the evaluated episodes' actions
         _write_video(
             Path(args.video),
-            env_id(task),
+            task,
             multi_step,
             options,
             policy,
@@ -176,7 +181,8 @@ def policy_task(policy: str, task: str | None, meta: dict[str, Any]) -> str:
     Raises:
         ValueError: ``task`` differs from the policy's own, or neither names one.
     """
-    own = SCRIPTED.get(policy) if policy in SCRIPTED else meta.get("task")
+    scripted = scripted_policies()
+    own = scripted.get(policy) if policy in scripted else meta.get("task")
     if task is not None and own is not None and task != own:
         # Observation and action shapes can agree across tasks (tip control and vaulting: 12 and 9), so the
         # policy would run without complaint and report a meaningless success rate.
@@ -211,26 +217,22 @@ def _counting(bar: Any) -> Callable[[Any], None]:
 
 
 def _make_env(
-    gym_id: str,
+    task: str,
     multi_step: bool,
     options: dict[str, Any],
     randomize_cable: bool,
     render_mode: str | None = None,
 ) -> Any:
     """The evaluated environment; with ``randomize_cable`` a new cable every episode, drawn from its seed."""
-    import gymnasium as gym
+    from dyndlo_vision.tasks.registry import make_env
 
-    env = gym.make(gym_id, multi_step=multi_step, render_mode=render_mode, **options)
-    if randomize_cable:
-        from dyndlo_vision.tasks.wrappers import CableRandomization
-
-        env = CableRandomization(env, every_episodes=1)
-    return env
+    return make_env(task, multi_step=multi_step, render_mode=render_mode,
+                    randomize_cable_every=1 if randomize_cable else None, **options)
 
 
 def _write_video(
     path: Path,
-    gym_id: str,
+    task: str,
     multi_step: bool,
     options: dict[str, Any],
     policy: Any,
@@ -244,7 +246,7 @@ def _write_video(
 
     from dyndlo_vision.learning.evaluate import as_action_fn
 
-    env = _make_env(gym_id, multi_step, options, randomize_cable, render_mode="rgb_array")
+    env = _make_env(task, multi_step, options, randomize_cable, render_mode="rgb_array")
     base = env.unwrapped
     act = as_action_fn(policy)
     frames: list[np.ndarray] = []

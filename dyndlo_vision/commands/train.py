@@ -33,15 +33,18 @@ def parse_assignments(items: list[str] | None, flag: str) -> dict[str, Any]:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``train``."""
-    from dyndlo_vision.learning.config import TASK_NAMES
+    from dyndlo_vision.policies import ALGORITHMS
+    from dyndlo_vision.tasks.registry import TASKS
 
-    p.add_argument("--task", choices=sorted(TASK_NAMES), default="tip-control", help="the task to learn")
+    p.add_argument("--task", choices=sorted(TASKS), default="tip-control", help="the task to learn")
     p.add_argument("--multi-step", action="store_true", help="re-plan every 0.04 s (default: plan once)")
     p.add_argument(
         "--algo",
-        choices=["ppo", "sac"],
+        choices=sorted(ALGORITHMS),
         default=None,
-        help="default: ppo for tip-control, vaulting, hooking; sac for time-oscillation (the paper's)",
+        help="default: the paper's for the task ("
+        + ", ".join(f"{entry.algo} for {name}" for name, entry in TASKS.items())
+        + ")",
     )
     p.add_argument(
         "--timesteps", type=int, default=None, help="total decisions (default: the paper's budget)"
@@ -90,11 +93,12 @@ def run(args: argparse.Namespace) -> int:
     Returns 0 when the run completes, 130 when Ctrl-C (or SIGTERM) stopped it. Bad input raises
     ValueError (the CLI's exit status 2) before anything is written.
     """
-    from dyndlo_vision.learning.config import hyperparams_key
     from dyndlo_vision.learning.train import has_checkpoint, train
+    from dyndlo_vision.tasks.registry import task_entry
 
-    algo = args.algo or ("sac" if args.task == "time-oscillation" else "ppo")
-    out = Path(args.out or f"runs/{hyperparams_key(args.task, args.multi_step)}-{algo}-s{args.seed}")
+    entry = task_entry(args.task)
+    algo = args.algo or entry.algo
+    out = Path(args.out or f"runs/{entry.hyperparams_key(args.multi_step)}-{algo}-s{args.seed}")
     config = _resumed_config(args, out) if args.resume else _new_config(args, algo)
     try:
         summary = train(config, out, resume=args.resume, progress_bar=not args.quiet)

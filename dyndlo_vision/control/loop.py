@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dyndlo_vision.robots.protocol import Robot, Setpoints
-from dyndlo_vision.tasks.base import observation_vector
+from dyndlo_vision.tasks.base import CONTROL_PERIOD_S, observation_vector
 from dyndlo_vision.trajectory import Replanner
 
 log = logging.getLogger(__name__)
@@ -90,7 +90,7 @@ class ControlLoop:
         policy: ``obs -> action`` (normalised, the task's action space).
         replanner: Turns actions into gripper trajectories from the commanded state.
         goal: P* of the task (3,).
-        period_s: Control period (the paper's 0.04 s).
+        period_s: Control period (the paper's 40 ms, :data:`~dyndlo_vision.tasks.base.CONTROL_PERIOD_S`).
         setpoint_period_s: Spacing of the setpoints sent per cycle (the simulator's timestep, or the driver's
             rate: 4 ms for ABB EGM, 2 ms for UR RTDE).
         truth: Optional ``() -> (3,)`` true P_DLO (simulation), recorded next to the estimate.
@@ -103,7 +103,7 @@ class ControlLoop:
         policy: Callable[[NDArray[np.float32]], Any],
         replanner: Replanner,
         goal: NDArray[np.float64],
-        period_s: float = 0.04,
+        period_s: float = CONTROL_PERIOD_S,
         setpoint_period_s: float = 0.001,
         truth: Callable[[], NDArray[np.float64]] | None = None,
     ) -> None:

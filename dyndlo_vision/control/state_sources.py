@@ -67,7 +67,7 @@ class TrueState:
 class NoisyState:
     """The simulator's P_DLO corrupted by a fitted observation-noise model, as in noisy-observation training.
 
-    Uses the same corruption as :class:`~dyndlo_vision.tasks.wrappers.NoisyObservation` (latency, bias,
+    The same :class:`~dyndlo_vision.tasks.noise.NoiseProcess` as noisy-observation training (latency, bias,
     speed-dependent noise, dropouts that coast), one draw per control cycle.
 
     Args:
@@ -77,21 +77,22 @@ class NoisyState:
     """
 
     def __init__(self, env: Any, model: Any = None, seed: int | None = None) -> None:
-        from dyndlo_vision.tasks.noise import packaged_noise_model_path
-        from dyndlo_vision.tasks.wrappers import NoisyObservation
+        from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
+        from dyndlo_vision.tasks.noise import NoiseProcess, packaged_noise_model_path
 
         self.env = env.unwrapped
-        self.noise = NoisyObservation(env, model if model is not None else packaged_noise_model_path())
-        self.noise.reset_noise(seed)
+        model = model if model is not None else packaged_noise_model_path()
+        self.noise = NoiseProcess(model, CONTROL_PERIOD_S, multi_step=bool(self.env.multi_step))
+        self.noise.reset(seed)
         self.seed = seed
 
     def reset(self) -> None:
         """Restart the noise stream from the seed."""
-        self.noise.reset_noise(self.seed)
+        self.noise.reset(self.seed)
 
     def read(self, t_now: float, tcp: TcpState) -> PDloReading:
         """The corrupted P_DLO for now."""
-        p, measured = self.noise.corrupt_p_dlo(self.env.p_dlo())
+        p, measured = self.noise.corrupt(self.env.p_dlo())
         return PDloReading(p, t_now, measured=measured)
 
 

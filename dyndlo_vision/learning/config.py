@@ -15,29 +15,12 @@ from typing import Any
 
 import yaml
 
-#: Command-line task name -> Gymnasium id suffix.
-TASK_NAMES: dict[str, str] = {
-    "tip-control": "TipControl",
-    "vaulting": "Vaulting",
-    "hooking": "Hooking",
-    "time-oscillation": "TimeOscillation",
-}
-ALGOS = ("ppo", "sac")
-#: Tasks with a scripted baseline whose episodes can seed SAC's replay buffer (``learning.demonstrations``).
-DEMONSTRABLE_TASKS = ("time-oscillation", "vaulting")
+from dyndlo_vision.policies import ALGORITHMS
+from dyndlo_vision.tasks.registry import TASKS, task_entry
+
 HYPERPARAMS_VERSION = 1
-
-
-def env_id(task: str) -> str:
-    """Gymnasium id of a command-line task name."""
-    if task not in TASK_NAMES:
-        raise ValueError(f"unknown task {task!r}; expected one of {sorted(TASK_NAMES)}")
-    return f"DynDLO/{TASK_NAMES[task]}-v0"
-
-
-def hyperparams_key(task: str, multi_step: bool) -> str:
-    """Key of a task and mode in the hyperparameter files, e.g. ``tip-control-multi-step``."""
-    return f"{task}-multi-step" if multi_step else task
+#: Tasks with a scripted baseline whose episodes can seed SAC's replay buffer (``learning.demonstrations``).
+DEMONSTRABLE_TASKS = tuple(name for name, entry in TASKS.items() if entry.demonstrator is not None)
 
 
 def load_hyperparams(algo: str, task: str, multi_step: bool) -> dict[str, Any]:
@@ -46,15 +29,15 @@ def load_hyperparams(algo: str, task: str, multi_step: bool) -> dict[str, Any]:
     Raises:
         ValueError: For an unknown algorithm, a task and mode without an entry, or a file of another version.
     """
-    if algo not in ALGOS:
-        raise ValueError(f"unknown algorithm {algo!r}; expected one of {list(ALGOS)}")
+    if algo not in ALGORITHMS:
+        raise ValueError(f"unknown algorithm {algo!r}; expected one of {list(ALGORITHMS)}")
     text = resources.files("dyndlo_vision.learning").joinpath(f"hyperparams/{algo}.yml").read_text()
     table = yaml.safe_load(text)
     if table.get("version") != HYPERPARAMS_VERSION:
         raise ValueError(
             f"hyperparams/{algo}.yml has version {table.get('version')}, expected {HYPERPARAMS_VERSION}"
         )
-    key = hyperparams_key(task, multi_step)
+    key = task_entry(task).hyperparams_key(multi_step)
     if key not in table:
         entries = sorted(k for k in table if k != "version")
         raise ValueError(f"no {algo} hyperparameters for {key!r}; available: {entries}")
@@ -68,9 +51,9 @@ class RunConfig:
     """Everything that defines a training run.
 
     Attributes:
-        task: Command-line task name (a key of ``TASK_NAMES``).
+        task: Task name (a key of :data:`dyndlo_vision.tasks.TASKS`).
         multi_step: Re-plan every 0.04 s instead of planning once.
-        algo: "ppo" or "sac".
+        algo: A key of :data:`dyndlo_vision.policies.ALGORITHMS`.
         timesteps: Total environment steps (decisions) to train for.
         seed: Seed of the algorithm and of the training environments (evaluation uses seed + 10_000).
         n_envs: Environments stepped in parallel.
@@ -106,9 +89,9 @@ class RunConfig:
     demonstrations: int = 0
 
     def __post_init__(self) -> None:
-        env_id(self.task)
-        if self.algo not in ALGOS:
-            raise ValueError(f"algo={self.algo!r}; expected one of {list(ALGOS)}")
+        task_entry(self.task)
+        if self.algo not in ALGORITHMS:
+            raise ValueError(f"algo={self.algo!r}; expected one of {list(ALGORITHMS)}")
         for name in ("timesteps", "n_envs", "eval_freq", "eval_episodes", "checkpoint_freq"):
             value = getattr(self, name)
             if not isinstance(value, int) or value < 1:
@@ -129,12 +112,12 @@ class RunConfig:
     @property
     def env_id(self) -> str:
         """Gymnasium id of the task."""
-        return env_id(self.task)
+        return task_entry(self.task).env_id
 
     @property
     def key(self) -> str:
         """Task and mode, e.g. ``tip-control-multi-step``."""
-        return hyperparams_key(self.task, self.multi_step)
+        return task_entry(self.task).hyperparams_key(self.multi_step)
 
     def to_json(self) -> str:
         """JSON text of the configuration."""

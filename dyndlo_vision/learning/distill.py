@@ -168,7 +168,7 @@ class Episodes:
             return Episodes(*(data[k] for k in Episodes.__dataclass_fields__))
 
 
-def run_episode(
+def run_mixed_episode(
     env: Any,
     teacher: Any,
     expert: PlanFollowingExpert,
@@ -219,16 +219,9 @@ def run_episode(
 
 def make_distill_env(task_options: dict[str, Any], noise_model: str | None) -> Any:
     """The multi-step tip-control environment, under the noise model when one is given."""
-    import gymnasium as gym
+    from dyndlo_vision.tasks.registry import make_env
 
-    import dyndlo_vision  # noqa: F401  (registers the ids in worker processes)
-
-    env = gym.make("DynDLO/TipControl-v0", multi_step=True, **task_options)
-    if noise_model:
-        from dyndlo_vision.tasks.wrappers import NoisyObservation
-
-        env = NoisyObservation(env, noise_model)
-    return env
+    return make_env("tip-control", multi_step=True, obs_noise=noise_model or None, **task_options)
 
 
 def check_teacher(teacher: str, task_options: dict[str, Any] | None = None) -> None:
@@ -243,10 +236,8 @@ def check_teacher(teacher: str, task_options: dict[str, Any] | None = None) -> N
         FileNotFoundError: ``teacher`` is neither a file nor a shipped policy.
         ValueError: Its metadata names another task or the multi-step mode, or its spaces do not match.
     """
-    import gymnasium as gym
-
-    import dyndlo_vision  # noqa: F401  (registers the environment ids)
     from dyndlo_vision import policies
+    from dyndlo_vision.tasks.registry import make_env
 
     _, meta = policies.resolve(teacher)
     task = meta.get("task")
@@ -260,7 +251,7 @@ def check_teacher(teacher: str, task_options: dict[str, Any] | None = None) -> N
             f"teacher {teacher!r} is a multi-step policy; distill needs a single-step {TEACHER_TASK!r} "
             "policy, whose one plan the expert follows (e.g. tip-control-single-step)"
         )
-    env = gym.make("DynDLO/TipControl-v0", multi_step=False, **(task_options or {}))
+    env = make_env("tip-control", multi_step=False, **(task_options or {}))
     try:
         policies.load(teacher, env=env)  # a corrupt file or other spaces: refused here, not in a worker
     finally:
@@ -284,7 +275,7 @@ def _collect_chunk(job: dict[str, Any], on_episode: Callable[[int, bool], None] 
     expert = PlanFollowingExpert(env.unwrapped.spec_actions, speed_limit_m_s=job["speed_limit"])
     parts = []
     for seed in job["seeds"]:
-        ep = run_episode(
+        ep = run_mixed_episode(
             env,
             teacher,
             expert,

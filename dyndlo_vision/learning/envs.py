@@ -1,4 +1,5 @@
-"""Environment factories shared by training and evaluation."""
+"""Training's environments: the task's environment (:func:`dyndlo_vision.tasks.make_env`) behind a Monitor,
+one per worker, in a vectorised environment."""
 
 from __future__ import annotations
 
@@ -12,6 +13,8 @@ from dyndlo_vision.learning.config import RunConfig
 
 #: Per-episode info keys recorded by the Monitor wrapper (monitor.csv) next to reward and length.
 MONITOR_KEYWORDS = ("is_success",)
+#: A randomised training cable is redrawn every this many episodes (a new cable is a new MuJoCo model).
+RANDOMIZE_CABLE_EVERY = 10
 
 
 def make_env(
@@ -27,18 +30,17 @@ def make_env(
     """
     from stable_baselines3.common.monitor import Monitor
 
-    import dyndlo_vision  # noqa: F401  (registers the ids in subprocesses too)
+    from dyndlo_vision.tasks.registry import make_env as make_task_env
 
-    env = gym.make(config.env_id, multi_step=config.multi_step, render_mode=render_mode, **config.env_options)
-    if config.randomize_cable if randomize is None else randomize:
-        from dyndlo_vision.tasks.wrappers import CableRandomization
-
-        env = CableRandomization(env, every_episodes=10)
-    if config.obs_noise:
-        from dyndlo_vision.tasks.noise import ObservationNoiseModel
-        from dyndlo_vision.tasks.wrappers import NoisyObservation
-
-        env = NoisyObservation(env, ObservationNoiseModel.load(Path(config.obs_noise)))
+    randomize = config.randomize_cable if randomize is None else randomize
+    env = make_task_env(
+        config.task,
+        multi_step=config.multi_step,
+        render_mode=render_mode,
+        randomize_cable_every=RANDOMIZE_CABLE_EVERY if randomize else None,
+        obs_noise=Path(config.obs_noise) if config.obs_noise else None,
+        **config.env_options,
+    )
     return Monitor(env, str(monitor_file) if monitor_file else None, info_keywords=MONITOR_KEYWORDS,
                    override_existing=not append_monitor)
 

@@ -52,7 +52,7 @@ def as_action_fn(policy: Any) -> Callable[[np.ndarray], np.ndarray]:
     raise ValueError(f"policy {policy!r} has no predict() and is not callable")
 
 
-def run_episode(
+def evaluate_episode(
     env: Any, act: Callable[[np.ndarray], np.ndarray], seed: int, on_step: Callable[[Any], None] | None = None
 ) -> EpisodeRecord:
     """Run one episode from ``reset(seed=seed)``; reward terms are summed over the episode's steps."""
@@ -150,7 +150,7 @@ def evaluate(
     act = as_action_fn(policy)
     records = []
     for i in range(episodes):
-        records.append(run_episode(env, act, seed + i, on_step))
+        records.append(evaluate_episode(env, act, seed + i, on_step))
         if on_episode is not None:
             on_episode(records[-1])
     report = summarize(records)

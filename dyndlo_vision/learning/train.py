@@ -15,7 +15,7 @@ A run folder holds::
 Everything that can be checked is checked before the folder is touched (:func:`check_run`); a new run that
 fails before its first checkpoint takes back what it wrote, so the same command can simply be run again.
 
-``python -m dyndlo_vision.learning.train`` is the same as ``dyndlo-vision train``.
+The command line is ``dyndlo-vision train`` (:mod:`dyndlo_vision.commands.train`).
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ import numpy as np
 from dyndlo_vision._atomic import write_atomic
 from dyndlo_vision.learning.config import RunConfig
 from dyndlo_vision.learning.envs import make_env, make_vec_env
+from dyndlo_vision.policies import algorithm_class
 
 log = logging.getLogger(__name__)
 
@@ -45,16 +46,9 @@ DEMONSTRATIONS_FILE = "demonstrations.json"
 RESERVED_HYPERPARAMS = ("policy", "env", "seed", "verbose", "tensorboard_log")
 
 
-def algo_class(name: str) -> Any:
-    """The stable-baselines3 class of ``name`` ("ppo" or "sac")."""
-    from stable_baselines3 import PPO, SAC
-
-    return {"ppo": PPO, "sac": SAC}[name]
-
-
 def valid_hyperparams(algo: str) -> list[str]:
     """Names the hyperparameters of ``algo`` may have: its constructor's keyword arguments, less reserved."""
-    params = inspect.signature(algo_class(algo).__init__).parameters
+    params = inspect.signature(algorithm_class(algo).__init__).parameters
     return sorted(
         name
         for name, param in params.items()
@@ -329,7 +323,7 @@ def _train(config: RunConfig, out: Path, resume: bool, progress_bar: bool) -> di
         config.vec_env,
         append_monitor=resume,  # a resumed run continues its episode log
     )
-    cls = algo_class(config.algo)
+    cls = algorithm_class(config.algo)
     try:
         if resume:
             state = json.loads((ckpt / "state.json").read_text())
@@ -466,16 +460,3 @@ def summarize(out: Path, wall_s: float, steps_this_session: int, session_s: floa
             summary["first_step_at_90pct"] = int(steps[hit[0]]) if len(hit) else None
         summary["eval_reward_last"] = float(data["results"][-1].mean()) if len(steps) else None
     return summary
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m dyndlo_vision.learning.train ...``: the ``train`` subcommand."""
-    import sys
-
-    from dyndlo_vision.cli import main as cli_main
-
-    return cli_main(["train", *(sys.argv[1:] if argv is None else argv)])
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

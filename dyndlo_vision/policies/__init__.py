@@ -17,11 +17,42 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+#: The learning algorithms: name -> stable-baselines3 class name.
+ALGORITHMS: dict[str, str] = {"ppo": "PPO", "sac": "SAC"}
+
+
+def algorithm_class(name: str) -> Any:
+    """The stable-baselines3 class of an algorithm name (a key of :data:`ALGORITHMS`).
+
+    Raises:
+        ValueError: For an unknown name, listing the known ones.
+    """
+    if name not in ALGORITHMS:
+        raise ValueError(f"unknown algorithm {name!r}; expected one of {sorted(ALGORITHMS)}")
+    import stable_baselines3
+
+    return getattr(stable_baselines3, ALGORITHMS[name])
+
 
 def available() -> list[str]:
     """Names of the shipped policies."""
     folder = resources.files(__name__)
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".json"))
+
+
+def default_for(task: str) -> str:
+    """The first installed of the task's shipped policies, in its registry row's order of preference.
+
+    Raises:
+        ValueError: For an unknown task, or when none of its policies is installed.
+    """
+    from dyndlo_vision.tasks.registry import task_entry
+
+    shipped = available()
+    for name in task_entry(task).shipped_policies:
+        if name in shipped:
+            return name
+    raise ValueError(f"no shipped {task} policy found (have {shipped}); pass --policy PATH.zip")
 
 
 def metadata(name: str) -> dict[str, Any]:
@@ -58,22 +89,19 @@ def load(name_or_path: str | Path, env: Any = None, algo: str | None = None) -> 
     Args:
         name_or_path: A name from :func:`available` or a path to a ``.zip``.
         env: Optional environment whose observation and action spaces the policy must match.
-        algo: "ppo" or "sac" when the file has no metadata (else tried in that order).
+        algo: A key of :data:`ALGORITHMS` when the file has no metadata (else each is tried in turn).
 
     Raises:
         FileNotFoundError: The file does not exist.
         ValueError: The file is not a stable-baselines3 policy, or its spaces do not match ``env``.
     """
-    from stable_baselines3 import PPO, SAC
-
     path, meta = resolve(name_or_path)
     if not zipfile.is_zipfile(path):
         raise ValueError(f"{path} is not a stable-baselines3 policy file (not a zip archive)")
-    classes = {"ppo": PPO, "sac": SAC}
     wanted = algo or meta.get("algo")
-    if wanted is not None and wanted not in classes:
-        raise ValueError(f"algo={wanted!r}; expected one of {sorted(classes)}")
-    order = [classes[wanted]] if wanted else [PPO, SAC]
+    if wanted is not None and wanted not in ALGORITHMS:
+        raise ValueError(f"algo={wanted!r}; expected one of {sorted(ALGORITHMS)}")
+    order = [algorithm_class(wanted)] if wanted else [algorithm_class(name) for name in ALGORITHMS]
     errors = []
     for cls in order:
         try:

@@ -1,57 +1,25 @@
-"""The four DynDLO tasks as Gymnasium environments, and their registration.
+"""The four DynDLO tasks as Gymnasium environments, their registry and the training wrappers.
 
-    import gymnasium as gym, dyndlo_vision
-    env = gym.make("DynDLO/TipControl-v0", multi_step=True, render_mode="rgb_array")
+    from dyndlo_vision.tasks import make_env
+    env = make_env("tip-control", multi_step=True, render_mode="rgb_array")
+    # or, once dyndlo_vision is imported: gym.make("DynDLO/TipControl-v0", multi_step=True)
+
+* :mod:`~.base`: the environment (:class:`DynDLOEnv`) and what a task defines (:class:`Task`);
+* one module per task family, and :mod:`~.rewards` with the paper's reward terms as pure functions;
+* :mod:`~.registry`: one row per task (:data:`TASKS`) and the one environment factory (:func:`make_env`);
+* :mod:`~.baselines`: scripted policies and demonstrators;
+* :mod:`~.noise` and :mod:`~.wrappers`: the fitted observation-noise model and cable randomisation that
+  training uses instead of rendering.
 """
 
 from __future__ import annotations
 
-import inspect
-from typing import Any
-
-import gymnasium as gym
-
 from dyndlo_vision.tasks.base import CONTROL_PERIOD_S, DynDLOEnv, EpisodeMonitor, Task
 from dyndlo_vision.tasks.hooking import Hooking
+from dyndlo_vision.tasks.registry import ENV_IDS, TASKS, TaskEntry, make_env, register_envs, task_entry
 from dyndlo_vision.tasks.time_oscillation import TimeOscillation
 from dyndlo_vision.tasks.tip_control import TipControl
 from dyndlo_vision.tasks.vaulting import Vaulting
-
-TASKS: dict[str, type[Task]] = {
-    "TipControl": TipControl,
-    "Vaulting": Vaulting,
-    "Hooking": Hooking,
-    "TimeOscillation": TimeOscillation,
-}
-ENV_IDS = tuple(f"DynDLO/{name}-v0" for name in TASKS)
-
-
-def make_env(
-    task: str, render_mode: str | None = None, render_camera: str = "front", **options: Any
-) -> DynDLOEnv:
-    """Build the environment of ``task`` (a key of ``TASKS``) with task ``options``.
-
-    Raises:
-        ValueError: For an unknown task or option, naming the valid ones.
-    """
-    if task not in TASKS:
-        raise ValueError(f"unknown task {task!r}; expected one of {sorted(TASKS)}")
-    cls = TASKS[task]
-    valid = [p for p in inspect.signature(cls.__init__).parameters if p != "self"]
-    unknown = sorted(set(options) - set(valid))
-    if unknown:
-        raise ValueError(f"unknown option(s) {unknown} for {task}; valid options: {valid + ['render_mode']}")
-    return DynDLOEnv(cls(**options), render_mode=render_mode, render_camera=render_camera)
-
-
-def register_envs() -> None:
-    """Register every task under ``DynDLO/<Task>-v0`` (idempotent)."""
-    for name in TASKS:
-        env_id = f"DynDLO/{name}-v0"
-        if env_id not in gym.registry:
-            gym.register(id=env_id, entry_point="dyndlo_vision.tasks:make_env", kwargs={"task": name},
-                         disable_env_checker=False)
-
 
 __all__ = [
     "CONTROL_PERIOD_S",
@@ -61,9 +29,11 @@ __all__ = [
     "EpisodeMonitor",
     "Hooking",
     "Task",
+    "TaskEntry",
     "TimeOscillation",
     "TipControl",
     "Vaulting",
     "make_env",
     "register_envs",
+    "task_entry",
 ]

@@ -55,8 +55,6 @@ class Task(ABC):
     Subclasses are small; the environment does the simulation, trajectory and bookkeeping.
     """
 
-    #: Gymnasium id suffix, e.g. "TipControl".
-    name: str = ""
     #: "implicit" (evaluate once at the end) or "explicit" (accumulate per step).
     kind: str = "implicit"
     #: Time the cable moves on after a single-step trajectory ends (and after the last re-plan).
@@ -173,11 +171,17 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self._decisions = 0
         #: Called with the environment every 40 ms of simulated time while it simulates (None: never).
         self.frame_hook: Callable[[DynDLOEnv], None] | None = None
-        # The open-loop stretches of an episode run in MuJoCo's C rollout (no Python per step) and the monitor
-        # and task hooks see the recorded states afterwards; False steps in Python (the reference, for tests).
-        self._batch_monitor = True
+        #: The open-loop stretches of an episode run in MuJoCo's C rollout (no Python per step) and the
+        #: monitor and task hooks see the recorded states afterwards; False steps in Python (the reference,
+        #: for tests and benchmarks).
+        self.batch_monitor = True
 
     # ------------------------------------------------------------------ gym API
+    @property
+    def monitor(self) -> EpisodeMonitor:
+        """What the episode has recorded so far: avoid conditions, closest approach, TCP speed."""
+        return self._monitor
+
     @property
     def model(self) -> Any:
         """The ``mujoco.MjModel``."""
@@ -321,7 +325,7 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
             refs = self._replanner.references(self.scene.time + self._dt * np.arange(nsteps))
         ref_p, ref_v = refs
         scene = self.scene
-        if self._batch_monitor:
+        if self.batch_monitor:
             # The plan is open loop over these steps: run them in MuJoCo's C rollout and check the constraints
             # on the recorded states afterwards, at the same monitor instants as the loop below.
             t0 = scene.time

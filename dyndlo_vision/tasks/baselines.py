@@ -16,6 +16,11 @@ duration". Half of the total for the upward move would not fit the action's inte
 at the paper's 1.35 s, and would not be fast, so by default every interval of the plan (three along the
 line, one upward) takes the same time: the upward move covers 20 cm in a quarter of the total. The split
 is a parameter.
+
+The demonstrators (:func:`geometric_demonstration`, :func:`vault_demonstration`) perturb the baselines'
+actions to seed an off-policy learner's replay buffer (``dyndlo-vision train --demonstrations N``): Gaussian
+noise of a per-episode scale drawn from :data:`NOISE_SCALES` on the normalised action, so the buffer covers
+the baseline family and its neighbourhood, not one point.
 """
 
 from __future__ import annotations
@@ -27,6 +32,10 @@ from numpy.typing import NDArray
 
 BELOW_GOAL_M = 0.20
 LOWEST_Z_M = 0.55
+#: Trajectory times of the geometric-lift demonstrations (s); the paper's results lie at 1.35-1.47 s.
+GEOMETRIC_TIME_RANGE_S = (1.0, 2.0)
+#: Standard deviations of the noise added to a demonstration's normalised action, one drawn per episode.
+NOISE_SCALES = (0.0, 0.05, 0.15)
 
 
 class GeometricLift:
@@ -101,8 +110,10 @@ class FlickVault:
         base = env.unwrapped
         if base.multi_step:
             raise ValueError("FlickVault plans once: use a single-step environment (multi_step=False)")
-        if base.task.name != "Vaulting":
-            raise ValueError(f"FlickVault vaults in DynDLO/Vaulting-v0, not in the {base.task.name} task")
+        from dyndlo_vision.tasks.vaulting import Vaulting
+
+        if not isinstance(base.task, Vaulting):
+            raise ValueError(f"FlickVault vaults in DynDLO/Vaulting-v0, not in {type(base.task).__name__}")
         self.spec = base.spec_actions
 
     def __call__(self, obs: NDArray[np.float32]) -> NDArray[np.float32]:
@@ -129,3 +140,23 @@ class RandomActions:
     def __call__(self, obs: NDArray[Any]) -> NDArray[np.float32]:
         """One random action (the observation is ignored)."""
         return self.rng.uniform(self.low, self.high, size=self.shape).astype(np.float32)
+
+
+def _perturbed(action: NDArray[np.float32], rng: np.random.Generator) -> NDArray[np.float32]:
+    scale = NOISE_SCALES[rng.integers(len(NOISE_SCALES))]
+    return np.clip(action + scale * rng.standard_normal(action.shape), -1.0, 1.0).astype(np.float32)
+
+
+def geometric_demonstration(
+    env: Any, obs: NDArray[np.float32], rng: np.random.Generator
+) -> NDArray[np.float32]:
+    """One perturbed geometric-lift action (time drawn from :data:`GEOMETRIC_TIME_RANGE_S`) for task IV."""
+    total_time_s = rng.uniform(*GEOMETRIC_TIME_RANGE_S)
+    return _perturbed(GeometricLift(env, total_time_s)(obs), rng)
+
+
+def vault_demonstration(
+    env: Any, obs: NDArray[np.float32], rng: np.random.Generator
+) -> NDArray[np.float32]:
+    """One perturbed scripted-vault action for a single-step task II environment."""
+    return _perturbed(FlickVault(env)(obs), rng)

@@ -41,7 +41,6 @@ class Hooking(Task):
     The grippers move symmetrically: the same x-z motion, mirrored lateral (y) motion.
     """
 
-    name = "Hooking"
     kind = "implicit"
     settle_s = 1.0
     episode_s = 2.0

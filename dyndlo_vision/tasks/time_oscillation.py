@@ -49,7 +49,6 @@ class TimeOscillation(Task):
     The oscillation is the horizontal distance of the tip from its equilibrium (straight below the TCP).
     """
 
-    name = "TimeOscillation"
     kind = "explicit"
     settle_s = OBSERVATION_WINDOW_S
     episode_s = 4.0

@@ -28,7 +28,6 @@ class TipControl(Task):
     so a fast tip cannot jump over the target between samples. The multi-step episode ends at the hit.
     """
 
-    name = "TipControl"
     kind = "implicit"
     settle_s = 0.5
     episode_s = 1.6

@@ -84,7 +84,6 @@ class Vaulting(Task):
     here.
     """
 
-    name = "Vaulting"
     kind = "implicit"
     settle_s = 1.0
     episode_s = 2.0

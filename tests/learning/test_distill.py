@@ -14,7 +14,13 @@ import dyndlo_vision  # noqa: F401
 from dyndlo_vision import policies
 from dyndlo_vision.cli import main
 from dyndlo_vision.learning import distill as distill_module
-from dyndlo_vision.learning.distill import DistillConfig, Episodes, PlanFollowingExpert, distill, run_episode
+from dyndlo_vision.learning.distill import (
+    DistillConfig,
+    Episodes,
+    PlanFollowingExpert,
+    distill,
+    run_mixed_episode,
+)
 from dyndlo_vision.trajectory import ActionSpec, BSplineTrajectory
 
 SPEC = ActionSpec(
@@ -100,7 +106,7 @@ def test_expert_episode_hits_like_the_teacher() -> None:
     """The expert (re-planning every 40 ms) hits the target in an episode the teacher hits in single-step."""
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
     teacher = policies.load("tip-control-single-step")
-    ep = run_episode(env, teacher, PlanFollowingExpert(env.unwrapped.spec_actions), seed=100001)
+    ep = run_mixed_episode(env, teacher, PlanFollowingExpert(env.unwrapped.spec_actions), seed=100001)
     assert ep["success"] and not ep["avoid"]
     assert ep["observations"].shape == ep["true_observations"].shape == (len(ep["actions"]), 12)
     assert np.array_equal(ep["observations"], ep["true_observations"])  # no noise model

@@ -26,7 +26,7 @@ def no_episodes(monkeypatch: pytest.MonkeyPatch) -> None:
     def run_episode(*_: Any, **__: Any) -> None:
         raise AssertionError("an episode ran before the options were refused")
 
-    monkeypatch.setattr(evaluate_module, "run_episode", run_episode)
+    monkeypatch.setattr(evaluate_module, "evaluate_episode", run_episode)
 
 
 def _refused(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:

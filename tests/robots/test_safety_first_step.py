@@ -168,7 +168,7 @@ def test_clamped_sim_robot_first_jump_keeps_the_episode_under_v_max() -> None:
     from dyndlo_vision.control.sim_robot import SimRobot
     from dyndlo_vision.tasks import make_env
 
-    env = make_env("TipControl")
+    env = make_env("tip-control").unwrapped
     env.reset(seed=0, options={"goal": (0.8, 0.0, 0.4)})
     robot = ClampedRobot(SimRobot(env), BOX, 1.0)
     robot.connect()

@@ -240,8 +240,8 @@ def _random_episodes(task: str, multi_step: bool, episodes: int, seed: int = 0) 
     from dyndlo_vision.sim import paper_cable
     from dyndlo_vision.tasks import make_env
 
-    cable = paper_cable(0.9 if task == "Vaulting" else 0.5, model="chain")
-    env = make_env(task, cable=cable, multi_step=multi_step)
+    cable = paper_cable(0.9 if task == "vaulting" else 0.5, model="chain")
+    env = make_env(task, cable=cable, multi_step=multi_step).unwrapped
     scene = env.scene
     rest = cable.segment_length_m
     stretch = [0.0]
@@ -272,18 +272,18 @@ def _random_episodes(task: str, multi_step: bool, episodes: int, seed: int = 0) 
 
 def test_zero_stretch_under_random_multi_step_actions() -> None:
     """Rigid links: edge lengths stay at the rest length to rounding error at every physics step."""
-    diverged, warnings, stretch = _random_episodes("TipControl", True, 3)
+    diverged, warnings, stretch = _random_episodes("tip-control", True, 3)
     assert diverged == 0 and warnings == 0
     assert stretch < 1e-12, stretch
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("task", ["TipControl", "TimeOscillation", "Hooking", "Vaulting"])
+@pytest.mark.parametrize("task", ["tip-control", "time-oscillation", "hooking", "vaulting"])
 @pytest.mark.parametrize("multi_step", [False, True])
 def test_no_divergence_under_random_actions(task: str, multi_step: bool) -> None:
     """No MuJoCo warning (of any kind) in random-action episodes of every task (benchmarks/chain_robustness.py
     runs 1000 per task and mode)."""
-    episodes = 2 if task == "Vaulting" else 8
+    episodes = 2 if task == "vaulting" else 8
     diverged, warnings, stretch = _random_episodes(task, multi_step, episodes)
     assert (diverged, warnings) == (0, 0)
     assert stretch < 1e-12
@@ -296,9 +296,9 @@ def test_every_task_scene_builds_with_the_chain() -> None:
     from dyndlo_vision.sim import paper_cable
     from dyndlo_vision.tasks import make_env
 
-    for task in ("TipControl", "TimeOscillation", "Hooking", "Vaulting"):
-        cable = paper_cable(0.9 if task == "Vaulting" else 0.5, model="chain")
-        env = make_env(task, cable=cable)
+    for task in ("tip-control", "time-oscillation", "hooking", "vaulting"):
+        cable = paper_cable(0.9 if task == "vaulting" else 0.5, model="chain")
+        env = make_env(task, cable=cable).unwrapped
         env.reset(seed=0)
         scene = env.scene
         nodes = scene.cable_nodes()

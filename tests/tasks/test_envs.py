@@ -154,8 +154,8 @@ def test_multi_step_replans_are_continuous() -> None:
 
 def _episodes(env_id: str, multi_step: bool, batch: bool, episodes: int, scale: float = 1.0) -> list[tuple]:
     env = gym.make(env_id, multi_step=multi_step).unwrapped
-    assert env._batch_monitor  # noqa: SLF001
-    env._batch_monitor = batch  # noqa: SLF001
+    assert env.batch_monitor
+    env.batch_monitor = batch
     rng = np.random.default_rng(3)
     run = []
     for episode in range(episodes):

@@ -32,7 +32,7 @@ def _feed(env, p_dlo: np.ndarray, tcp: np.ndarray | None = None, vel: np.ndarray
 @pytest.mark.parametrize(("offset", "hit"), [(0.0349, True), (0.0351, False)])
 @pytest.mark.parametrize("multi_step", [False, True])
 def test_tip_control_hit_between_samples_counts(offset: float, hit: bool, multi_step: bool) -> None:
-    env = make_env("TipControl", multi_step=multi_step)
+    env = make_env("tip-control", multi_step=multi_step).unwrapped
     env.reset(seed=0, options={"goal": GOAL})
     tip0 = env.p_dlo()
     # The tip passes the target between two 2 ms samples, 5 cm before and 5 cm after its centre (both samples
@@ -42,7 +42,7 @@ def test_tip_control_hit_between_samples_counts(offset: float, hit: bool, multi_
         min(np.linalg.norm(before - GOAL), np.linalg.norm(after - GOAL), np.linalg.norm(tip0 - GOAL)) > 0.06
     )
     _feed(env, [before, after])
-    assert env._monitor.min_goal_distance_m == pytest.approx(offset, abs=1e-9)
+    assert env.monitor.min_goal_distance_m == pytest.approx(offset, abs=1e-9)
     reward, success, info = env.outcome()
     assert success is hit and info["is_success"] is hit
     # Task I (multi-step) column: lambda_3 = 10 (100), lambda_2 = -1 for a miss; nothing else applies here.
@@ -52,20 +52,20 @@ def test_tip_control_hit_between_samples_counts(offset: float, hit: bool, multi_
 
 def test_tip_control_sample_points_alone_would_miss() -> None:
     # The same passage seen only at its samples (no segment between them) misses: the check is on the segment.
-    env = make_env("TipControl")
+    env = make_env("tip-control").unwrapped
     env.reset(seed=0, options={"goal": GOAL})
     _feed(env, [GOAL + [-0.05, 0.0, 0.0]])
-    assert env._monitor.min_goal_distance_m > 0.035
+    assert env.monitor.min_goal_distance_m > 0.035
     assert not env.outcome()[1]
 
 
 def test_tip_control_stopping_short_of_the_target_misses() -> None:
     # The tip moves straight at the target's centre and stops 5 cm short of it: the segment it swept ends
     # there (its extension through the target does not count).
-    env = make_env("TipControl")
+    env = make_env("tip-control").unwrapped
     env.reset(seed=0, options={"goal": GOAL})
     _feed(env, [GOAL + [-0.10, 0.0, 0.0], GOAL + [-0.07, 0.0, 0.0], GOAL + [-0.05, 0.0, 0.0]])
-    assert env._monitor.min_goal_distance_m == pytest.approx(0.05, abs=1e-9)
+    assert env.monitor.min_goal_distance_m == pytest.approx(0.05, abs=1e-9)
     assert not env.outcome()[1] and not env.is_done_early()
 
 
@@ -79,47 +79,47 @@ def test_tip_control_stopping_short_of_the_target_misses() -> None:
 )
 def test_hooking_r_dyn_uses_the_mean_gripper_height(heights: tuple[float, float], r_dyn: float) -> None:
     # Table IV footnote vi: z_P is the *mean* gripper height.
-    env = make_env("Hooking")
+    env = make_env("hooking").unwrapped
     env.reset(seed=0)
     tcp = np.array([[[0.40, -0.12, heights[0]], [0.40, 0.12, heights[1]]]])
     _feed(env, env.p_dlo(), tcp=tcp)
-    assert env._monitor.max_mean_height_m == pytest.approx(max(0.25, np.mean(heights)))
+    assert env.monitor.max_mean_height_m == pytest.approx(max(0.25, np.mean(heights)))
     _, success, info = env.outcome()
     assert info["r_dyn"] == r_dyn
     assert not success and info["r_avoid"] == 0.0 and info["r_distance"] == -1.0
 
 
 def test_avoid_conditions_stick_for_the_rest_of_the_episode() -> None:
-    env = make_env("TipControl")
+    env = make_env("tip-control").unwrapped
     env.reset(seed=0, options={"goal": GOAL})
     tip = env.p_dlo()
     _feed(env, [tip, tip], vel=np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.9]]))
     _feed(env, [tip, tip, tip])  # at rest again
-    assert env._monitor.avoid == {"outreach": False, "velocity": True, "collision": False, "shoulder": False}
-    assert env._monitor.max_tcp_speed_m_s == pytest.approx(1.9)
+    assert env.monitor.avoid == {"outreach": False, "velocity": True, "collision": False, "shoulder": False}
+    assert env.monitor.max_tcp_speed_m_s == pytest.approx(1.9)
     _, _, info = env.outcome()
     assert info["r_avoid"] == -5.0  # lambda_1 of task I
 
 
 def test_cable_on_the_floor_is_a_collision_except_in_vaulting() -> None:
-    env = make_env("TipControl")
+    env = make_env("tip-control").unwrapped
     env.reset(seed=0, options={"goal": GOAL})
     _feed(env, [[0.6, 0.0, 0.012]])  # the tip 1.2 cm above the floor (< 1.25 cm, footnote i)
-    assert env._monitor.avoid["collision"]
+    assert env.monitor.avoid["collision"]
     assert env.outcome()[2]["r_avoid"] == -5.0
 
-    vault = make_env("Vaulting")
+    vault = make_env("vaulting").unwrapped
     vault.reset(seed=0)
     assert vault.p_dlo()[2] < 0.0125  # the middle lies on the floor at the start, by design
     _feed(vault, [[0.5, -0.1, 0.002]])
-    assert not any(vault._monitor.avoid.values())
+    assert not any(vault.monitor.avoid.values())
     assert vault.outcome()[2]["r_avoid"] == 0.0
 
 
 def test_tcp_near_the_base_axis_is_a_shoulder_breach_in_the_episode() -> None:
     # A TCP 0.2 m from the base axis at 0.6 m height: ||P||_xy = 0.2 < 0.25 m (the 3-D norm would be 0.63 m).
-    env = make_env("TipControl")
+    env = make_env("tip-control").unwrapped
     env.reset(seed=0, options={"goal": GOAL})
     _feed(env, env.p_dlo(), tcp=np.array([[[0.2, 0.0, 0.6]]]))
-    assert env._monitor.avoid == {"outreach": False, "velocity": False, "collision": False, "shoulder": True}
+    assert env.monitor.avoid == {"outreach": False, "velocity": False, "collision": False, "shoulder": True}
     assert env.outcome()[2]["r_avoid"] == -5.0

@@ -471,13 +471,13 @@ def test_defaults_on_the_demo_video_follow_the_cable(tmp_path: Path) -> None:
 
     from dyndlo_vision import policies
     from dyndlo_vision._atomic import write_video_atomic
-    from dyndlo_vision.commands.demo import run_episode
+    from dyndlo_vision.commands.demo import film_episode
     from dyndlo_vision.control.sim_perception import MOTION_PLANE
 
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
     model = policies.load("tip-control-multi-step", env=env)
     frames: list[np.ndarray] = []
-    record = run_episode(env, model, 100000, "tracked", "tracking", frames)
+    record = film_episode(env, model, 100000, "tracked", "tracking", frames)
     env.close()
     video, calib, out = tmp_path / "demo.mp4", tmp_path / "camera.json", tmp_path / "demo.csv"
     write_video_atomic(video, frames, rgb=False)  # as the demo writes it

@@ -1,0 +1,207 @@
+"""One closed-loop episode in simulation: the 25 Hz loop on the task's TCP, on true, noisy or tracked P_DLO,
+run to the task's outcome and scored exactly as ``env.step`` scores it.
+
+:func:`run_loop_episode` is what the demo, the loop benchmarks and the loop tests run. It draws nothing: a
+``watch`` callback sees every moment the demo films (each control cycle, and the instants after the last
+re-plan up to the outcome) with the truth, the cycle's record and a camera that renders the present.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dyndlo_vision.control.loop import ControlLoop, CycleRecord
+from dyndlo_vision.control.sim_robot import SimRobot
+from dyndlo_vision.control.state_sources import NoisyState, TrueState
+from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
+
+#: Where the loop's P_DLO comes from: the simulator, the simulator through the fitted noise model, or the
+#: task's camera through the tracker and filter.
+OBSERVATIONS = ("true", "noisy", "tracked")
+#: How long a single-step loop episode may run at most (s of simulated time); its plan ends well before.
+SINGLE_STEP_MAX_S = 10.0
+
+
+@dataclass(frozen=True)
+class EpisodeMoment:
+    """What a ``watch`` callback sees at one instant of a loop episode.
+
+    Attributes:
+        t: Simulated time, s.
+        p_dlo_true: (3,) the simulator's P_DLO at ``t``.
+        goal: (3,) the episode's target.
+        cycle: The control cycle's record (None after the last re-plan and at the outcome).
+        frame: The frame the tracker used in this cycle (None without the tracker or a new frame).
+        status: What happens at an instant without a cycle (``"following the last plan"``, the outcome).
+        camera: A camera on the scene that renders the present (None unless a camera was asked for).
+    """
+
+    t: float
+    p_dlo_true: NDArray[np.float64]
+    goal: NDArray[np.float64]
+    cycle: CycleRecord | None = None
+    frame: Any = None
+    status: str | None = None
+    camera: Any = None
+
+
+def run_loop_episode(
+    env: Any,
+    act: Callable[[NDArray[np.float32]], NDArray[np.float32]],
+    seed: int,
+    observation: str = "true",
+    camera_name: str = "tracking",
+    latency_s: float = 0.0,
+    point_filter: Any = None,
+    watch: Callable[[EpisodeMoment], None] | None = None,
+    open_camera: bool = False,
+) -> dict[str, Any]:
+    """One closed-loop episode from ``env.reset(seed=seed)``; returns its record.
+
+    The loop re-plans every 40 ms (multi-step) or plans once (single-step). A multi-step episode that runs
+    its full length then follows its last plan for the task's settle time, one period at a time, as the
+    environment does; the outcome is the environment's own (:meth:`DynDLOEnv.outcome`).
+
+    Args:
+        env: A DynDLO environment (``gym.make`` or :func:`dyndlo_vision.tasks.make_env`).
+        act: The policy, ``observation -> action``.
+        seed: The episode's reset seed (also the noise stream's for ``"noisy"``).
+        observation: One of :data:`OBSERVATIONS`.
+        camera_name: The scene camera the tracker (and ``watch``'s camera) looks through.
+        latency_s: Tracked observation: the camera's delay; the filter predicts across it.
+        point_filter: Tracked observation: the tip filter (default: ``tracked_state``'s).
+        watch: Called at every control cycle and at every instant after the last re-plan up to the outcome.
+        open_camera: Give ``watch`` a camera on the scene that renders the present (the tracker's own
+            camera when tracking without delay).
+
+    Returns:
+        The record: ``seed``, ``success``, ``final_distance_m`` (the truth at the outcome),
+        ``min_distance_m``, ``estimate_rmse_m``, controller-time percentiles, ``deadline_misses``,
+        ``cycles``, ``stop_reason``, ``avoid``, a ``trace`` (estimates and truth in time) and the raw
+        per-cycle times under ``_cycle_ms`` and ``_stage_ms``.
+
+    Raises:
+        ValueError: For an unknown ``observation``.
+    """
+    if observation not in OBSERVATIONS:
+        raise ValueError(f"observation={observation!r}; expected one of {list(OBSERVATIONS)}")
+    base = env.unwrapped
+    env.reset(seed=seed)
+    goal = np.asarray(base.goal, dtype=float)
+    camera = None
+    if observation == "tracked":
+        from dyndlo_vision.control.sim_perception import tracked_state
+
+        source, camera = tracked_state(env, camera_name, point_filter=point_filter, latency_s=latency_s)
+    elif observation == "noisy":
+        source = NoisyState(env, seed=seed)
+    else:
+        source = TrueState(env)
+    if open_camera and camera is None:
+        from dyndlo_vision.cameras.simulated import MujocoCamera
+
+        camera = MujocoCamera(base.model, base.data, camera_name)
+    robot = SimRobot(env)
+    robot.connect()
+    loop = ControlLoop(
+        source,
+        robot,
+        act,
+        base.replanner,
+        goal,
+        period_s=CONTROL_PERIOD_S,
+        setpoint_period_s=base.scene.timestep,
+        truth=base.p_dlo,
+    )
+    shown = camera if open_camera else None
+    truth_t: list[float] = []
+    truth: list[NDArray[np.float64]] = []
+
+    def on_cycle(record: CycleRecord, frame: Any) -> None:
+        truth_t.append(float(record.t))
+        truth.append(np.asarray(record.p_dlo_true, dtype=float))
+        if watch is not None:
+            # With a delay the cycle's frame is old; the watcher's camera shows the present.
+            fresh = None if latency_s else frame
+            watch(EpisodeMoment(truth_t[-1], truth[-1], goal, cycle=record, frame=fresh, camera=shown))
+
+    def snapshot(status: str) -> None:
+        # The truth (and a moment to watch) where no cycle records one: after the last plan, and at the end.
+        truth_t.append(float(base.scene.time))
+        truth.append(np.asarray(base.p_dlo(), dtype=float))
+        if watch is not None:
+            watch(EpisodeMoment(truth_t[-1], truth[-1], goal, status=status, camera=shown))
+
+    try:
+        if base.multi_step:
+            report = loop.run(base.task.episode_s, done=base.is_done_early, on_cycle=on_cycle)
+            replan_end_t = float(base.scene.time)
+            if report.stop_reason == "duration":
+                # As in the environment: after the last re-plan the TCP follows that plan for the settle time
+                # (it ends at rest). Sent one period at a time (the same setpoints as in one piece) so that
+                # the moments go on to the outcome.
+                dt = base.scene.timestep
+                remaining = int(round(base.task.settle_s / dt))
+                per_period = int(round(CONTROL_PERIOD_S / dt))
+                while remaining > 0:
+                    snapshot("following the last plan")
+                    steps = min(per_period, remaining)
+                    loop.finish_plan(steps * dt)
+                    remaining -= steps
+        else:
+            report = loop.run(
+                SINGLE_STEP_MAX_S,
+                done=lambda: base.scene.time >= base.trajectory.t_end + base.task.settle_s - 1e-9,
+                on_cycle=on_cycle,
+                replan_every_cycle=False,
+            )
+            replan_end_t = float(base.scene.time)
+        _, success, info = base.outcome()
+        final_distance = float(np.linalg.norm(base.p_dlo() - goal))
+        snapshot(f"{'HIT' if success else 'miss'}, tip {100 * final_distance:.1f} cm from target centre")
+    finally:
+        if camera is not None:
+            camera.close()
+    errors = report.estimate_errors()
+    controller = report.controller_ms()
+    trace = {
+        "t": [c.t for c in report.cycles],
+        "estimate": [c.p_dlo_estimate.tolist() for c in report.cycles],
+        "measured": [c.measured for c in report.cycles],
+        "truth_t": truth_t,
+        "truth": [p.tolist() for p in truth],
+        "goal": goal.tolist(),
+        "success_radius_m": getattr(base.task, "success_radius_m", None),
+        "replan_end_t": replan_end_t,
+        "success": bool(success),
+        "min_distance_m": float(info["min_distance_m"]),
+    }
+    return {
+        "seed": seed,
+        "success": bool(success),
+        # The last point of the trace (and the last moment watched) is this state.
+        "final_distance_m": float(np.linalg.norm(truth[-1] - goal)),
+        "final_p_dlo_m": truth[-1].tolist(),
+        "end_time_s": truth_t[-1],
+        "min_distance_m": float(info["min_distance_m"]),
+        "estimate_rmse_m": float(np.sqrt(np.mean(errors**2))) if errors.size else None,
+        "cycle_ms_p50": float(np.percentile(controller, 50)),
+        "cycle_ms_p95": float(np.percentile(controller, 95)),
+        "stage_ms_p50": report.stage_percentiles(50),
+        "stage_ms_p95": report.stage_percentiles(95),
+        "deadline_misses": int(sum(c.deadline_missed for c in report.cycles)),
+        "cycles": len(report.cycles),
+        "stop_reason": report.stop_reason,
+        "avoid": info["avoid"],
+        "trace": trace,
+        "_cycle_ms": controller.tolist(),
+        "_stage_ms": {
+            k: [c.stage_ms.get(k, 0.0) for c in report.cycles]
+            for k in sorted({k for c in report.cycles for k in c.stage_ms})
+        },
+    }

@@ -1,0 +1,186 @@
+"""The task registry: one row per task, from which every table of tasks is derived, and the one factory that
+builds a task's environment for training, evaluation, distillation and the demo.
+
+A row names the task on the command line (``tip-control``), gives its :class:`~dyndlo_vision.tasks.base.Task`
+class, its Gymnasium id (``DynDLO/TipControl-v0``), its scripted baseline and demonstrator if it has them,
+the shipped policies that solve it, and its key in the hyperparameter files. Adding a task is adding a row.
+
+    from dyndlo_vision.tasks import make_env
+    env = make_env("tip-control", multi_step=True, randomize_cable_every=1, obs_noise="packaged")
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from numpy.typing import NDArray
+
+from dyndlo_vision.tasks.base import DynDLOEnv, Task
+from dyndlo_vision.tasks.baselines import (
+    FlickVault,
+    GeometricLift,
+    geometric_demonstration,
+    vault_demonstration,
+)
+from dyndlo_vision.tasks.hooking import Hooking
+from dyndlo_vision.tasks.time_oscillation import TimeOscillation
+from dyndlo_vision.tasks.tip_control import TipControl
+from dyndlo_vision.tasks.vaulting import Vaulting
+
+#: ``(env, obs, rng) -> action``: one perturbed action of a task's scripted baseline (demonstrations).
+Demonstrator = Callable[[Any, NDArray[np.float32], np.random.Generator], NDArray[np.float32]]
+
+
+@dataclass(frozen=True)
+class TaskEntry:
+    """One task and everything the package knows it by.
+
+    Attributes:
+        name: The task's name on the command line and in run and policy metadata, e.g. ``"tip-control"``.
+        task_class: The :class:`Task` subclass; its class name is the Gymnasium id's stem.
+        baseline: Name of the task's scripted baseline in ``dyndlo-vision evaluate`` (None: it has none).
+        baseline_class: The scripted baseline, ``cls(env, ...)`` is a policy ``obs -> action``.
+        demonstrator: Perturbed baseline actions that seed SAC's replay buffer (None: no demonstrations).
+        shipped_policies: Shipped policies of the task, preferred first (the demo's default is the first one
+            that is installed).
+        algo: The learning algorithm ``dyndlo-vision train`` uses by default (the paper's choice).
+    """
+
+    name: str
+    task_class: type[Task]
+    baseline: str | None = None
+    baseline_class: Callable[..., Callable[[NDArray[np.float32]], NDArray[np.float32]]] | None = None
+    demonstrator: Demonstrator | None = None
+    shipped_policies: tuple[str, ...] = ()
+    algo: str = "ppo"
+
+    @property
+    def env_id(self) -> str:
+        """The Gymnasium id, e.g. ``DynDLO/TipControl-v0``."""
+        return f"DynDLO/{self.task_class.__name__}-v0"
+
+    def hyperparams_key(self, multi_step: bool) -> str:
+        """Key of the task and mode in the hyperparameter files, e.g. ``tip-control-multi-step``."""
+        return f"{self.name}-multi-step" if multi_step else self.name
+
+    def options(self) -> list[str]:
+        """Names of the options the task's constructor takes (``multi_step``, ``cable``, ``target``, ...)."""
+        return [p for p in inspect.signature(self.task_class.__init__).parameters if p != "self"]
+
+
+TASKS: Mapping[str, TaskEntry] = {
+    entry.name: entry
+    for entry in (
+        TaskEntry(
+            "tip-control", TipControl, shipped_policies=("tip-control-multi-step", "tip-control-single-step")
+        ),
+        TaskEntry(
+            "vaulting",
+            Vaulting,
+            baseline="flick-vault",
+            baseline_class=FlickVault,
+            demonstrator=vault_demonstration,
+            shipped_policies=("vaulting",),
+        ),
+        TaskEntry("hooking", Hooking, shipped_policies=("hooking",)),
+        TaskEntry(
+            "time-oscillation",
+            TimeOscillation,
+            baseline="geometric",
+            baseline_class=GeometricLift,
+            demonstrator=geometric_demonstration,
+            shipped_policies=("time-oscillation-up", "time-oscillation-down"),
+            algo="sac",
+        ),
+    )
+}
+#: Every task's Gymnasium id, in registry order.
+ENV_IDS = tuple(entry.env_id for entry in TASKS.values())
+
+
+def task_entry(name: str) -> TaskEntry:
+    """The registry row of a task name.
+
+    Raises:
+        ValueError: For a name that is not a task, listing the valid ones.
+    """
+    if name not in TASKS:
+        raise ValueError(f"unknown task {name!r}; expected one of {sorted(TASKS)}")
+    return TASKS[name]
+
+
+def build_task_env(
+    task: str, render_mode: str | None = None, render_camera: str = "front", **options: Any
+) -> DynDLOEnv:
+    """The bare environment of ``task`` with task ``options`` (Gymnasium's entry point for the ids).
+
+    Raises:
+        ValueError: For an unknown task or option, naming the valid ones.
+    """
+    entry = task_entry(task)
+    valid = entry.options()
+    unknown = sorted(set(options) - set(valid))
+    if unknown:
+        raise ValueError(f"unknown option(s) {unknown} for {task}; valid options: {valid + ['render_mode']}")
+    return DynDLOEnv(entry.task_class(**options), render_mode=render_mode, render_camera=render_camera)
+
+
+def make_env(
+    task: str,
+    *,
+    render_mode: str | None = None,
+    render_camera: str = "front",
+    randomize_cable_every: int | None = None,
+    obs_noise: str | Path | Any | None = None,
+    **options: Any,
+) -> gym.Env[Any, Any]:
+    """The environment of ``task`` as training, evaluation, distillation and the demo use it.
+
+    ``gym.make`` of the task's id (Gymnasium's checks and order enforcing), then optionally
+    :class:`~dyndlo_vision.tasks.wrappers.CableRandomization` (a new cable every ``randomize_cable_every``
+    episodes, drawn from the reset seed) and :class:`~dyndlo_vision.tasks.wrappers.NoisyObservation`
+    (P_DLO through an observation-noise model: a file, a loaded model, or ``"packaged"`` for the model
+    fitted from the tracker's errors), in that order.
+
+    Args:
+        task: A task name (a key of :data:`TASKS`).
+        render_mode: None or ``"rgb_array"``.
+        render_camera: The scene camera :meth:`render` draws.
+        randomize_cable_every: Draw a new cable every this many episodes (None: the nominal cable).
+        obs_noise: Observation-noise model (None: true P_DLO).
+        **options: Task options (``multi_step``, ``cable``, ``target``, ...).
+
+    Raises:
+        ValueError: For an unknown task or option.
+    """
+    register_envs()
+    entry = task_entry(task)
+    env: gym.Env[Any, Any] = gym.make(entry.env_id, render_mode=render_mode, render_camera=render_camera,
+                                      **options)
+    if randomize_cable_every is not None:
+        from dyndlo_vision.tasks.wrappers import CableRandomization
+
+        env = CableRandomization(env, every_episodes=randomize_cable_every)
+    if obs_noise is not None:
+        from dyndlo_vision.tasks.noise import ObservationNoiseModel, packaged_noise_model_path
+        from dyndlo_vision.tasks.wrappers import NoisyObservation
+
+        if isinstance(obs_noise, str | Path):
+            path = packaged_noise_model_path() if str(obs_noise) == "packaged" else Path(obs_noise)
+            obs_noise = ObservationNoiseModel.load(path)
+        env = NoisyObservation(env, obs_noise)
+    return env
+
+
+def register_envs() -> None:
+    """Register every task under its Gymnasium id (idempotent)."""
+    for entry in TASKS.values():
+        if entry.env_id not in gym.registry:
+            gym.register(id=entry.env_id, entry_point="dyndlo_vision.tasks.registry:build_task_env",
+                         kwargs={"task": entry.name}, disable_env_checker=False)
