@@ -291,7 +291,7 @@ def test_demonstrations_seed_the_replay_buffer_with_baseline_episodes(tmp_path: 
 def test_vaulting_demonstrations_are_scripted_vaults(tmp_path: Path) -> None:
     from dyndlo_vision.tasks.baselines import FlickVault
 
-    # Only tasks whose registry row has a demonstrator accept demonstrations; hooking and tip control lack one.
+    # Only tasks whose registry row has a demonstrator accept them; hooking and tip control lack one.
     for task in ("hooking", "tip-control"):
         with pytest.raises(ValueError, match="demonstrations are available for single-step"):
             RunConfig(task=task, multi_step=False, algo="sac", timesteps=2, demonstrations=2)
