@@ -250,11 +250,10 @@ def _write_video(
     base = env.unwrapped
     act = as_action_fn(policy)
     frames: list[np.ndarray] = []
+    base.frame_hook = lambda e: frames.append(e.render())  # every 40 ms simulated; kept across cables
     with _progress_bar(episodes, f"video {path.name}", not progress) as bar:
         for i in range(episodes):
             obs, _ = env.reset(seed=seed + i)
-            # Set after reset: a new cable rebuilds the environment, which clears the hook.
-            base.frame_hook = lambda e: frames.append(e.render())  # every 40 ms of simulated time
             frames.append(base.render())
             done = False
             while not done:

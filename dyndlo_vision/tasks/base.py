@@ -152,9 +152,24 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self.multi_step = task.multi_step
         self.render_mode = render_mode
         self.render_camera = render_camera
-        self.scene = Scene(task.scene_config())
+        self._renderer: Any = None
+        self._build_scene()
         if render_camera not in [self.scene.model.camera(i).name for i in range(self.scene.model.ncam)]:
             raise ValueError(f"render_camera={render_camera!r} is not a camera of the scene")
+        #: Called with the environment every 40 ms of simulated time while it simulates (None: never).
+        self.frame_hook: Callable[[DynDLOEnv], None] | None = None
+        #: The open-loop stretches of an episode run in MuJoCo's C rollout (no Python per step) and the
+        #: monitor and task hooks see the recorded states afterwards; False steps in Python (the reference,
+        #: for tests and benchmarks).
+        self.batch_monitor = True
+
+    def _build_scene(self) -> None:
+        """Compile the task's scene and all that depends on it (at construction, and for a new cable)."""
+        task = self.task
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        self.scene = Scene(task.scene_config())
         self.spec_actions = task.action_spec()
         self.coeffs = task.coefficients()
         n_g = self.scene.num_grippers
@@ -164,17 +179,10 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self._dt = self.scene.timestep
         self._steps_per_monitor = max(1, int(round(MONITOR_PERIOD_S / self._dt)))
         self._steps_per_control = int(round(CONTROL_PERIOD_S / self._dt))
-        self._renderer: Any = None
         self._goal = np.zeros(3)
         self._replanner = Replanner(self.spec_actions, self.scene.gripper_home)
         self._monitor = EpisodeMonitor()
         self._decisions = 0
-        #: Called with the environment every 40 ms of simulated time while it simulates (None: never).
-        self.frame_hook: Callable[[DynDLOEnv], None] | None = None
-        #: The open-loop stretches of an episode run in MuJoCo's C rollout (no Python per step) and the
-        #: monitor and task hooks see the recorded states afterwards; False steps in Python (the reference,
-        #: for tests and benchmarks).
-        self.batch_monitor = True
 
     # ------------------------------------------------------------------ gym API
     @property
@@ -214,8 +222,12 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[NDArray[np.float32], dict[str, Any]]:
-        """Start an episode; ``options={"goal": (x, y, z)}`` fixes P*."""
+        """Start an episode; ``options={"goal": (x, y, z)}`` fixes P*, ``{"cable": CableParams(...)}`` swaps
+        the cable (a new MuJoCo model, compiled and settled, when it differs from the current one; hooks and
+        settings such as :attr:`frame_hook` stay)."""
         super().reset(seed=seed)
+        if options and "cable" in options:
+            self._swap_cable(options["cable"])
         self.scene.reset()
         self.task.begin_episode()
         if options and "goal" in options:
@@ -288,6 +300,21 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self.__init__(state["task"], state["render_mode"], state["render_camera"])  # type: ignore[misc]
 
     # ------------------------------------------------------------------ internals
+    def _swap_cable(self, cable: Any) -> None:
+        from dyndlo_vision.sim.cable import CableParams
+
+        if not isinstance(cable, CableParams):
+            raise ValueError(f"options['cable'] must be a CableParams, got {type(cable).__name__}")
+        if cable == getattr(self.task, "cable", None):
+            return
+        if not hasattr(self.task, "cable"):
+            raise ValueError(f"{type(self.task).__name__} has no cable option to swap")
+        self.task.cable = cable  # type: ignore[attr-defined]
+        obs_space, act_space = self.observation_space, self.action_space
+        self._build_scene()
+        if (self.observation_space, self.action_space) != (obs_space, act_space):
+            raise ValueError("a new cable changed the observation or action space")  # never for CableParams
+
     def _plan(self, action: NDArray[np.float32]) -> None:
         a = np.asarray(action)
         if a.shape != self.action_space.shape:

@@ -1,14 +1,19 @@
-"""Gymnasium wrappers for training on the state a camera-based controller would see.
+"""Gymnasium wrappers for training on the state a camera-based controller would see, and on cables that
+differ from the nominal one.
 
 :class:`NoisyObservation` replaces the true P_DLO in a DynDLO observation (table II layout: gripper
 positions ``3 n_g``, gripper velocities ``3 n_g``, P_DLO ``3``, target ``3``) by a corrupted one drawn from an
 :class:`~dyndlo_vision.tasks.noise.ObservationNoiseModel`: delayed, biased, noisy, and missing in
 runs, during which the last value is extrapolated at constant velocity like a coasting tracking filter.
+
+:class:`CableRandomization` hands a cable drawn by the pure function :func:`draw_cable` to the environment's
+reset every few episodes.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, SupportsFloat
 
@@ -16,10 +21,11 @@ import gymnasium as gym
 import numpy as np
 from numpy.typing import NDArray
 
+from dyndlo_vision.sim.cable import CableParams
 from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
 from dyndlo_vision.tasks.noise import NoiseProcess, ObservationNoiseModel
 
-__all__ = ["NoisyObservation"]
+__all__ = ["CableRandomization", "NoisyObservation", "draw_cable"]
 
 # Mixed into the reset seed so that the cable draws differ from the environment's own random stream.
 _CABLE_STREAM = 0x4E6F697379 + 1
@@ -97,17 +103,51 @@ DEFAULT_CABLE_RANGES: dict[str, tuple[float, float]] = {
 }
 
 
+#: The cable parameters a factor can scale: the continuous physical ones (not the discretisation or model).
+RANDOMIZABLE = ("length_m", "mass_kg", "radius_m", "young_pa", "poisson", "damping_s")
+
+
+def check_cable_ranges(ranges: dict[str, tuple[float, float]]) -> dict[str, tuple[float, float]]:
+    """The ranges, checked: continuous cable parameters (:data:`RANDOMIZABLE`), ``0 < low <= high`` factors.
+
+    Raises:
+        ValueError: Naming the parameter or range that is wrong and what was expected.
+    """
+    for name, (lo, hi) in ranges.items():
+        if name not in RANDOMIZABLE:
+            raise ValueError(f"cannot randomise {name!r}; expected some of {list(RANDOMIZABLE)}")
+        if not (0 < lo <= hi and math.isfinite(hi)):
+            raise ValueError(f"range of {name} must be 0 < low <= high factors, got ({lo}, {hi})")
+    return dict(ranges)
+
+
+def draw_cable(nominal: CableParams, ranges: dict[str, tuple[float, float]],
+               rng: np.random.Generator) -> CableParams:
+    """A random cable: each ranged parameter of ``nominal`` times a factor drawn in its range.
+
+    Factors are uniform, log-uniform for ``young_pa`` and ``damping_s`` (they span a factor of 4). A pure
+    function of its arguments: the same generator state gives the same cable.
+    """
+    changes = {}
+    for name, (lo, hi) in ranges.items():
+        if name in ("young_pa", "damping_s"):
+            factor = math.exp(rng.uniform(math.log(lo), math.log(hi)))
+        else:
+            factor = rng.uniform(lo, hi)
+        changes[name] = getattr(nominal, name) * factor
+    return replace(nominal, **changes)
+
+
 class CableRandomization(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32],
                                      NDArray[np.float32]]):
     """Domain randomisation: a new cable (length, mass, Young's modulus, damping) every few episodes.
 
-    Changing the cable means a new MuJoCo model (compile and settle, about 0.1-0.3 s), so a new one is drawn
-    every ``every_episodes`` resets. Factors are drawn uniformly (log-uniformly for ``young_pa`` and
-    ``damping_s``) in ``ranges`` and multiply the task's nominal cable; the seed given to :meth:`reset` seeds
-    the draws. ``info["cable"]`` holds the cable of the episode.
+    Every ``every_episodes`` resets a cable is drawn (:func:`draw_cable`, seeded by the seed given to
+    :meth:`reset`) and handed to the environment's reset (``options={"cable": ...}``), which compiles the
+    new model (about 0.1-0.3 s) and keeps everything else. ``info["cable"]`` holds the episode's cable.
 
     Args:
-        env: A DynDLO environment made with ``gym.make`` (its task options are reused).
+        env: A DynDLO environment.
         ranges: Parameter name -> (low factor, high factor); default :data:`DEFAULT_CABLE_RANGES`.
         every_episodes: Draw a new cable every this many episodes (1: every episode).
     """
@@ -115,52 +155,25 @@ class CableRandomization(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], N
     def __init__(self, env: gym.Env[NDArray[np.float32], NDArray[np.float32]],
                  ranges: dict[str, tuple[float, float]] | None = None, every_episodes: int = 10) -> None:
         super().__init__(env)
-        from dyndlo_vision.sim.cable import CableParams
-
-        self.ranges = dict(DEFAULT_CABLE_RANGES if ranges is None else ranges)
-        fields = set(CableParams.__dataclass_fields__)
-        for name, (lo, hi) in self.ranges.items():
-            if name not in fields or name in ("num_segments",):
-                expected = sorted(DEFAULT_CABLE_RANGES)
-                raise ValueError(f"cannot randomise {name!r}; expected some of {expected}")
-            if not (0 < lo <= hi and math.isfinite(hi)):
-                raise ValueError(f"range of {name} must be 0 < low <= high factors, got ({lo}, {hi})")
+        self.ranges = check_cable_ranges(DEFAULT_CABLE_RANGES if ranges is None else ranges)
         if every_episodes < 1:
             raise ValueError(f"every_episodes must be >= 1, got {every_episodes}")
         self.every_episodes = int(every_episodes)
-        base = env.unwrapped
-        self.nominal = base.task.cable  # type: ignore[attr-defined]
+        self.nominal: CableParams = env.unwrapped.task.cable  # type: ignore[attr-defined]
         self._episodes = 0
         self._rng: np.random.Generator | None = None
         self.cable = self.nominal
 
-    def _draw(self) -> Any:
-        from dataclasses import replace
-
-        assert self._rng is not None
-        changes = {}
-        for name, (lo, hi) in self.ranges.items():
-            if name in ("young_pa", "damping_s"):
-                factor = math.exp(self._rng.uniform(math.log(lo), math.log(hi)))
-            else:
-                factor = self._rng.uniform(lo, hi)
-            changes[name] = getattr(self.nominal, name) * factor
-        return replace(self.nominal, **changes)
-
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[NDArray[np.float32], dict[str, Any]]:
-        """Draw a new cable when due (rebuilding the environment's scene), then reset."""
+        """Draw a new cable when due, then reset the environment with it."""
         if seed is not None:
             self._rng = np.random.default_rng([int(seed), _CABLE_STREAM])
         elif self._rng is None:
             self._rng = np.random.default_rng()
         if self._episodes % self.every_episodes == 0:
-            self.cable = self._draw()
-            base = self.env.unwrapped
-            task = base.task  # type: ignore[attr-defined]
-            task.cable = self.cable
-            base.__init__(task, base.render_mode, base.render_camera)  # type: ignore[misc]  (rebuilds the scene)
+            self.cable = draw_cable(self.nominal, self.ranges, self._rng)
         self._episodes += 1
-        obs, info = self.env.reset(seed=seed, options=options)
+        obs, info = self.env.reset(seed=seed, options={**(options or {}), "cable": self.cable})
         return obs, {**info, "cable": self.cable}

@@ -380,31 +380,6 @@ def test_latency_in_the_real_environment_is_whole_control_steps() -> None:
         np.testing.assert_array_equal(observed[k][6:9], truths[max(k - 2, 0)])
 
 
-def test_cable_randomization_draws_new_cables_deterministically() -> None:
-    import gymnasium as gym
-
-    from dyndlo_vision.tasks.wrappers import CableRandomization
-
-    def lengths(seed: int) -> list[float]:
-        env = CableRandomization(gym.make("DynDLO/TipControl-v0"), every_episodes=2)
-        out = []
-        for k in range(4):
-            obs, info = env.reset(seed=seed if k == 0 else None)
-            out.append(info["cable"].length_m)
-            hanging = env.unwrapped.cable_nodes()
-            # The rebuilt scene really has the drawn cable: the hanging tip is one cable length below the TCP.
-            assert np.linalg.norm(hanging[-1] - hanging[0]) == pytest.approx(info["cable"].length_m, rel=0.03)
-            env.step(np.zeros(env.action_space.shape, np.float32))
-        return out
-
-    first = lengths(3)
-    assert first[0] == first[1] and first[2] == first[3] and first[0] != first[2]
-    assert all(0.45 <= x <= 0.55 for x in first)
-    assert lengths(3) == first
-    with pytest.raises(ValueError, match="cannot randomise"):
-        CableRandomization(gym.make("DynDLO/TipControl-v0"), ranges={"num_segments": (1, 2)})
-
-
 def test_noise_model_paths_from_the_command_line(tmp_path) -> None:
     from dyndlo_vision.tasks.noise import packaged_noise_model_path, resolve_noise_model_path
 
