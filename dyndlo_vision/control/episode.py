@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dyndlo_vision.control.loop import ControlLoop, CycleRecord
+from dyndlo_vision.control.sim_env import as_sim_env
 from dyndlo_vision.control.sim_robot import SimRobot
 from dyndlo_vision.control.state_sources import NoisyState, TrueState
 from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
@@ -90,7 +91,7 @@ def run_loop_episode(
     """
     if observation not in OBSERVATIONS:
         raise ValueError(f"observation={observation!r}; expected one of {list(OBSERVATIONS)}")
-    base = env.unwrapped
+    base = as_sim_env(env)
     env.reset(seed=seed)
     goal = np.asarray(base.goal, dtype=float)
     camera = None

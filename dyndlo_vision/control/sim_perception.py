@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dyndlo_vision.cameras.simulated import DelayedCamera, MujocoCamera, checked_latency_s
+from dyndlo_vision.control.sim_env import as_sim_env
 from dyndlo_vision.control.state_sources import TrackedState
 from dyndlo_vision.sim.scene import CABLE_NAME
 from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
@@ -102,7 +103,7 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
     """
     if checked_latency_s(latency_s) > MAX_LATENCY_S:
         raise ValueError(f"latency_s must be at most {MAX_LATENCY_S} s, got {latency_s!r}")
-    base = env.unwrapped
+    base = as_sim_env(env)
     mujoco.mj_forward(base.model, base.data)
     camera = MujocoCamera(base.model, base.data, camera_name, width=width, height=height)
     calib = camera.calibration

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from dyndlo_vision.control.sim_env import SimEnv, as_sim_env
 from dyndlo_vision.robots.protocol import Setpoints, TcpState
 
 log = logging.getLogger(__name__)
@@ -22,7 +23,7 @@ class SimRobot:
     """
 
     def __init__(self, env: Any) -> None:
-        self.env = env.unwrapped
+        self.env: SimEnv = as_sim_env(env)
         self.connected = False
         self.stopped = False
 

@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from dyndlo_vision.cameras.protocol import Camera
 from dyndlo_vision.control.clocks import ClockSync
+from dyndlo_vision.control.sim_env import SimEnv, as_sim_env
 from dyndlo_vision.robots.protocol import TcpState
 
 log = logging.getLogger(__name__)
@@ -54,7 +55,7 @@ class TrueState:
     """The simulator's own P_DLO (what training sees without noise)."""
 
     def __init__(self, env: Any) -> None:
-        self.env = env.unwrapped
+        self.env: SimEnv = as_sim_env(env)
 
     def reset(self) -> None:
         """Nothing to forget."""
@@ -80,7 +81,7 @@ class NoisyState:
         from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
         from dyndlo_vision.tasks.noise import NoiseProcess, packaged_noise_model_path
 
-        self.env = env.unwrapped
+        self.env: SimEnv = as_sim_env(env)
         model = model if model is not None else packaged_noise_model_path()
         self.noise = NoiseProcess(model, CONTROL_PERIOD_S, multi_step=bool(self.env.multi_step))
         self.noise.reset(seed)
