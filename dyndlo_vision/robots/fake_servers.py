@@ -100,11 +100,11 @@ class _FakeController:
         self.error: BaseException | None = None
 
     @property
-
-    @property
     def clock_origin(self) -> float:
         """``time.monotonic()`` at the fake robot's time zero: its clock is ``monotonic() - clock_origin``."""
         return self._origin
+
+    @property
     def q(self) -> FloatArray:
         """Simulated joint positions (rad)."""
         with self._sim.lock:

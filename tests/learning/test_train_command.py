@@ -49,7 +49,7 @@ def _noise_file(tmp_path: Path, text: str) -> str:
 BAD_INPUT: list[tuple[list[str], list[str]]] = [
     (["--hp", "bogus=1"], ["'bogus'", "valid:", "learning_starts", "gradient_steps"]),
     (["--hp", "seed=1"], ["'seed'", "--seed"]),
-    (["--env-option", "bogus=2"], ["'bogus'", "TipControl"]),
+    (["--env-option", "bogus=2"], ["'bogus'", "for tip-control"]),
     (["--timesteps", "0"], ["timesteps=0", "positive"]),
     (["--n-envs", "0"], ["n_envs=0", "positive"]),
     (["--eval-freq", "0"], ["eval_freq=0", "positive"]),
