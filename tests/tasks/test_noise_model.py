@@ -389,3 +389,22 @@ def test_noise_model_paths_from_the_command_line(tmp_path) -> None:
     assert resolve_noise_model_path(str(tmp_path / "m.json")) == str((tmp_path / "m.json").resolve())
     with pytest.raises(FileNotFoundError, match="missing.json: no such file"):
         resolve_noise_model_path(str(tmp_path / "missing.json"))
+
+
+def test_noise_process_delays_multi_step_observations_and_not_single_step_ones() -> None:
+    """A pure 80 ms latency: two 40 ms steps late in multi-step mode; a single-step episode's two observations
+    are a whole trajectory apart, so its P_DLO is not delayed at all."""
+    from dyndlo_vision.tasks.noise import NoiseProcess
+
+    model = ObservationNoiseModel(latency_s=0.08)
+    truths = [np.array([0.1 * k, 0.0, 1.0]) for k in range(6)]
+    multi = NoiseProcess(model, 0.04, multi_step=True)
+    single = NoiseProcess(model, 0.04, multi_step=False)
+    multi.reset(0)
+    single.reset(0)
+    for k, p in enumerate(truths):
+        delayed, measured = multi.corrupt(p)
+        np.testing.assert_allclose(delayed, truths[max(k - 2, 0)])
+        now, _ = single.corrupt(p)
+        np.testing.assert_allclose(now, p)
+        assert measured
