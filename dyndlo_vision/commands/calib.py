@@ -17,14 +17,13 @@ from pathlib import Path
 
 HELP = "write the calibration JSON of a simulated camera (for track --calib)"
 
-#: The demo renders its camera once per control period, 0.04 s.
-DEFAULT_FPS = 25.0
-
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``calib``."""
+    from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
     from dyndlo_vision.tasks.registry import TASKS
 
+    default_fps = 1.0 / CONTROL_PERIOD_S  # the demo renders its camera once per control period
     p.add_argument(
         "--camera",
         default="tracking",
@@ -40,8 +39,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--fps",
         type=float,
-        default=DEFAULT_FPS,
-        help=f"frame rate written to the file (default {DEFAULT_FPS:g})",
+        default=default_fps,
+        help=f"frame rate written to the file (default {default_fps:g}: one frame per control period)",
     )
     p.add_argument(
         "--out", required=True, metavar="CAMERA.json", help="file to write (its folder must exist)"

@@ -26,7 +26,6 @@ import numpy as np
 from dyndlo_vision._atomic import check_output_folder, staged_folder, write_atomic, write_video_atomic
 
 HELP = "closed-loop tip control in simulation on tracked state: video, plot and metrics"
-FPS = 25.0  # one frame per 40 ms control period
 
 # Overlay colours (RGB). ``tracking.annotate`` draws the tracked cable cyan and the estimate magenta. The
 # scene renders the cable red, the target as a green sphere, the sky black and the floor light grey, so the
@@ -169,10 +168,13 @@ def run(args: argparse.Namespace) -> int:
         "planning (the simulated robot's physics is timed apart as send_ms); percentiles over the cycles of "
         "all episodes",
     }
+    from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
+
+    fps = 1.0 / CONTROL_PERIOD_S  # one frame per control period
     with staged_folder(out) as stage:
-        codec = write_video_atomic(stage / "demo.mp4", video, fps=FPS, rgb=False)  # annotated frames are BGR
+        codec = write_video_atomic(stage / "demo.mp4", video, fps=fps, rgb=False)  # annotated frames are BGR
         rows = metrics.pop("episodes")  # kept last, after the run's numbers
-        metrics["video"] = {"episode": 0, "seed": episodes[0]["seed"], "frames": len(video), "fps": FPS,
+        metrics["video"] = {"episode": 0, "seed": episodes[0]["seed"], "frames": len(video), "fps": fps,
                             "codec": codec}
         metrics["episodes"] = rows
         _write_plot(stage / "p_dlo.png", trace)
