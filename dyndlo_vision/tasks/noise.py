@@ -1,4 +1,5 @@
-"""A small model of the error of the tracked P_DLO, fitted from measured tracker errors, stored as JSON.
+"""A small model of the error of the tracked P_DLO (fitted from measured tracker errors, stored as JSON),
+and the process that draws corrupted P_DLO from it step by step (:class:`NoiseProcess`).
 
 What the controller reads is the filter's estimate of P_DLO, predicted to the time it reads it. Compared
 with the true P_DLO at that time the estimate is, per observation (one per 40 ms control step):
