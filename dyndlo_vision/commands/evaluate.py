@@ -47,7 +47,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--multi-step",
         action=argparse.BooleanOptionalAction,
         default=None,
-        help="default: the policy's own mode",
+        help="default: the policy's own mode (a policy with metadata is only evaluated in its own mode)",
     )
     p.add_argument("--episodes", type=int, default=100, help="episodes to run, seeds --seed, --seed+1, ...")
     p.add_argument("--seed", type=int, default=100_000, help="first episode seed (default: 100000, unseen)")
@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
     if args.policy not in scripted_policies():
         _, meta = policies.resolve(args.policy)
     task = policy_task(args.policy, args.task, meta)
-    multi_step = args.multi_step if args.multi_step is not None else bool(meta.get("multi_step", False))
+    multi_step = policy_mode(args.policy, args.multi_step, meta)
     options = {**meta.get("env_options", {}), **options}
     env = _make_env(task, multi_step, options, args.randomize_cable)
     entry = task_entry(task)
@@ -194,6 +194,24 @@ def policy_task(policy: str, task: str | None, meta: dict[str, Any]) -> str:
     if chosen is None:
         raise ValueError(f"{policy!r} has no metadata naming its task: pass --task")
     return chosen
+
+
+def policy_mode(policy: str, multi_step: bool | None, meta: dict[str, Any]) -> bool:
+    """The mode to evaluate ``policy`` in: its own (metadata), which ``--[no-]multi-step`` may only repeat.
+
+    Raises:
+        ValueError: ``multi_step`` differs from the mode the policy was trained in.
+    """
+    own = meta.get("multi_step")
+    if multi_step is not None and own is not None and bool(own) != multi_step:
+        # Both modes have the same spaces: a single-step policy would run re-planning without complaint.
+        mode = {True: "multi-step", False: "single-step"}
+        option = "--multi-step" if multi_step else "--no-multi-step"
+        raise ValueError(
+            f"policy {policy!r} is a {mode[bool(own)]} policy but {option} asks for {mode[multi_step]} "
+            "episodes; leave the option out"
+        )
+    return bool(own) if multi_step is None else multi_step
 
 
 def _progress_bar(total: int, desc: str, quiet: bool) -> Any:

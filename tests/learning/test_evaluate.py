@@ -131,6 +131,16 @@ def test_a_policy_is_only_evaluated_on_its_own_task(
     assert "pass --task" in message
 
 
+def test_a_policy_is_only_evaluated_in_its_own_mode(
+    no_episodes: None, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Single- and multi-step episodes have the same spaces: only the metadata tells the modes apart."""
+    message = _refused(["evaluate", "tip-control-single-step", "--multi-step", "--episodes", "1"], capsys)
+    assert "single-step policy" in message and "--multi-step" in message
+    message = _refused(["evaluate", "tip-control-multi-step", "--no-multi-step", "--episodes", "1"], capsys)
+    assert "multi-step policy" in message and "--no-multi-step" in message
+
+
 def test_repeating_the_policys_own_task_is_fine(tmp_path: Path) -> None:
     report = tmp_path / "r.json"
     argv = [
