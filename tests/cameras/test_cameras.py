@@ -87,10 +87,8 @@ def scene() -> Scene:
 @pytest.fixture
 def camera(scene: Scene):
     scene.reset()
-    try:
-        cam = MujocoCamera(scene.model, scene.data, "front", width=320, height=240, depth=True)
-    except RuntimeError as exc:  # no GL backend on this machine
-        pytest.skip(f"MuJoCo cannot render here: {exc}")
+    # No skip when rendering fails: the package needs off-screen rendering (CI installs OSMesa/EGL).
+    cam = MujocoCamera(scene.model, scene.data, "front", width=320, height=240, depth=True)
     yield cam
     cam.close()
 
@@ -127,10 +125,7 @@ def test_mujoco_depth_matches_known_geometry(camera: MujocoCamera) -> None:
 
 
 def test_mujoco_rgb_only_and_close(scene: Scene) -> None:
-    try:
-        cam = MujocoCamera(scene.model, scene.data, "oblique", width=160, height=120)
-    except RuntimeError as exc:
-        pytest.skip(f"MuJoCo cannot render here: {exc}")
+    cam = MujocoCamera(scene.model, scene.data, "oblique", width=160, height=120)
     with cam:
         frame = cam.read()
         assert frame.depth is None and frame.rgb.shape == (120, 160, 3)
