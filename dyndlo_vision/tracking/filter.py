@@ -171,6 +171,9 @@ class MultiPointFilter:
         """
         if n_points < 1:
             raise ValueError(f"n_points must be >= 1, got {n_points}")
+        if params is not None and not isinstance(params, FilterParams):
+            raise TypeError(f"params must be a FilterParams (give numbers by name, e.g. sigma_accel=20.0), "
+                            f"got {params!r}")
         self.n = int(n_points)
         self.params = replace(params or FilterParams(), **overrides)
         self.gate_threshold = float(chi2.ppf(self.params.gate_prob, 3))

@@ -324,6 +324,8 @@ def test_filter_params() -> None:
             FilterParams(**bad)
     with pytest.raises(TypeError):
         MultiPointFilter(2, sigma_acel=1.0)
+    with pytest.raises(TypeError, match="by name"):
+        PointFilter(20.0)  # the old positional sigma_accel
 
 
 def test_multi_point_filter_uninitialised_nodes_are_nan() -> None:
