@@ -5,7 +5,7 @@ Typical use, per camera frame (RGB uint8)::
 
     cam = PinholeCamera.from_json("camera.json")
     tracker = CableTracker(cam, plane=Plane(np.array([0.0, 0.0, 1.0]), 0.0), anchor_uv=(320, 40))
-    tip = PointFilter(FilterParams(sigma_accel=20.0, sigma_meas=0.003))
+    tip = PointFilter(FilterParams())          # the defaults; tracking.params says why each
     meas = tracker.process(rgb, t_capture)
     tip.update(meas.point(-1), t_capture)      # None (tip not seen) coasts
     est = tip.estimate(t_now)                   # latency-compensated read
