@@ -41,7 +41,7 @@ import os
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -55,19 +55,23 @@ import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
 import dyndlo_vision  # noqa: E402, F401  (chooses the GL backend before mujoco is imported)
-from dyndlo_vision._atomic import write_atomic  # noqa: E402
-from dyndlo_vision.control.sim_perception import LOOP_SIGMA_ACCEL  # noqa: E402
-from dyndlo_vision.sim.scene import CABLE_NAME  # noqa: E402
+from dyndlo_vision.cameras import MujocoCamera, average_frames  # noqa: E402
+from dyndlo_vision.control.sim_perception import (  # noqa: E402
+    MOTION_PLANE,
+    pixels_per_metre,
+    render_without_cable,
+)
 from dyndlo_vision.tasks import make_env  # noqa: E402
 from dyndlo_vision.tasks.base import DynDLOEnv  # noqa: E402
 from dyndlo_vision.tasks.noise import ObservationNoiseModel  # noqa: E402
 from dyndlo_vision.tracking import (  # noqa: E402
+    LOOP_FILTER,
     BackgroundSegmenter,
     CableTracker,
     Centerline,
+    FilterParams,
     MultiPointFilter,
     PinholeCamera,
-    Plane,
     PointFilter,
     lift_with_plane,
 )
@@ -87,7 +91,6 @@ FRAME_PERIOD_S = 0.04  # 25 Hz camera = control rate
 # Issue 4's protocol: the controller reads the estimate 40 ms (one frame) after the capture. The simulated
 # control loop (dyndlo_vision.control) renders and reads at the same instant: --read-delay-ms 0.
 READ_DELAYS_MS = (0, 40)
-MOTION_PLANE = Plane(np.array([0.0, 1.0, 0.0]), 0.0)  # planar tip control moves in y = 0
 # The skeleton stops about half a cable width short of each end and smoothing cuts sharp bends, so an
 # unoccluded cable is measured a little short: on frames whose path ends were both within 3 px of the true
 # ends, the shortfall was 2.7 px median, 6.2-6.4 px 95th percentile of 200 px (sharp and blurred frames,
@@ -205,36 +208,24 @@ def subframe_offsets(exposure_s: float, n_sub: int, dt: float) -> list[int]:
     return sorted({int(round(c / dt)) for c in centres} | {0})
 
 
-def render_now(env: DynDLOEnv) -> NDArray[np.uint8]:
-    """Renders the current state exactly.
-
-    After ``mj_step`` MuJoCo's derived positions (``flexvert_xpos``, which the renderer draws) lag one step
-    behind ``qpos`` (from which ``cable_nodes`` is computed): 1 cm at 10 m/s. ``mj_forward`` brings them up
-    to date without changing the state.
-    """
+def render_now(camera: MujocoCamera) -> NDArray[np.uint8]:
+    """Renders the current state exactly: ``mj_forward`` first brings what MuJoCo draws (derived positions,
+    lights) up to the state after a reset or a lighting change, without changing the state."""
     import mujoco
 
-    mujoco.mj_forward(env.model, env.data)
-    img = env.render()
-    assert img is not None
-    return img.copy()
+    mujoco.mj_forward(camera.model, camera.data)
+    return camera.read().rgb
 
 
-def render_without_cable(env: DynDLOEnv) -> NDArray[np.uint8]:
-    """The current scene rendered with the cable made transparent."""
-    import mujoco
-
-    fid = mujoco.mj_name2id(env.model, mujoco.mjtObj.mjOBJ_FLEX, CABLE_NAME)
-    alpha = float(env.model.flex_rgba[fid, 3])
-    env.model.flex_rgba[fid, 3] = 0.0
-    try:
-        return render_now(env)
-    finally:
-        env.model.flex_rgba[fid, 3] = alpha
+def simulate(env: DynDLOEnv, nsteps: int) -> None:
+    """Follows the episode's planned trajectory for ``nsteps`` physics steps, one setpoint per step."""
+    times = env.scene.time + env.scene.timestep * np.arange(nsteps)
+    env.follow(times, *env.replanner.references(times))
 
 
 def capture_episode(
     env: DynDLOEnv,
+    camera: MujocoCamera,
     seed: int,
     action: NDArray[np.float32],
     lighting: Lighting,
@@ -242,12 +233,17 @@ def capture_episode(
     offsets: Sequence[int],
 ) -> EpisodeCapture:
     """Runs one single-step episode in 1 ms steps and renders it at 25 Hz (sharp and blurred)."""
+    import mujoco
+
     env.reset(seed=seed)
     apply_lighting(env, previous_lighting)
-    stale = render_without_cable(env)
+    mujoco.mj_forward(env.model, env.data)
+    stale = render_without_cable(camera)
     apply_lighting(env, lighting)
-    background = render_without_cable(env)
-    env._plan(action)  # noqa: SLF001  (we step the physics ourselves, in slices between renders)
+    mujoco.mj_forward(env.model, env.data)
+    background = render_without_cable(camera)
+    # Plan as env.step would, then step the physics ourselves, in slices between renders.
+    env.replanner.replan(np.asarray(action, dtype=np.float64), env.scene.time)
     assert env.trajectory is not None
     dt = env.scene.timestep
     period = int(round(FRAME_PERIOD_S / dt))
@@ -272,7 +268,7 @@ def capture_episode(
         tips: dict[int, NDArray[np.float64]] = {}
         for ev in events:
             if ev > step_now:
-                env._simulate(ev - step_now)  # noqa: SLF001
+                simulate(env, ev - step_now)
                 step_now = ev
             if not env.scene.is_finite():
                 diverged = True
@@ -284,7 +280,7 @@ def capture_episode(
                 tcp.append(env.scene.tcp_positions()[0])
                 times.append(centre * dt)
             if render_frame and ev in {max(centre + o, 0) for o in offsets}:
-                img = render_now(env)
+                img = render_now(camera)
                 # A clipped event (before t = 0) stands for several sub-frames of the cable at rest.
                 repeat = sum(1 for o in offsets if max(centre + o, 0) == ev)
                 sub_imgs.extend([img] * repeat)
@@ -296,7 +292,7 @@ def capture_episode(
         lo, hi = max(centre - 1, 0), centre + 1
         tip_vel.append((tips[hi] - tips[lo]) / ((hi - lo) * dt))
         if render_frame:
-            blurred.append(np.rint(np.mean(np.stack(sub_imgs).astype(np.float32), axis=0)).astype(np.uint8))
+            blurred.append(average_frames(sub_imgs))
             sub_nodes.append(np.stack(subs))
     k_ok = min(len(sharp), len(nodes) - 1)
     return EpisodeCapture(
@@ -346,31 +342,6 @@ def sample_action(rng: np.random.Generator, env: DynDLOEnv, whip: bool) -> NDArr
     points = np.vstack((start, start + np.cumsum(increments, axis=0)))
     times = np.concatenate(([0.0], np.cumsum(rng.uniform(0.1, 0.2, 3))))
     return spec.encode(points, times).astype(np.float32)
-
-
-def tracking_camera(env: DynDLOEnv) -> PinholeCamera:
-    """The calibration of the "tracking" camera (OpenCV conventions)."""
-    m, d = env.model, env.data
-    cid = m.camera(CAMERA).id
-    w, h = env.scene.config.image_size
-    return PinholeCamera.from_mujoco(m.cam_fovy[cid], w, h, d.cam_xpos[cid], d.cam_xmat[cid], fps=25.0)
-
-
-def plane_pixels_per_metre(cam: PinholeCamera, plane: Plane) -> float:
-    """Image scale of a plane that faces the camera (fronto-parallel), px per metre.
-
-    Raises:
-        ValueError: If the plane is tilted more than 2 degrees from fronto-parallel (the scale would vary
-            over the image and a known cable length in pixels would be wrong).
-    """
-    axis = cam.R[2]  # optical axis in the world
-    n = plane.normal / np.linalg.norm(plane.normal)
-    if abs(float(axis @ n)) < math.cos(math.radians(2.0)):
-        raise ValueError(
-            f"plane normal {plane.normal.tolist()} is not along the optical axis {axis.tolist()}"
-        )
-    depth = abs(float(n @ cam.center + plane.d / np.linalg.norm(plane.normal)))
-    return float(cam.K[0, 0]) / depth
 
 
 def occluder_mask(
@@ -516,15 +487,14 @@ class FilterOutput:
 def run_filters(
     raw: NDArray[np.float64],
     times: NDArray[np.float64],
-    sigma_accel: float,
-    sigma_meas: float,
+    params: FilterParams,
     read_delay_s: float,
     with_nodes: bool = True,
 ) -> FilterOutput:
     """Feeds an episode's measurements to a tip and an all-nodes filter, reading each ``read_delay_s`` on."""
     k_frames, n_nodes, _ = raw.shape
-    tip_filter = PointFilter(sigma_accel=sigma_accel, sigma_meas=sigma_meas)
-    node_filter = MultiPointFilter(n_nodes, sigma_accel=sigma_accel, sigma_meas=sigma_meas)
+    tip_filter = PointFilter(params)
+    node_filter = MultiPointFilter(n_nodes, params)
     out = FilterOutput(
         np.full((k_frames, 3), np.nan),
         np.ones(k_frames, bool),
@@ -743,10 +713,15 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     ap.add_argument(
         "--sigma-accel",
         type=float,
-        default=LOOP_SIGMA_ACCEL,
-        help=f"filter process noise (m/s^2; default {LOOP_SIGMA_ACCEL:g}, the control loop's)",
+        default=LOOP_FILTER.sigma_accel,
+        help=f"filter process noise (m/s^2; default {LOOP_FILTER.sigma_accel:g}, the control loop's)",
     )
-    ap.add_argument("--sigma-meas", type=float, default=0.003, help="filter measurement noise (m)")
+    ap.add_argument(
+        "--sigma-meas",
+        type=float,
+        default=LOOP_FILTER.sigma_meas,
+        help=f"filter measurement noise (m; default {LOOP_FILTER.sigma_meas:g})",
+    )
     ap.add_argument(
         "--sigma-sweep", default="", help="comma-separated sigma_accel values to compare (tip only)"
     )
@@ -777,19 +752,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.fit_out is not None and args.fit_pipeline not in {p.name for p in pipelines}:
         raise SystemExit(f"--fit-pipeline {args.fit_pipeline!r} is not among the pipelines run")
     sweep = [float(s) for s in args.sigma_sweep.split(",") if s.strip()]
+    env = make_env("TipControl")
+    env.reset(seed=args.seed)
     try:
-        env = make_env("TipControl", render_mode="rgb_array", render_camera=CAMERA)
-        env.reset(seed=args.seed)
-        env.render()
+        camera = MujocoCamera(env.model, env.data, CAMERA, *env.scene.config.image_size, fps=25.0)
+        camera.read()
     except (RuntimeError, ValueError) as exc:
         print(f"SKIP: cannot render the {CAMERA!r} camera: {exc}", file=sys.stderr)
         return 2
     hide_gripper(env)
-    cam = tracking_camera(env)
-    length_px = env.scene.config.cable.length_m * plane_pixels_per_metre(cam, MOTION_PLANE)
+    cam = camera.calibration
+    # The camera faces the motion plane (fronto-parallel): one scale over the whole image.
+    length_px = env.scene.config.cable.length_m * pixels_per_metre(cam, env.scene.gripper_home[0])
     n_nodes = env.scene.config.cable.num_nodes
     offsets = subframe_offsets(args.exposure_ms * 1e-3, args.subframes, env.scene.timestep)
     delay_s = args.read_delay_ms * 1e-3
+    params = replace(LOOP_FILTER, sigma_accel=args.sigma_accel, sigma_meas=args.sigma_meas)
     read_frames = int(round(delay_s / FRAME_PERIOD_S))  # truth is recorded at the frame times
     nominal = nominal_lighting(env)
     rng = np.random.default_rng(args.seed)
@@ -803,7 +781,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         lighting = sample_lighting(rng, nominal)
         whip = rng.random() < args.whip_share
         action = sample_action(rng, env, whip)
-        cap = capture_episode(env, args.seed + e, action, lighting, previous, offsets)
+        cap = capture_episode(env, camera, args.seed + e, action, lighting, previous, offsets)
         previous = lighting
         info = {
             "seed": args.seed + e,
@@ -820,18 +798,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             continue
         for pipe in pipelines:
             track = track_episode(cap, pipe, cam, length_px, n_nodes, args.annotate_dir, e)
-            filt = run_filters(
-                track.nodes, cap.times[: len(cap.sharp)], args.sigma_accel, args.sigma_meas, delay_s
-            )
+            filt = run_filters(track.nodes, cap.times[: len(cap.sharp)], params, delay_s)
             per_pipe[pipe.name].append(frame_records(cap, track, filt, pipe, e, read_frames))
             if pipe.name == args.fit_pipeline:
                 for s in sweep:
                     f2 = run_filters(
-                        track.nodes,
-                        cap.times[: len(cap.sharp)],
-                        s,
-                        args.sigma_meas,
-                        delay_s,
+                        track.nodes, cap.times[: len(cap.sharp)], replace(params, sigma_accel=s), delay_s,
                         with_nodes=False,
                     )
                     truth_read = cap.nodes[read_frames : len(cap.sharp) + read_frames, -1]
@@ -842,6 +814,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"{info['max_tip_speed_m_s']:.1f} m/s, {elapsed:.0f} s elapsed",
             flush=True,
         )
+    camera.close()
     env.close()
     if not any(per_pipe.values()):
         raise SystemExit("no episode could be evaluated (all diverged)")
@@ -924,7 +897,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     text = json.dumps(payload, indent=1, default=float)
-    write_atomic(args.out, lambda p: Path(p).write_text(text, encoding="utf-8"))
+    args.out.write_text(text, encoding="utf-8")
     print(f"results -> {args.out}")
     return 0
 

@@ -32,12 +32,14 @@ import sys
 import tempfile
 import warnings
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
+
+from dyndlo_vision.tracking.params import FilterParams
 
 if TYPE_CHECKING:
     from dyndlo_vision.cameras.protocol import Frame
@@ -50,8 +52,9 @@ HELP = "track a cable in a video or image folder and write the tracked point per
 #: Pixel-mode filter settings are the world ones times this scale (a cable filling a 640 px wide image from
 #: about a metre away spans roughly 500 px per metre).
 _PX_PER_M_NOMINAL = 500.0
-_WORLD_SIGMA_ACCEL = 20.0  # m/s^2, PointFilter's default; the fastest whips exceed it and get gated
-_WORLD_SIGMA_MEAS = 0.003  # m, PointFilter's default
+#: The filter in world units (m) with a calibration, else in pixels.
+_WORLD_FILTER = FilterParams()
+_PIXEL_FILTER = _WORLD_FILTER.scaled(_PX_PER_M_NOMINAL)
 #: Frames sampled across the video for ``--background median`` (and ``auto``).
 _MEDIAN_FRAMES = 64
 #: ``--background auto`` learns the median background from videos with at least this many frames: from fewer,
@@ -113,14 +116,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--sigma-accel",
         type=float,
-        help=f"filter acceleration noise, m/s^2 (default {_WORLD_SIGMA_ACCEL:g}; in pixel mode "
-        f"{_WORLD_SIGMA_ACCEL * _PX_PER_M_NOMINAL:g} px/s^2)",
+        help=f"filter acceleration noise, m/s^2 (default {_WORLD_FILTER.sigma_accel:g}; in pixel mode "
+        f"{_PIXEL_FILTER.sigma_accel:g} px/s^2)",
     )
     p.add_argument(
         "--sigma-meas",
         type=float,
-        help=f"filter measurement noise, m (default {_WORLD_SIGMA_MEAS:g}; in pixel mode "
-        f"{_WORLD_SIGMA_MEAS * _PX_PER_M_NOMINAL:g} px)",
+        help=f"filter measurement noise, m (default {_WORLD_FILTER.sigma_meas:g}; in pixel mode "
+        f"{_PIXEL_FILTER.sigma_meas:g} px)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -210,8 +213,7 @@ class _Settings:
     anchor: NDArray[np.float64] | None
     nodes: int
     fps: float | None
-    sigma_accel: float
-    sigma_meas: float
+    filter: FilterParams
     quiet: bool
 
 
@@ -252,10 +254,12 @@ def _settings(args: argparse.Namespace) -> _Settings:
         raise ValueError(f"--open-radius must be >= 0, got {args.open_radius}")
     if args.nodes < 2:
         raise ValueError(f"--nodes must be at least 2, got {args.nodes}")
-    world = plane is not None
-    scale = 1.0 if world else _PX_PER_M_NOMINAL
-    sigma_accel = _positive(args.sigma_accel, "--sigma-accel") or _WORLD_SIGMA_ACCEL * scale
-    sigma_meas = _positive(args.sigma_meas, "--sigma-meas") or _WORLD_SIGMA_MEAS * scale
+    defaults = _WORLD_FILTER if plane is not None else _PIXEL_FILTER
+    filter_params = replace(
+        defaults,
+        sigma_accel=_positive(args.sigma_accel, "--sigma-accel") or defaults.sigma_accel,
+        sigma_meas=_positive(args.sigma_meas, "--sigma-meas") or defaults.sigma_meas,
+    )
     out = Path(args.out)
     annotated = None if args.annotated is None else Path(args.annotated)
     video = Path(args.video)
@@ -285,8 +289,7 @@ def _settings(args: argparse.Namespace) -> _Settings:
         anchor=None if args.anchor is None else parse_floats(args.anchor, 2, "--anchor"),
         nodes=int(args.nodes),
         fps=_positive(args.fps, "--fps"),
-        sigma_accel=float(sigma_accel),
-        sigma_meas=float(sigma_meas),
+        filter=filter_params,
         quiet=bool(args.quiet),
     )
 
@@ -502,13 +505,7 @@ class _PointTracker:
             n_nodes=cfg.nodes,
             plane=None if cfg.plane is None else Plane(cfg.plane[0], cfg.plane[1]),
         )
-        scale = 1.0 if self.world else _PX_PER_M_NOMINAL
-        self.filter = PointFilter(
-            sigma_accel=cfg.sigma_accel,
-            sigma_meas=cfg.sigma_meas,
-            init_speed_sigma=2.0 * scale,
-            reinit_speed=10.0 * scale,
-        )
+        self.filter = PointFilter(cfg.filter)
         self.held_end_found = False
         self.n_frames = 0
         self.n_measured = 0

@@ -9,6 +9,7 @@ segmentation by its projected position, and the projected TCP marks the held end
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any
 
 import mujoco
@@ -20,20 +21,21 @@ from dyndlo_vision.control.sim_env import as_sim_env
 from dyndlo_vision.control.state_sources import TrackedState
 from dyndlo_vision.sim.scene import CABLE_NAME
 from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
-from dyndlo_vision.tracking import BackgroundSegmenter, CableTracker, Plane, PointFilter
+from dyndlo_vision.tracking import (
+    LATENT_LOOP_FILTER,
+    LOOP_FILTER,
+    BackgroundSegmenter,
+    CableTracker,
+    Plane,
+    PointFilter,
+)
 
 #: Planar tip control moves in the x-z plane through the origin.
 MOTION_PLANE = Plane(np.array([0.0, 1.0, 0.0]), 0.0)
 GRIPPER_MASK_RADIUS_M = 0.03  # the 2 cm gripper sphere plus a margin
-# A whipped tip accelerates at hundreds of m/s^2. With the filter's default 20 m/s^2 fast measurements are
-# gated out and the estimate coasts off (tip RMSE median 50 mm over 4 demo episodes); at 2000 m/s^2 it follows
-# the measurements and bridges missed frames (12.7 mm). Measured with the single-step SAC policy, seeds
-# 100000-100003, tracked observation.
-LOOP_SIGMA_ACCEL = 2000.0
-# Behind a camera latency the filter must predict across it, and a constant-velocity model predicts a whip
-# badly: at sigma_accel 2000 the estimate's p95 error per episode is 168 mm (40 ms) and 551 mm (80 ms), at
-# 20 it is 93 and 160 mm with the lowest medians too (benchmarks/camera_latency.py, 20 episodes per row).
-LATENT_LOOP_SIGMA_ACCEL = 20.0
+# The tip filter's tuned acceleration noise without and with a camera latency (why: tracking.params).
+LOOP_SIGMA_ACCEL = LOOP_FILTER.sigma_accel
+LATENT_LOOP_SIGMA_ACCEL = LATENT_LOOP_FILTER.sigma_accel
 #: Longest simulated camera latency (s): beyond a quarter second the loop re-plans on a past the cable has
 #: long left.
 MAX_LATENCY_S = 0.25
@@ -125,8 +127,8 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
 
     # The newest measurement is always at least the latency old, so the filter's coasting limit and the
     # frames the camera may miss in a row (the first ones have not arrived yet) grow with it.
-    sigma_accel = LOOP_SIGMA_ACCEL if latency_s == 0 else LATENT_LOOP_SIGMA_ACCEL
-    point_filter = point_filter or PointFilter(sigma_accel=sigma_accel, max_coast_s=0.3 + latency_s)
+    params = LOOP_FILTER if latency_s == 0 else LATENT_LOOP_FILTER
+    point_filter = point_filter or PointFilter(replace(params, max_coast_s=params.max_coast_s + latency_s))
     frames = DelayedCamera(camera, latency_s) if latency_s > 0 else camera
     not_yet_arrived = math.ceil(latency_s / CONTROL_PERIOD_S - 1e-9)
     source = TrackedState(frames, tracker, point_filter, point_index=-1, project=project,

@@ -5,53 +5,86 @@ Typical use, per camera frame (RGB uint8)::
 
     cam = PinholeCamera.from_json("camera.json")
     tracker = CableTracker(cam, plane=Plane(np.array([0.0, 0.0, 1.0]), 0.0), anchor_uv=(320, 40))
-    tip = PointFilter(sigma_accel=20.0, sigma_meas=0.003)
+    tip = PointFilter(FilterParams())          # the defaults; tracking.params says why each
     meas = tracker.process(rgb, t_capture)
     tip.update(meas.point(-1), t_capture)      # None (tip not seen) coasts
     est = tip.estimate(t_now)                   # latency-compensated read
 
+The names below load their submodule on first use, so importing the package (e.g. for
+:class:`FilterParams` in a command's ``--help``) loads neither OpenCV nor SciPy nor filterpy.
+
 Speed (one core, 640x480): ``python benchmarks/tracking_speed.py``.
 """
 
-from .annotate import annotate_frame, covariance_ellipse, project_point_covariance
-from .camera_model import CalibrationError, PinholeCamera
-from .centerline import (
-    Centerline,
-    CenterlineParams,
-    Measurement2D,
-    extract_centerline,
-    polyline_distance,
-    resample_polyline,
-    thin,
-)
-from .filter import Estimate, MultiEstimate, MultiPointFilter, PointFilter
-from .segmentation import BackgroundSegmenter, clean_mask, dice, segment_hsv
-from .tracker import CableTracker, Measurement, Plane, lift_with_depth, lift_with_plane
+# ruff: noqa: F401  (the TYPE_CHECKING block re-exports for type checkers only)
+from __future__ import annotations
 
-__all__ = [
-    "BackgroundSegmenter",
-    "annotate_frame",
-    "covariance_ellipse",
-    "project_point_covariance",
-    "CableTracker",
-    "CalibrationError",
-    "Centerline",
-    "CenterlineParams",
-    "Estimate",
-    "Measurement",
-    "Measurement2D",
-    "MultiEstimate",
-    "MultiPointFilter",
-    "PinholeCamera",
-    "Plane",
-    "PointFilter",
-    "clean_mask",
-    "dice",
-    "extract_centerline",
-    "lift_with_depth",
-    "lift_with_plane",
-    "polyline_distance",
-    "resample_polyline",
-    "segment_hsv",
-    "thin",
-]
+import importlib
+from typing import TYPE_CHECKING, Any
+
+#: Public name -> the submodule that defines it.
+_EXPORTS = {
+    "annotate_frame": "annotate",
+    "covariance_ellipse": "annotate",
+    "project_point_covariance": "annotate",
+    "CalibrationError": "camera_model",
+    "PinholeCamera": "camera_model",
+    "Centerline": "centerline",
+    "CenterlineParams": "centerline",
+    "Measurement2D": "centerline",
+    "extract_centerline": "centerline",
+    "polyline_distance": "centerline",
+    "resample_polyline": "centerline",
+    "thin": "centerline",
+    "thin_coords": "centerline",
+    "Estimate": "filter",
+    "MultiEstimate": "filter",
+    "MultiPointFilter": "filter",
+    "PointFilter": "filter",
+    "FilterParams": "params",
+    "LATENT_LOOP_FILTER": "params",
+    "LOOP_FILTER": "params",
+    "BackgroundSegmenter": "segmentation",
+    "clean_mask": "segmentation",
+    "dice": "segmentation",
+    "segment_hsv": "segmentation",
+    "CableTracker": "tracker",
+    "Measurement": "tracker",
+    "Plane": "tracker",
+    "lift_with_depth": "tracker",
+    "lift_with_plane": "tracker",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
+
+
+if TYPE_CHECKING:  # the same names for type checkers (tests/tracking/test_package.py checks the two agree)
+    from .annotate import annotate_frame, covariance_ellipse, project_point_covariance
+    from .camera_model import CalibrationError, PinholeCamera
+    from .centerline import (
+        Centerline,
+        CenterlineParams,
+        Measurement2D,
+        extract_centerline,
+        polyline_distance,
+        resample_polyline,
+        thin,
+        thin_coords,
+    )
+    from .filter import Estimate, MultiEstimate, MultiPointFilter, PointFilter
+    from .params import LATENT_LOOP_FILTER, LOOP_FILTER, FilterParams
+    from .segmentation import BackgroundSegmenter, clean_mask, dice, segment_hsv
+    from .tracker import CableTracker, Measurement, Plane, lift_with_depth, lift_with_plane

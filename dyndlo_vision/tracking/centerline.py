@@ -36,6 +36,7 @@ __all__ = [
     "Measurement2D",
     "CenterlineParams",
     "thin",
+    "thin_coords",
     "extract_centerline",
     "polyline_distance",
     "resample_polyline",
@@ -67,8 +68,9 @@ def _zhang_suen_luts() -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
 _LUT1, _LUT2 = _zhang_suen_luts()
 
 
-def _thin_coords(mask: NDArray[np.uint8]) -> NDArray[np.intp]:
-    """Zhang-Suen thinning; returns the (K, 2) (row, col) coordinates of skeleton pixels."""
+def thin_coords(mask: NDArray[np.uint8]) -> NDArray[np.intp]:
+    """Zhang-Suen thinning of a binary uint8 mask (non-zero = foreground); returns the (K, 2) (row, col)
+    coordinates of the skeleton pixels (what :func:`extract_centerline` thins; :func:`thin` draws them)."""
     h, w = mask.shape
     wp = w + 2
     img = np.zeros((h + 2, wp), dtype=np.uint8)
@@ -108,7 +110,7 @@ def thin(mask: ArrayLike) -> NDArray[np.uint8]:
         (H, W) uint8 skeleton, 1 on skeleton pixels.
     """
     m = np.asarray(mask)
-    yx = _thin_coords(m)
+    yx = thin_coords(m)
     out = np.zeros(m.shape, dtype=np.uint8)
     out[yx[:, 0], yx[:, 1]] = 1
     return out
@@ -802,7 +804,7 @@ def extract_centerline(
     if bw == 0 or bh == 0:
         return empty_centerline(n_nodes)
     roi = m8[y0 : y0 + bh, x0 : x0 + bw]
-    yx = _thin_coords(roi)
+    yx = thin_coords(roi)
     if yx.shape[0] < 2:
         return empty_centerline(n_nodes)
     area = float(cv2.countNonZero(roi))

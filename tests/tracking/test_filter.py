@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import copy
+import math
 
 import numpy as np
 import pytest
 from filterpy.common import Q_discrete_white_noise
+from filterpy.kalman import KalmanFilter
 
+from dyndlo_vision.tracking import LATENT_LOOP_FILTER, LOOP_FILTER, FilterParams
 from dyndlo_vision.tracking.filter import (
     MultiPointFilter,
     PointFilter,
@@ -201,29 +204,128 @@ def test_process_noise_and_transition_match_model() -> None:
         np.testing.assert_allclose(Pn[i], Fi @ P[i] @ Fi.T + cv_process_noise(d, 5.0), atol=1e-12)
 
 
-def test_multi_point_filter_equals_point_filters() -> None:
+def test_steady_state_gain_is_the_alpha_beta_closed_form() -> None:
+    """At a constant frame rate the filter converges to the steady-state Kalman gain of the discrete white
+    noise acceleration model, the alpha-beta filter of tracking index lam = sigma_a T^2 / sigma_m (Kalata;
+    Bar-Shalom, Li, Kirubarajan 2001, sec. 6.5.3): K = [alpha, beta / T] per axis."""
+    T, sigma_a, sigma_m = 1.0 / FPS, 20.0, NOISE
+    lam = sigma_a * T**2 / sigma_m
+    root = math.sqrt(lam**2 + 8 * lam)
+    alpha = -(lam**2 + 8 * lam - (lam + 4) * root) / 8
+    beta = (lam**2 + 4 * lam - lam * root) / 4
+    f = MultiPointFilter(2, sigma_accel=sigma_a, sigma_meas=sigma_m)
+    rng = np.random.default_rng(5)
+    for k in range(200):
+        f.update(rng.normal(0.0, sigma_m, (2, 3)), k * T)
+    t = 200 * T
+    before = f.estimate(t)
+    delta = np.array([[1e-3, 0.0, 0.0], [0.0, 0.0, -2e-3]])
+    assert f.update(before.positions + delta, t).all()
+    after = f.estimate(t)
+    gain_pos = (after.positions - before.positions) / np.where(delta == 0, 1.0, delta)
+    gain_vel = (after.velocities - before.velocities) / np.where(delta == 0, 1.0, delta)
+    np.testing.assert_allclose(gain_pos[0, 0], alpha, rtol=1e-9)
+    np.testing.assert_allclose(gain_pos[1, 2], alpha, rtol=1e-9)
+    np.testing.assert_allclose(gain_vel[0, 0], beta / T, rtol=1e-9)
+    np.testing.assert_allclose(gain_vel[1, 2], beta / T, rtol=1e-9)
+    # Axes are independent: a residual in x moves neither y nor z.
+    np.testing.assert_allclose((after.positions - before.positions)[0, 1:], 0.0, atol=1e-15)
+
+
+def test_equals_filterpy_kalman_filters_node_by_node() -> None:
+    """Reference: one filterpy KalmanFilter per node with the same model, fed the same measurements; an
+    invisible node is not updated, and its next prediction spans the gap since its last measurement."""
     rng = np.random.default_rng(4)
-    n = 6
+    n, sigma_a = 5, 10.0
     t = np.arange(60) / FPS
     truth = np.stack([_sinusoid(t + 0.1 * i) for i in range(n)], axis=1)
     z = truth + rng.normal(0, NOISE, truth.shape)
-    visible = rng.random((60, n)) > 0.15
-    z[35, 2] += 0.5  # an outlier on one node
-    multi = MultiPointFilter(n, max_coast_s=0.1)
-    singles = [PointFilter(max_coast_s=0.1) for _ in range(n)]
-    for k in range(60):
-        zk = np.where(visible[k][:, None], z[k], np.nan)
-        acc = multi.update(zk, t[k])
-        for i in range(n):
-            assert singles[i].update(zk[i], t[k]) == acc[i]
-    est = multi.estimate(t[-1] + LATENCY)
+    visible = rng.random((60, n)) > 0.2
+    visible[0] = True
+    multi = MultiPointFilter(n, sigma_accel=sigma_a, sigma_meas=NOISE)
+    refs, t_ref = [], np.zeros(n)
     for i in range(n):
-        e = singles[i].estimate(t[-1] + LATENCY)
-        np.testing.assert_allclose(est.positions[i], e.position, atol=1e-12)
-        np.testing.assert_allclose(est.velocities[i], e.velocity, atol=1e-12)
-        np.testing.assert_allclose(est.covariances[i], e.covariance, atol=1e-15)
-        assert est.lost[i] == e.lost
-    assert multi.last_nis.shape == (n,)
+        kf = KalmanFilter(dim_x=6, dim_z=3)
+        kf.H = np.hstack((np.eye(3), np.zeros((3, 3))))
+        kf.R = np.eye(3) * NOISE**2
+        kf.x = np.concatenate((z[0, i], np.zeros(3))).reshape(6, 1)
+        kf.P = np.diag([NOISE**2] * 3 + [FilterParams().init_speed_sigma ** 2] * 3)
+        refs.append(kf)
+    for k in range(60):
+        acc = multi.update(np.where(visible[k][:, None], z[k], np.nan), t[k])
+        np.testing.assert_array_equal(acc, visible[k])
+        if k == 0:
+            continue
+        for i in np.flatnonzero(visible[k]):
+            dt = t[k] - t_ref[i]
+            refs[i].predict(F=cv_transition(dt), Q=Q_discrete_white_noise(2, dt, sigma_a**2, block_size=3,
+                                                                             order_by_dim=False))
+            refs[i].update(z[k, i].reshape(3, 1))
+            t_ref[i] = t[k]
+    assert multi.n_rejected.sum() == 0 and multi.n_reinit.sum() == 0
+    np.testing.assert_array_equal(multi.n_missed, (~visible).sum(axis=0))
+    np.testing.assert_array_equal(multi.n_accepted, visible.sum(axis=0))
+    t_read = t[-1] + LATENCY
+    est = multi.estimate(t_read)
+    for i in range(n):
+        F = cv_transition(t_read - t_ref[i])
+        x = F @ refs[i].x[:, 0]
+        P = F @ refs[i].P @ F.T + cv_process_noise(t_read - t_ref[i], sigma_a)
+        np.testing.assert_allclose(est.positions[i], x[:3], atol=1e-12)
+        np.testing.assert_allclose(est.velocities[i], x[3:], atol=1e-10)
+        np.testing.assert_allclose(est.covariances[i], P, rtol=1e-9, atol=1e-15)
+        assert not est.lost[i]
+
+
+def test_gating_and_reinitialisation_are_per_node() -> None:
+    n = 4
+    t = np.arange(20) / FPS
+    truth = np.stack([_constant_velocity(t) + 0.1 * i for i in range(n)], axis=1)
+    f = MultiPointFilter(n, sigma_accel=2.0)
+    for k in range(10):
+        assert f.update(truth[k], t[k]).all()
+    jumped = truth.copy()
+    jumped[10:, 1] += 0.5  # node 1 jumps (and keeps going), node 2 has one outlier
+    jumped[10, 2] += 0.5
+    np.testing.assert_array_equal(f.update(jumped[10], t[10]), [True, False, False, True])
+    np.testing.assert_array_equal(f.n_rejected, [0, 1, 1, 0])
+    assert f.last_nis[1] > f.gate_threshold and f.last_nis[0] < f.gate_threshold
+    # Node 1's second, agreeing rejection re-initialises it; node 2 is back on track.
+    np.testing.assert_array_equal(f.update(jumped[11], t[11]), [True, True, True, True])
+    np.testing.assert_array_equal(f.n_reinit, [0, 1, 0, 0])
+    np.testing.assert_allclose(f.estimate(t[11]).velocities[1], [0.6, 0.3, -0.4], atol=1e-9)
+
+
+def test_point_filter_is_the_filter_of_one_point() -> None:
+    f = PointFilter(LOOP_FILTER, max_coast_s=0.2)
+    assert isinstance(f.points, MultiPointFilter) and f.points.n == 1
+    assert f.params == FilterParams(sigma_accel=2000.0, max_coast_s=0.2)
+    rng = np.random.default_rng(6)
+    t = np.arange(20) / FPS
+    z = _sinusoid(t) + rng.normal(0, NOISE, (20, 3))
+    multi = MultiPointFilter(1, LOOP_FILTER, max_coast_s=0.2)
+    for k in range(20):
+        assert f.update(z[k], t[k]) is bool(multi.update(z[k][None], t[k])[0])
+    e, m = f.estimate(t[-1] + LATENCY), multi.estimate(t[-1] + LATENCY)
+    np.testing.assert_array_equal(e.position, m.positions[0])
+    np.testing.assert_array_equal(e.covariance, m.covariances[0])
+    assert isinstance(f.n_accepted, int) and f.n_accepted == 20 and isinstance(f.initialized, bool)
+
+
+def test_filter_params() -> None:
+    assert LOOP_FILTER.sigma_accel == 2000.0 and LATENT_LOOP_FILTER.sigma_accel == 20.0
+    three = FilterParams(sigma_accel=3).sigma_accel
+    assert three == 3.0 and isinstance(three, float)
+    px = FilterParams().scaled(500.0)
+    assert (px.sigma_accel, px.sigma_meas, px.init_speed_sigma, px.reinit_speed) == (1e4, 1.5, 1e3, 5e3)
+    assert (px.gate_prob, px.max_coast_s, px.history_s) == (0.997, 0.3, 0.5)
+    for bad in ({"sigma_accel": 0.0}, {"sigma_meas": -1.0}, {"gate_prob": 1.0}):
+        with pytest.raises(ValueError):
+            FilterParams(**bad)
+    with pytest.raises(TypeError):
+        MultiPointFilter(2, sigma_acel=1.0)
+    with pytest.raises(TypeError, match="by name"):
+        PointFilter(20.0)  # the old positional sigma_accel
 
 
 def test_multi_point_filter_uninitialised_nodes_are_nan() -> None:
