@@ -58,8 +58,10 @@ def main() -> int:
     parser.add_argument("--policy", default=None, help="policy (default: the demo's)")
     parser.add_argument("--out", default=None)
     args = parser.parse_args()
+    from dataclasses import replace
+
     from dyndlo_vision.control.episode import run_loop_episode
-    from dyndlo_vision.tracking import PointFilter
+    from dyndlo_vision.tracking import FilterParams, PointFilter
 
     name, env, act = pinned_demo_policy(args.policy)
     rows = []
@@ -75,7 +77,9 @@ def main() -> int:
                 t0 = time.perf_counter()
                 hits, rmse = 0, []
                 for i in range(args.episodes):
-                    base_filter = PointFilter(sigma_accel=sigma, max_coast_s=0.3 + 1e-3 * latency_ms)
+                    params = replace(FilterParams(), sigma_accel=sigma,
+                                     max_coast_s=FilterParams().max_coast_s + 1e-3 * latency_ms)
+                    base_filter = PointFilter(params)
                     point_filter = base_filter if read == "predict" else HoldAtCapture(base_filter)
                     r = run_loop_episode(env, act, args.seed + i, "tracked", "tracking",
                                          latency_s=1e-3 * latency_ms, point_filter=point_filter)
