@@ -1,6 +1,6 @@
 """How well ClockSync puts time.monotonic() on a robot driver's clock, against the fake EGM controller.
 
-The fake controller (``control.robots.FakeEgmController``) streams joint states over UDP on loopback with its
+The fake controller (``robots.FakeEgmController``) streams joint states over UDP on loopback with its
 own clock (seconds since it started), as a real ABB controller does; the driver (``EgmRobot``) reports that
 clock in ``state().t``. Every 40 ms (the loop's period) this reads the state and ``time.monotonic()``
 and feeds the pair to a ``ClockSync``, as ``TrackedState`` does. It prints the gap between the clocks, the

@@ -13,7 +13,7 @@ Why not ``ur-rtde``: its ``RTDEControlInterface(hostname, frequency, flags, ur_c
 registers whose meaning is private to that script; a fake controller on OS-chosen loopback ports would have to
 emulate ur-rtde's script rather than the robot, and ur-rtde holds the GIL while it connects, so it cannot talk
 to a fake in the same process. Writing the few RTDE packages ourselves keeps the test honest: the fake speaks
-RTDE itself (and ur-rtde's receive interface reads it, see tests/control/test_rtde.py).
+RTDE itself (and ur-rtde's receive interface reads it, see tests/robots/test_rtde.py).
 
 Robot side: :func:`servo_script` is a short URScript program, sent to the secondary interface (port 30002, the
 robot must be in remote control on e-Series), that reads the target joints from input registers and
