@@ -312,8 +312,9 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self.task.cable = cable  # type: ignore[attr-defined]
         obs_space, act_space = self.observation_space, self.action_space
         self._build_scene()
+        # Wrappers keep the spaces they saw; the spaces depend on the grippers and the actions, not the cable.
         if (self.observation_space, self.action_space) != (obs_space, act_space):
-            raise ValueError("a new cable changed the observation or action space")  # never for CableParams
+            raise RuntimeError("a new cable changed the observation or action space")
 
     def _plan(self, action: NDArray[np.float32]) -> None:
         a = np.asarray(action)
