@@ -281,3 +281,27 @@ def test_ctrl_c_with_subprocess_workers_exits_130_and_the_run_resumes(tmp_path: 
     assert done.returncode == 0, done.stdout + done.stderr
     assert budget <= json.loads(state.read_text())["num_timesteps"] < budget + 2
     assert (out / "model.zip").is_file()
+
+
+@pytest.mark.parametrize(
+    ("task", "algo"),
+    [("tip-control", "ppo"), ("vaulting", "ppo"), ("hooking", "ppo"), ("time-oscillation", "sac")],
+)
+def test_each_task_trains_with_the_papers_algorithm_by_default(
+    task: str, algo: str, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """Section V: PPO for tasks I-III, SAC for task IV; the run folder and the paper's budget follow."""
+    from dyndlo_vision.learning.config import load_hyperparams
+
+    seen: list[tuple[RunConfig, Path]] = []
+
+    def record(config: RunConfig, out: Path, **kwargs: Any) -> dict[str, Any]:
+        seen.append((config, out))
+        return {}
+
+    monkeypatch.setattr(train_module, "train", record)
+    monkeypatch.chdir(tmp_path)
+    assert main(["train", "--task", task, "--quiet"]) == 0
+    (config, out), = seen
+    assert config.algo == algo and out == Path(f"runs/{task}-{algo}-s0")
+    assert config.timesteps == load_hyperparams(algo, task, False)["n_timesteps"]  # the paper's budget
