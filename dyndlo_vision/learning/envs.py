@@ -17,7 +17,7 @@ MONITOR_KEYWORDS = ("is_success",)
 RANDOMIZE_CABLE_EVERY = 10
 
 
-def make_env(
+def make_training_env(
     config: RunConfig,
     monitor_file: Path | None = None,
     render_mode: str | None = None,
@@ -51,7 +51,7 @@ def env_factory(
     """A picklable thunk for SubprocVecEnv."""
 
     def thunk() -> gym.Env[Any, Any]:
-        return make_env(config, monitor_file, randomize=randomize, append_monitor=append_monitor)
+        return make_training_env(config, monitor_file, randomize=randomize, append_monitor=append_monitor)
 
     return thunk
 

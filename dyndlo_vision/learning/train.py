@@ -35,7 +35,7 @@ import numpy as np
 
 from dyndlo_vision._atomic import write_atomic
 from dyndlo_vision.learning.config import RunConfig
-from dyndlo_vision.learning.envs import make_env, make_vec_env
+from dyndlo_vision.learning.envs import make_training_env, make_vec_env
 from dyndlo_vision.policies import algorithm_class
 
 log = logging.getLogger(__name__)
@@ -144,7 +144,7 @@ def check_run(config: RunConfig, out: Path, resume: bool = False) -> RunConfig:
         ObservationNoiseModel.load(config.obs_noise)  # ValueError naming the file and what is wrong
     # One environment made here, in this process: a bad task option (or anything else an environment
     # refuses) is a clean ValueError now, instead of a dead worker process after the folder exists.
-    make_env(config).close()
+    make_training_env(config).close()
     return config
 
 
