@@ -26,7 +26,6 @@ from typing import Any
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import mujoco  # noqa: E402
-import numpy as np  # noqa: E402
 
 from dyndlo_vision.sim import CableParams, PhysicsOptions, Scene  # noqa: E402
 from dyndlo_vision.tasks import TipControl  # noqa: E402
@@ -112,7 +111,8 @@ def stage_profile(scene: Scene, controls: list) -> dict[str, float]:
     names = [n for n in dir(mujoco.mjtTimer) if n.startswith("mjTIMER_") and n != "mjNTIMER"]
     index = {n: int(getattr(mujoco.mjtTimer, n)) for n in names}
     total = d.timer[mujoco.mjtTimer.mjTIMER_STEP].duration
-    return {n.removeprefix("mjTIMER_"): d.timer[i].duration / total for n, i in sorted(index.items(), key=lambda x: x[1])
+    ordered = sorted(index.items(), key=lambda x: x[1])
+    return {n.removeprefix("mjTIMER_"): d.timer[i].duration / total for n, i in ordered
             if i < len(d.timer) and total > 0}
 
 

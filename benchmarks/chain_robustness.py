@@ -162,7 +162,8 @@ def main() -> None:
             results.append(r)
             print(f"| {args.model} | {task} | {mode} | {r['episodes']} | {r['diverged']} | "
                   f"{r['episodes_with_warnings']} | {r['warnings']} | {r['text_warnings']} | "
-                  f"{r['non_finite_steps']} | {r['max_decision_stretch_rel']:.2e} | {r['max_stretch_rel']:.2e} | "
+                  f"{r['non_finite_steps']} | {r['max_decision_stretch_rel']:.2e} | "
+                  f"{r['max_stretch_rel']:.2e} | "
                   f"{r['sim_s'] / r['cpu_s']:.1f} |", flush=True)
             if r["bad_seeds"]:
                 print(f"<!-- {task} {mode}: first bad seeds {r['bad_seeds']} -->", flush=True)

@@ -163,14 +163,14 @@ def main() -> None:
         ("rod 50 cm", replace(base, cable=rod), [], pos, vel),
     ]
     for integrator in args.chain_integrators:
-        variants.append((f"chain 50 cm {integrator}",
-                         replace(base, cable=chain, physics=PhysicsOptions(integrator=integrator)), [], pos, vel))
+        physics = PhysicsOptions(integrator=integrator)
+        config = replace(base, cable=chain, physics=physics)
+        variants.append((f"chain 50 cm {integrator}", config, [], pos, vel))
     paper_variants = [("paper 50 cm", ["--damping", str(paper_damping)], pos)]
     if args.paper_variants:
-        paper_variants += [("paper 50 cm, no self-contacts", ["--damping", str(paper_damping), "--no-selfcollide"],
-                            pos),
-                           ("paper 50 cm, discrete", ["--damping", str(paper_damping), "--integrator", "discrete"],
-                            pos)]
+        damping = ["--damping", str(paper_damping)]
+        paper_variants += [("paper 50 cm, no self-contacts", [*damping, "--no-selfcollide"], pos),
+                           ("paper 50 cm, discrete", [*damping, "--integrator", "discrete"], pos)]
     if args.long:
         long_chain, long_rod = paper_cable(0.9, model="chain"), paper_cable(0.9)
         high = replace(base, grippers_m=((0.45, 0.0, 1.2),))
@@ -240,7 +240,8 @@ def main() -> None:
             return ratio(a, b, "episodes_per_cpu_s")
         if "paper_episodes_per_cpu_s" in results[b][0] and "episodes_per_cpu_s" in results[a][0]:
             pairs_ = zip(results[a], results[b], strict=True)
-            value = statistics.median(x["episodes_per_cpu_s"] / y["paper_episodes_per_cpu_s"] for x, y in pairs_)
+            value = statistics.median(x["episodes_per_cpu_s"] / y["paper_episodes_per_cpu_s"]
+                                      for x, y in pairs_)
             return f"{value:.2f} (vs physics only)"
         return "-"
 

@@ -134,7 +134,9 @@ class ChainKinematics:
         self._scratch = mujoco.MjData(model)
         self._bodies = np.array([model.body(body_name(prefix, i)).id for i in range(num_segments)])
         # The compiled segment length (the MJCF carries 9 significant digits of segment_length_m).
-        compiled = model.body_pos[self._bodies[1]] if num_segments > 1 else np.array([0.0, 0.0, segment_length_m])
+        compiled = np.array([0.0, 0.0, segment_length_m])
+        if num_segments > 1:
+            compiled = model.body_pos[self._bodies[1]]
         if not np.allclose(compiled, [0.0, 0.0, segment_length_m], rtol=1e-8, atol=0.0):
             raise RuntimeError("each capsule must start at its parent's end, in its parent's orientation")
         self._end_local = compiled.copy()
