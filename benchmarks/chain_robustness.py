@@ -8,8 +8,10 @@ and counts:
 * MuJoCo warnings of every kind (``mjData.warning`` counters summed over the episode, and the text warnings
   MuJoCo issued, caught with ``mujoco.set_mju_user_warning``). MuJoCo resets a diverging simulation by itself
   (``auto-reset``), so a check of ``isfinite`` at the end alone would miss it;
-* stretch: the largest relative deviation of an edge (node to node) length from its rest length, over every
-  physics step of the episode (the C rollout's recorded states).
+* stretch: the largest relative deviation of an edge (node to node) length from its rest length, at every
+  40 ms decision (``env.unwrapped.cable_nodes()`` after each ``env.step``, the issue's measure) and over every
+  physics step of the episode (the C rollout's recorded states);
+* non-finite states: physics steps whose recorded state has a NaN or an infinity.
 
     python benchmarks/chain_robustness.py [--model chain] [--episodes 1000] [--tasks TipControl Hooking]
         [--modes single multi] [--damping S] [--integrator discrete] [--solver CG] [--json out.json]
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import platform
 import sys
@@ -35,7 +38,7 @@ import numpy as np  # noqa: E402
 from dyndlo_vision.sim import CableParams, PhysicsOptions, paper_cable  # noqa: E402
 from dyndlo_vision.tasks import make_env  # noqa: E402
 
-TASKS = ("TipControl", "TimeOscillation", "Hooking", "Vaulting")
+TASKS = ("tip-control", "time-oscillation", "hooking", "vaulting")
 _TEXT_WARNINGS: list[str] = []
 
 
@@ -50,7 +53,7 @@ def task_cable(task: str, model: str, damping: float | None, quadratic: float | 
         overrides["damping_s"] = damping
     if quadratic is not None:
         overrides["damping_quadratic_s2"] = quadratic
-    return paper_cable(0.9 if task == "Vaulting" else 0.5, **overrides)
+    return paper_cable(0.9 if task == "vaulting" else 0.5, **overrides)
 
 
 def make_physics(args: argparse.Namespace) -> PhysicsOptions | None:
@@ -66,11 +69,13 @@ class StretchProbe:
         self.scene = scene
         self.rest = scene.config.cable.segment_length_m
         self.max_rel = 0.0
+        self.non_finite = 0
         self._inner = scene.rollout
         scene.rollout = self._rollout
 
     def _rollout(self, controls: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
         qpos, qvel, finite = self._inner(controls)
+        self.non_finite += int(np.sum(~np.isfinite(qpos).all(axis=1) | ~np.isfinite(qvel).all(axis=1)))
         if finite:
             nodes = self.scene.nodes_from_qpos(qpos[:finite])
             edges = np.linalg.norm(np.diff(nodes, axis=1), axis=2)
@@ -84,11 +89,13 @@ def run(task: str, multi_step: bool, episodes: int, args: argparse.Namespace) ->
     options: dict[str, Any] = {"cable": cable, "multi_step": multi_step}
     if physics is not None:
         options["physics"] = physics
-    env = make_env(task, **options)
+    env = make_env(task, **options).unwrapped
     probe = StretchProbe(env.scene)
     rng = np.random.default_rng(args.seed)
     diverged, with_warnings, warnings_total, text_before = 0, 0, 0, len(_TEXT_WARNINGS)
     first_bad: list[int] = []
+    decision_stretch = 0.0
+    rest = cable.segment_length_m
     sim_s = 0.0
     start = time.perf_counter()
     cpu = time.thread_time()
@@ -103,6 +110,12 @@ def run(task: str, multi_step: bool, episodes: int, args: argparse.Namespace) ->
             action = rng.uniform(-1, 1, env.action_space.shape).astype(np.float32)
             _, _, terminated, truncated, info = env.step(action)
             done = terminated or truncated
+            nodes = env.unwrapped.cable_nodes()
+            if np.isfinite(nodes).all():
+                edges = np.linalg.norm(np.diff(nodes, axis=0), axis=1)
+                decision_stretch = max(decision_stretch, float(np.abs(edges / rest - 1.0).max()))
+            else:
+                decision_stretch = math.inf
         sim_s += info["sim_time_s"]
         n_warn = int(sum(d.warning[i].number for i in range(len(d.warning))))
         warnings_total += n_warn
@@ -115,7 +128,8 @@ def run(task: str, multi_step: bool, episodes: int, args: argparse.Namespace) ->
         "task": task, "mode": "multi" if multi_step else "single", "episodes": episodes,
         "diverged": diverged, "episodes_with_warnings": with_warnings, "warnings": warnings_total,
         "text_warnings": len(_TEXT_WARNINGS) - text_before, "bad_seeds": first_bad,
-        "max_stretch_rel": probe.max_rel, "sim_s": sim_s, "wall_s": time.perf_counter() - start,
+        "max_stretch_rel": probe.max_rel, "max_decision_stretch_rel": decision_stretch,
+        "non_finite_steps": probe.non_finite, "sim_s": sim_s, "wall_s": time.perf_counter() - start,
         "cpu_s": time.thread_time() - cpu, "cable": repr(cable), "physics": repr(env.scene.config.physics),
     }
 
@@ -138,17 +152,19 @@ def main() -> None:
     mujoco.set_mju_user_warning(_count_warning)
     print(f"# {platform.machine()}, {os.cpu_count()} cpus; mujoco {mujoco.__version__}; "
           f"{' '.join(sys.argv[1:])}", flush=True)
-    print("| task | mode | episodes | diverged | episodes with warnings | warnings | max stretch | "
-          "sim-s / CPU-s |")
-    print("|---|---|---|---|---|---|---|---|", flush=True)
+    print("| model | task | mode | episodes | diverged | episodes with warnings | warnings | text warnings | "
+          "non-finite steps | max stretch at decisions | max stretch, every step | sim-s / CPU-s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|", flush=True)
     results = []
     for task in args.tasks:
         for mode in args.modes:
             r = run(task, mode == "multi", args.episodes, args)
             results.append(r)
-            print(f"| {task} | {mode} | {r['episodes']} | {r['diverged']} | {r['episodes_with_warnings']} | "
-                  f"{r['warnings']} | {r['max_stretch_rel']:.1e} | {r['sim_s'] / r['cpu_s']:.1f} |",
-                  flush=True)
+            print(f"| {args.model} | {task} | {mode} | {r['episodes']} | {r['diverged']} | "
+                  f"{r['episodes_with_warnings']} | {r['warnings']} | {r['text_warnings']} | "
+                  f"{r['non_finite_steps']} | {r['max_decision_stretch_rel']:.2e} | "
+                  f"{r['max_stretch_rel']:.2e} | "
+                  f"{r['sim_s'] / r['cpu_s']:.1f} |", flush=True)
             if r["bad_seeds"]:
                 print(f"<!-- {task} {mode}: first bad seeds {r['bad_seeds']} -->", flush=True)
     if args.json:

@@ -39,33 +39,35 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
-from dyndlo_vision.sim import CableParams, Scene, SceneConfig, paper_cable  # noqa: E402
+from dyndlo_vision.sim import CableParams, PhysicsOptions, Scene, SceneConfig, paper_cable  # noqa: E402
 from dyndlo_vision.tasks import TipControl, make_env  # noqa: E402
 from dyndlo_vision.trajectory import BSplineTrajectory  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 
 
-def tip_control_plans(episodes: int, settle_s: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """TCP displacement and velocity (S, K, 3) at every step of random tip-control single-step plans."""
+def tip_control_actions(episodes: int, size: int) -> list[np.ndarray]:
+    """The random tip-control single-step action of episode ``seed`` (the same for every model)."""
+    return [np.random.default_rng(seed).uniform(-1, 1, size) for seed in range(episodes)]
+
+
+def tip_control_plans(episodes: int, settle_s: float, dt: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """TCP displacement and velocity (K, 3) at every step of random tip-control single-step plans, each as
+    long as its episode (the plan and the task's settle)."""
     task = TipControl()
     spec = task.action_spec()
     home = np.asarray(task.scene_config().grippers_m[0], dtype=float)
     pos, vel = [], []
-    for seed in range(episodes):
-        rng = np.random.default_rng(seed)
-        points, times = spec.decode(rng.uniform(-1, 1, spec.size), home, 0.0, None)
+    for action in tip_control_actions(episodes, spec.size):
+        points, times = spec.decode(action, home, 0.0, None)
         plan = BSplineTrajectory(points, times)
         t = dt * np.arange(int(round((plan.t_end + settle_s) / dt)))
         pos.append(plan.position(t) - home)
         vel.append(plan.velocity(t))
-    n = max(len(p) for p in pos)
-    pad = [np.vstack([p, np.repeat(p[-1:], n - len(p), axis=0)]) for p in pos]
-    padv = [np.vstack([v, np.zeros((n - len(v), 3))]) for v in vel]
-    return np.stack(pad), np.stack(padv)
+    return pos, vel
 
 
-def time_scene(config: SceneConfig, pos: np.ndarray, vel: np.ndarray) -> dict[str, float]:
+def time_scene(config: SceneConfig, pos: list[np.ndarray], vel: list[np.ndarray]) -> dict[str, float]:
     """CPU/wall time of the same motions with ``mj_step`` from Python and with the C rollout."""
     scene = Scene(config)
     home = scene.gripper_home[0]
@@ -94,16 +96,17 @@ def time_scene(config: SceneConfig, pos: np.ndarray, vel: np.ndarray) -> dict[st
             "warnings": warnings, "rollout_resets": resets, "nv": m.nv}
 
 
-def time_episodes(cable: CableParams, episodes: int) -> dict[str, float]:
-    """Tip-control single-step episodes with random actions (the same seeds for every cable)."""
-    env = make_env("TipControl", cable=cable)
-    rng = np.random.default_rng(0)
+def time_episodes(config: SceneConfig, episodes: int) -> dict[str, float]:
+    """Tip-control single-step episodes with random actions: the same actions as the motions of
+    :func:`tip_control_plans` (reset, plan, simulate, observe, reward)."""
+    env = make_env("tip-control", cable=config.cable, physics=config.physics).unwrapped
+    actions = tip_control_actions(episodes, env.action_space.shape[0])
     sim_s = 0.0
     diverged = 0
     wall, cpu = time.perf_counter(), time.thread_time()
     for seed in range(episodes):
         env.reset(seed=seed)
-        _, _, _, _, info = env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
+        _, _, _, _, info = env.step(actions[seed].astype(np.float32))
         sim_s += info["sim_time_s"]
         diverged += bool(info.get("diverged"))
     cpu, wall = time.thread_time() - cpu, time.perf_counter() - wall
@@ -120,7 +123,10 @@ def time_paper(python: str, refs: Path, extra: list[str]) -> dict[str, Any]:
             "rollout_sim_per_cpu_s": r["sim_s"] / r["rollout_cpu_s"][0],
             "rollout_sim_per_wall_s": r["sim_s"] / r["rollout_wall_s"][0],
             "warnings": r["warnings_python"][0], "rollout_resets": r["rollout_resets"][0],
-            "nv": r["model"]["nv"], "mujoco": r["mujoco"]}
+            "nv": r["model"]["nv"], "mujoco": r["mujoco"],
+            # physics only (no planning, observation or reward): the paper model's best case
+            "paper_episodes_per_cpu_s": r["episodes"] / r["rollout_cpu_s"][0],
+            "paper_episodes_per_cpu_s_python": r["episodes"] / r["python_cpu_s"][0]}
 
 
 def median(rows: list[dict[str, Any]], key: str) -> float:
@@ -137,6 +143,10 @@ def main() -> None:
                         help="joint damping of the paper model, N m s/rad (5e-4: the probe's value; lower "
                              "values diverge under random whips at 1 ms)")
     parser.add_argument("--long", action="store_true", help="also the 90 cm / 60-body cable")
+    parser.add_argument("--chain-integrators", nargs="*", default=[],
+                        help="also the 50 cm chain under these integrators (e.g. implicitfast Euler)")
+    parser.add_argument("--paper-variants", action="store_true",
+                        help="also the paper model without self-contacts and with the discrete integrator")
     parser.add_argument("--json")
     args = parser.parse_args()
     mujoco.set_mju_user_warning(lambda text: None)
@@ -148,11 +158,19 @@ def main() -> None:
     tip = TipControl()
     base = tip.scene_config()
     pos, vel = tip_control_plans(args.episodes, tip.settle_s, 0.001)
-    variants: list[tuple[str, SceneConfig | None, list[str], np.ndarray, np.ndarray]] = [
+    variants: list[tuple[str, SceneConfig | None, list[str], list[np.ndarray], list[np.ndarray]]] = [
         ("chain 50 cm", replace(base, cable=chain), [], pos, vel),
         ("rod 50 cm", replace(base, cable=rod), [], pos, vel),
     ]
+    for integrator in args.chain_integrators:
+        physics = PhysicsOptions(integrator=integrator)
+        config = replace(base, cable=chain, physics=physics)
+        variants.append((f"chain 50 cm {integrator}", config, [], pos, vel))
     paper_variants = [("paper 50 cm", ["--damping", str(paper_damping)], pos)]
+    if args.paper_variants:
+        damping = ["--damping", str(paper_damping)]
+        paper_variants += [("paper 50 cm, no self-contacts", [*damping, "--no-selfcollide"], pos),
+                           ("paper 50 cm, discrete", [*damping, "--integrator", "discrete"], pos)]
     if args.long:
         long_chain, long_rod = paper_cable(0.9, model="chain"), paper_cable(0.9)
         high = replace(base, grippers_m=((0.45, 0.0, 1.2),))
@@ -163,13 +181,17 @@ def main() -> None:
     results: dict[str, list[dict[str, Any]]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         refs = Path(tmp) / "refs.npz"
-        np.savez(refs, pos=pos)
+        lengths = np.array([len(p) for p in pos])
+        padded = np.zeros((len(pos), lengths.max(), 3))
+        for i, p in enumerate(pos):
+            padded[i, :len(p)] = p
+        np.savez(refs, pos=padded, lengths=lengths)
         for r in range(args.rounds):
             for name, config, _, p, v in variants:
                 assert config is not None
                 row = time_scene(config, p, v)
-                if name.endswith("50 cm"):
-                    row.update(time_episodes(config.cable, args.episodes))
+                if "50 cm" in name:
+                    row.update(time_episodes(config, args.episodes))
                 results.setdefault(name, []).append(row)
             if args.paper_python:
                 for name, extra, _ in paper_variants:
@@ -178,13 +200,17 @@ def main() -> None:
             print(f"# round {r + 1}: {done}", flush=True)
 
     print(f"\nMedians over {args.rounds} rounds of {args.episodes} tip-control plans "
-          f"({pos.shape[1] * args.episodes / 1000:.0f} simulated s per measurement):\n")
+          f"({sum(len(p) for p in pos) / 1000:.0f} simulated s per measurement):\n")
     print("| model | nv | mj_step CPU us/step | (wall) | C rollout sim-s per CPU-s | (per wall-s) | "
           "env episodes per CPU-s | env sim-s per CPU-s | warnings / resets / diverged |")
     print("|---|---|---|---|---|---|---|---|---|")
     for name, rows in results.items():
-        env = (f"{median(rows, 'episodes_per_cpu_s'):.2f} | {median(rows, 'env_sim_per_cpu_s'):.1f}"
-               if "episodes_per_cpu_s" in rows[0] else "- | -")
+        if "episodes_per_cpu_s" in rows[0]:
+            env = f"{median(rows, 'episodes_per_cpu_s'):.2f} | {median(rows, 'env_sim_per_cpu_s'):.1f}"
+        elif "paper_episodes_per_cpu_s" in rows[0]:
+            env = f"({median(rows, 'paper_episodes_per_cpu_s'):.2f}, physics only) | -"
+        else:
+            env = "- | -"
         print(f"| {name} | {rows[0]['nv']} | {median(rows, 'step_cpu_us'):.1f} | "
               f"{median(rows, 'step_wall_us'):.1f} | {median(rows, 'rollout_sim_per_cpu_s'):.1f} | "
               f"{median(rows, 'rollout_sim_per_wall_s'):.1f} | {env} | "
@@ -203,8 +229,24 @@ def main() -> None:
     pairs = [("chain 50 cm", "rod 50 cm"), ("chain 50 cm", "paper 50 cm"), ("rod 50 cm", "paper 50 cm")]
     if args.long:
         pairs += [("chain 90 cm", "rod 90 cm"), ("chain 90 cm", "paper 90 cm")]
+    pairs += [(f"chain 50 cm {i}", "chain 50 cm") for i in args.chain_integrators]
+    if args.paper_variants:
+        pairs += [("chain 50 cm", "paper 50 cm, no self-contacts"), ("chain 50 cm", "paper 50 cm, discrete")]
+
+    def env_ratio(a: str, b: str) -> str:
+        if a not in results or b not in results:
+            return "-"
+        if "episodes_per_cpu_s" in results[b][0]:
+            return ratio(a, b, "episodes_per_cpu_s")
+        if "paper_episodes_per_cpu_s" in results[b][0] and "episodes_per_cpu_s" in results[a][0]:
+            pairs_ = zip(results[a], results[b], strict=True)
+            value = statistics.median(x["episodes_per_cpu_s"] / y["paper_episodes_per_cpu_s"]
+                                      for x, y in pairs_)
+            return f"{value:.2f} (vs physics only)"
+        return "-"
+
     for a, b in pairs:
-        env = ratio(a, b, "episodes_per_cpu_s") if "episodes_per_cpu_s" in results.get(b, [{}])[0] else "-"
+        env = env_ratio(a, b)
         print(f"| {a} / {b} | {ratio(b, a, 'step_cpu_us')} | {ratio(a, b, 'rollout_sim_per_cpu_s')} | "
               f"{env} |")
     if args.json:

@@ -9,8 +9,9 @@ MuJoCo 3 and stays out of the package (it imports nothing from ``dyndlo_vision``
     taskset -c 1 /tmp/mj3/bin/python benchmarks/paper_model_speed.py --refs refs.npz [--repeats 5]
 
 ``--refs`` is an ``.npz`` with ``pos`` (S, K, 3) TCP displacements from home, one row per 1 ms step, for S
-episodes (``benchmarks/chain_speed.py`` writes it from random tip-control plans, so the three models follow
-the same motions); without it one planar whip is used. Per repeat it reports the wall and CPU (thread) time
+episodes, and optionally ``lengths`` (S,): episode s uses its first ``lengths[s]`` rows
+(``benchmarks/chain_speed.py`` writes it from random tip-control plans, so the three models follow the same
+motions); without it one planar whip is used. Per repeat it reports the wall and CPU (thread) time
 of stepping every episode with ``mj_step`` from Python and with MuJoCo's C rollout (``mujoco.rollout``), and
 it counts MuJoCo's warnings (a diverging simulation is reset by MuJoCo and only shows there).
 """
@@ -102,7 +103,13 @@ def main() -> None:
     args = parser.parse_args()
 
     mujoco.set_mju_user_warning(lambda text: None)  # counted from mjData.warning instead of printed
-    refs = np.load(args.refs)["pos"] if args.refs else whip()
+    if args.refs:
+        data = np.load(args.refs)
+        refs = list(data["pos"])
+        if "lengths" in data:  # padded episodes of different lengths
+            refs = [r[:n] for r, n in zip(refs, data["lengths"], strict=True)]
+    else:
+        refs = list(whip())
     xml = paper_mjcf(home=tuple(args.home), length=args.length, bodies=args.bodies, damping=args.damping,
                      integrator=args.integrator, selfcollide=not args.no_selfcollide)
     m = mujoco.MjModel.from_xml_string(xml)

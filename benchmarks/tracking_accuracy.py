@@ -752,7 +752,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.fit_out is not None and args.fit_pipeline not in {p.name for p in pipelines}:
         raise SystemExit(f"--fit-pipeline {args.fit_pipeline!r} is not among the pipelines run")
     sweep = [float(s) for s in args.sigma_sweep.split(",") if s.strip()]
-    env = make_env("TipControl")
+    env = make_env("tip-control").unwrapped
     env.reset(seed=args.seed)
     try:
         camera = MujocoCamera(env.model, env.data, CAMERA, *env.scene.config.image_size, fps=25.0)

@@ -13,6 +13,11 @@ from pathlib import Path
 
 import pytest
 
+# Choose MuJoCo's off-screen GL backend before any test module imports ``mujoco`` itself: MuJoCo reads
+# MUJOCO_GL once, at its first import (tests/sim/test_chain.py imported it first, and rendering later in the
+# same process failed with "an OpenGL platform library has not been loaded").
+import dyndlo_vision  # noqa: E402,F401
+
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 EXTERNAL_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "external"

@@ -18,7 +18,9 @@ Elasticity per joint (discrete elastic rod energy with Voronoi length = segment 
   whip the cable's tip at tens of m/s (docs/CHAIN.md).
 
 Integrator: the scenes' default, ``discrete`` at 1 ms (implicit in the joint springs, so the stiff twist DOFs,
-about 1000 rad/s, need no armature); ``implicitfast`` also works and is about 10 % faster per step.
+about 1000 rad/s, need no armature). ``implicitfast`` is 1.01-1.07x faster per step but diverged more often
+under random actions (73 of 300 task IV multi-step episodes against 3; docs/RESULTS.md, issue 15). The scene
+uses the dense constraint Jacobian for the chain (``PhysicsOptions.jacobian``; same physics, 1.1-1.3x).
 
 Capsules collide with the floor and the props but not with each other (contype 2, conaffinity 1; the props
 have MuJoCo's default 1/1).
@@ -75,7 +77,7 @@ def chain_bodies_mjcf(cable: CableParams, prefix: str, quat: Sequence[float], in
     if cable.damping_quadratic_s2 > 0:
         damping += f" {cable.damping_quadratic_s2 * k_bend:.9g}"
     geom = (
-        f'type="capsule" fromto="0 0 0 0 0 {seg:.9g}" size="{cable.radius_m:.9g}" mass="{mass:.9g}" '
+        f'type="capsule" fromto="0 0 0 0 0 {seg:.17g}" size="{cable.radius_m:.9g}" mass="{mass:.9g}" '
         f'rgba="{_fmt(cable.rgba)}" contype="{CABLE_CONTYPE}" conaffinity="{CABLE_CONAFFINITY}" condim="3" '
         f'friction="0.6" solref="0.005 1"'
     )
@@ -86,7 +88,7 @@ def chain_bodies_mjcf(cable: CableParams, prefix: str, quat: Sequence[float], in
             head = f'{pad}<body name="{body_name(prefix, 0)}" quat="{_fmt(quat)}">'
         else:
             head = (
-                f'{pad}<body name="{body_name(prefix, i)}" pos="0 0 {seg:.9g}">\n'
+                f'{pad}<body name="{body_name(prefix, i)}" pos="0 0 {seg:.17g}">\n'
                 f'{pad}  <joint name="{joint_name(prefix, i)}" type="ball" stiffness="{k_bend:.9g}" '
                 f'damping="{damping}"/>'
             )
@@ -131,7 +133,13 @@ class ChainKinematics:
         self.model = model
         self._scratch = mujoco.MjData(model)
         self._bodies = np.array([model.body(body_name(prefix, i)).id for i in range(num_segments)])
-        self._end_local = np.array([0.0, 0.0, segment_length_m])
+        # The compiled segment length (the MJCF carries 9 significant digits of segment_length_m).
+        compiled = np.array([0.0, 0.0, segment_length_m])
+        if num_segments > 1:
+            compiled = model.body_pos[self._bodies[1]]
+        if not np.allclose(compiled, [0.0, 0.0, segment_length_m], rtol=1e-8, atol=0.0):
+            raise RuntimeError("each capsule must start at its parent's end, in its parent's orientation")
+        self._end_local = compiled.copy()
         tcp = model.body(tcp_body)
         if model.body_parentid[tcp.id] != 0 or np.any(model.body_quat[tcp.id] != [1, 0, 0, 0]):
             raise RuntimeError("the chain's TCP must be a world child with identity orientation")

@@ -8,6 +8,7 @@ _INTEGRATORS = ("discrete", "Euler", "RK4", "implicitfast", "implicit")
 #: Integrators MuJoCo 4 accepts for 1D rod (flex) elasticity; the chain cable takes every integrator.
 ROD_INTEGRATORS = ("discrete", "Euler", "RK4")
 _SOLVERS = ("Newton", "CG")
+_JACOBIANS = ("dense", "sparse", "auto")
 
 
 @dataclass(frozen=True)
@@ -36,6 +37,10 @@ class PhysicsOptions:
             (``Euler`` at 1 ms in 7 of 20 random tip-control episodes). 1e-8 removes that (0 of 20) and
             leaves planar motion unchanged; 3D motion changes a little (benchmarks/twist_armature.py,
             docs/RESULTS.md). 0 (default): MuJoCo's own.
+        jacobian: Constraint Jacobian storage, ``"dense"``, ``"sparse"`` or ``"auto"`` (MuJoCo's: dense below
+            60 DOFs). None (default): ``"dense"`` for the chain cable (the same physics, and measured 1.1-1.3x
+            faster in every task scene, where the chain's 60 to 180 DOFs make ``auto`` pick sparse:
+            benchmarks/chain_profile.py, docs/CHAIN.md), ``"auto"`` for the rod.
     """
 
     timestep_s: float = 0.001
@@ -44,8 +49,11 @@ class PhysicsOptions:
     iterations: int = 50
     tolerance: float = 1e-8
     twist_armature_kg_m2: float = 0.0
+    jacobian: str | None = None
 
     def __post_init__(self) -> None:
+        if self.jacobian is not None and self.jacobian not in _JACOBIANS:
+            raise ValueError(f"jacobian={self.jacobian!r}; expected one of {_JACOBIANS} or None")
         if self.integrator not in _INTEGRATORS:
             raise ValueError(
                 f"integrator={self.integrator!r} is not supported; expected one of {_INTEGRATORS}"
@@ -59,10 +67,11 @@ class PhysicsOptions:
         if not 0.0 <= self.twist_armature_kg_m2 <= 1e-3:
             raise ValueError(f"twist_armature_kg_m2={self.twist_armature_kg_m2} is outside [0, 1e-3] kg m^2")
 
-    def to_mjcf(self) -> str:
-        """Return the ``<option .../>`` attributes as an MJCF string."""
+    def to_mjcf(self, cable_model: str = "rod") -> str:
+        """Return the ``<option .../>`` attributes as an MJCF string (for a cable of ``cable_model``)."""
+        jacobian = self.jacobian or ("dense" if cable_model == "chain" else "auto")
         return (
             f'timestep="{self.timestep_s}" integrator="{self.integrator}" solver="{self.solver}" '
             f'iterations="{self.iterations}" ls_iterations="{max(5, self.iterations // 2)}" '
-            f'tolerance="{self.tolerance}"'
+            f'tolerance="{self.tolerance}" jacobian="{jacobian}"'
         )

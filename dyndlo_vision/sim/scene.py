@@ -242,7 +242,7 @@ def build_mjcf(config: SceneConfig) -> str:
     world_bodies = "".join(bodies) + flex + "".join(props)
     return f"""<mujoco model="dyndlo">
   <compiler autolimits="true"/>
-  <option {config.physics.to_mjcf()}/>
+  <option {config.physics.to_mjcf(cable.model)}/>
   <visual>
     <global offwidth="{width}" offheight="{height}"/>
     <headlight ambient="0.35 0.35 0.35" diffuse="0.5 0.5 0.5"/>

@@ -120,6 +120,11 @@ def build_task_env(
 ) -> DynDLOEnv:
     """The bare environment of ``task`` with task ``options`` (Gymnasium's entry point for the ids).
 
+    The ``cable`` option takes a :class:`~dyndlo_vision.sim.CableParams`, or, so that it can be given on the
+    command line (``--env-option cable=chain``), a cable model name (``"rod"``, ``"chain"``) or a mapping of
+    ``CableParams`` fields: either changes the task's own nominal cable (its length and segments kept; the
+    damping becomes the new model's default unless given).
+
     Raises:
         ValueError: For an unknown task or option, naming the valid ones.
     """
@@ -128,7 +133,26 @@ def build_task_env(
     unknown = sorted(set(options) - set(valid))
     if unknown:
         raise ValueError(f"unknown option(s) {unknown} for {task}; valid options: {valid + ['render_mode']}")
+    cable = options.get("cable")
+    if isinstance(cable, str | dict):
+        options = {**options, "cable": _task_cable(entry.task_class, options, cable)}
     return DynDLOEnv(entry.task_class(**options), render_mode=render_mode, render_camera=render_camera)
+
+
+def _task_cable(cls: type[Task], options: dict[str, Any], change: str | dict[str, Any]) -> Any:
+    """The task's nominal cable with a new model (a name) or new fields (a mapping)."""
+    from dataclasses import replace
+
+    changes = {"model": change} if isinstance(change, str) else dict(change)
+    nominal = cls(**{k: v for k, v in options.items() if k != "cable"}).cable  # type: ignore[attr-defined]
+    if "model" in changes and changes["model"] != nominal.model:
+        # the model's own damping defaults, unless given
+        changes.setdefault("damping_s", None)
+        changes.setdefault("damping_quadratic_s2", None)
+    try:
+        return replace(nominal, **changes)
+    except TypeError as exc:
+        raise ValueError(f"cable option {change!r}: {exc}") from exc
 
 
 def make_env(

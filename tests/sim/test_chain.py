@@ -39,6 +39,17 @@ def test_chain_structure_and_nodes() -> None:
     np.testing.assert_allclose(_edge_lengths(nodes), cable.segment_length_m, rtol=1e-12)
 
 
+@pytest.mark.parametrize("length", [0.4637291, 0.5123456789])
+def test_any_length_builds_with_exact_edges(length: float) -> None:
+    """Randomised cables (evaluate --randomize-cable) have lengths with many digits: the scene builds and
+    its edges are the segment length to rounding error."""
+    cable = _chain(length_m=length)
+    scene = Scene(SceneConfig(cable=cable, settle_s=0.0))
+    batch = scene.nodes_from_qpos(scene.data.qpos[None])[0]
+    np.testing.assert_allclose(_edge_lengths(scene.cable_nodes()), cable.segment_length_m, rtol=1e-14)
+    np.testing.assert_allclose(_edge_lengths(batch), cable.segment_length_m, rtol=1e-14)
+
+
 def test_batched_kinematics_match_mujoco() -> None:
     """``nodes_from_qpos`` (NumPy, for batches) and ``cable_nodes`` (MuJoCo) agree at random poses."""
     scene = Scene(SceneConfig(cable=_chain(), settle_s=0.0))

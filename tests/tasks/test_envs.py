@@ -126,6 +126,23 @@ def test_unknown_option_is_rejected() -> None:
         gym.make("DynDLO/TimeOscillation-v0", target="sideways")
 
 
+def test_cable_option_takes_a_model_name_or_fields() -> None:
+    """``--env-option cable=chain``: the task's own cable (length, segments) in the other model, with that
+    model's default damping; a mapping changes fields; a bad field is named."""
+    from dyndlo_vision.sim import CableParams
+
+    env = gym.make("DynDLO/Vaulting-v0", cable="chain").unwrapped
+    nominal = gym.make("DynDLO/Vaulting-v0").unwrapped.task.cable
+    cable = env.task.cable
+    assert cable.model == "chain"
+    assert (cable.length_m, cable.num_segments) == (nominal.length_m, nominal.num_segments)
+    assert cable.damping_s == CableParams(model="chain").damping_s
+    cable = gym.make("DynDLO/TipControl-v0", cable={"model": "chain", "damping_s": 0.01}).unwrapped.task.cable
+    assert (cable.model, cable.damping_s) == ("chain", 0.01)
+    with pytest.raises(ValueError, match="cable"):
+        gym.make("DynDLO/TipControl-v0", cable={"stiffness": 1})
+
+
 def test_goal_is_randomised_within_20cm() -> None:
     env = gym.make("DynDLO/TipControl-v0").unwrapped
     goals = np.array([env.reset(seed=s)[1]["goal"] for s in range(50)])
