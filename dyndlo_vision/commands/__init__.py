@@ -12,4 +12,5 @@ COMMANDS: dict[str, str] = {
     "plot": "plot",
     "train": "train",
     "distill": "distill",
+    "seg-data": "seg_data",
 }
