@@ -85,10 +85,30 @@ def _random_colour(rng: np.random.Generator) -> NDArray[np.float32]:
     return rng.uniform(0, 255, 3).astype(np.float32)
 
 
+def _splatter(rng: np.random.Generator, img: NDArray[np.float32]) -> None:
+    """Paint drips and splashes: thin strokes of varying width, jagged turns and dots (not cables: a cable
+    keeps its width and bends smoothly)."""
+    h, w = img.shape[:2]
+    palette = [_random_colour(rng) for _ in range(int(rng.integers(2, 6)))]
+    for _ in range(int(rng.integers(30, 250))):
+        col = tuple(float(c) for c in palette[int(rng.integers(len(palette)))])
+        p = np.array([rng.uniform(0, w), rng.uniform(0, h)])
+        heading = float(rng.uniform(0, 2 * math.pi))
+        for _ in range(int(rng.integers(1, 25))):
+            heading += float(rng.normal(0, 0.7))
+            q = p + float(rng.uniform(1, 8)) * np.array([math.cos(heading), math.sin(heading)])
+            th = int(rng.integers(1, 5))
+            cv2.line(img, (int(p[0]), int(p[1])), (int(q[0]), int(q[1])), col, th, cv2.LINE_AA)
+            if rng.random() < 0.15:
+                cv2.circle(img, (int(q[0]), int(q[1])), int(rng.integers(1, 5)), col, -1, cv2.LINE_AA)
+            p = q
+
+
 def procedural_background(rng: np.random.Generator, h: int, w: int) -> NDArray[np.uint8]:
     """A random textured or cluttered background (H, W, 3) uint8 RGB."""
     kind = rng.choice(
-        ["plain", "noise", "stripes", "checker", "wood", "clutter"], p=[0.12, 0.2, 0.14, 0.12, 0.17, 0.25]
+        ["plain", "noise", "stripes", "checker", "wood", "clutter", "splatter"],
+        p=[0.1, 0.16, 0.12, 0.1, 0.14, 0.2, 0.18],
     )
     c1, c2 = _random_colour(rng), _random_colour(rng)
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
@@ -111,7 +131,7 @@ def procedural_background(rng: np.random.Generator, h: int, w: int) -> NDArray[n
         warp = _value_noise(rng, h, w, 3) * float(rng.uniform(10, 60))
         t = 0.5 + 0.5 * np.sin(2 * math.pi * (proj + warp) / float(rng.uniform(5, 30)))
         t = t ** float(rng.uniform(0.5, 2.0))
-    else:  # clutter: shapes on noise
+    else:  # clutter (shapes) or splatter (paint drips) on noise
         t = _value_noise(rng, h, w, 3) * 0.4
     img = c1[None, None, :] * (1 - t[..., None]) + c2[None, None, :] * t[..., None]
     if kind == "clutter" or rng.random() < 0.3:
@@ -136,6 +156,8 @@ def procedural_background(rng: np.random.Generator, h: int, w: int) -> NDArray[n
                     -1,
                     cv2.LINE_AA,
                 )
+    if kind == "splatter" or rng.random() < 0.1:
+        _splatter(rng, img)
     img += (
         rng.normal(0, float(rng.uniform(0, 10)), (h, w, 1)).astype(np.float32)
         * _value_noise(rng, h, w, 2)[..., None]
