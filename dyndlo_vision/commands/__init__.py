@@ -13,4 +13,5 @@ COMMANDS: dict[str, str] = {
     "train": "train",
     "distill": "distill",
     "seg-data": "seg_data",
+    "seg-train": "seg_train",
 }
