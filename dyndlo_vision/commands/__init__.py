@@ -14,4 +14,5 @@ COMMANDS: dict[str, str] = {
     "distill": "distill",
     "seg-data": "seg_data",
     "seg-train": "seg_train",
+    "segment": "segment",
 }
