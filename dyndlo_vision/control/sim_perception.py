@@ -34,6 +34,9 @@ LOOP_SIGMA_ACCEL = 2000.0
 # badly: at sigma_accel 2000 the estimate's p95 error per episode is 168 mm (40 ms) and 551 mm (80 ms), at
 # 20 it is 93 and 160 mm with the lowest medians too (benchmarks/camera_latency.py, 20 episodes per row).
 LATENT_LOOP_SIGMA_ACCEL = 20.0
+#: Segmenters the loop can use: the classical background segmenter against the scene rendered without the
+#: cable (default), or the shipped learned CNN (no background image needed).
+LOOP_SEGMENTERS = ("background", "learned")
 #: Longest simulated camera latency (s): beyond a quarter second the loop re-plans on a past the cable has
 #: long left.
 MAX_LATENCY_S = 0.25
@@ -94,24 +97,31 @@ def pixels_per_metre(camera: Any, point: NDArray[np.float64], plane: Plane = MOT
 
 def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFilter | None = None,
                   width: int = 640, height: int = 480,
-                  latency_s: float = 0.0) -> tuple[TrackedState, MujocoCamera]:
+                  latency_s: float = 0.0, segmenter: str = "background") -> tuple[TrackedState, MujocoCamera]:
     """A :class:`TrackedState` on a MuJoCo camera of ``env`` (call after ``env.reset``).
 
     The background image is rendered now, with the cable hidden, so call it at the start of an episode. With
     ``latency_s`` > 0 the tracker sees each frame that long after it was rendered (:class:`DelayedCamera`)
     and the filter predicts across the delay. The camera returned renders the present (for videos).
+    ``segmenter`` is one of :data:`LOOP_SEGMENTERS`; either way the gripper is masked by its projected pose.
     """
+    if segmenter not in LOOP_SEGMENTERS:
+        raise ValueError(f"segmenter={segmenter!r}; expected one of {list(LOOP_SEGMENTERS)}")
     if checked_latency_s(latency_s) > MAX_LATENCY_S:
         raise ValueError(f"latency_s must be at most {MAX_LATENCY_S} s, got {latency_s!r}")
     base = as_sim_env(env)
     mujoco.mj_forward(base.model, base.data)
     camera = MujocoCamera(base.model, base.data, camera_name, width=width, height=height)
     calib = camera.calibration
-    background = render_without_cable(camera)
     home = base.scene.gripper_home[0]
     scale = pixels_per_metre(calib, home)
-    segmenter = GripperMaskedSegmenter(BackgroundSegmenter(background, open_radius=0),
-                                       GRIPPER_MASK_RADIUS_M * scale)
+    if segmenter == "learned":
+        from dyndlo_vision.policies.segmenter import load_segmenter
+
+        inner: Any = load_segmenter()
+    else:
+        inner = BackgroundSegmenter(render_without_cable(camera), open_radius=0)
+    segmenter = GripperMaskedSegmenter(inner, GRIPPER_MASK_RADIUS_M * scale)
     # Nodes are spread over the observed centreline (from the gripper mask's edge to the far end): the last
     # one is the tip whenever the tip is in view. (With ``cable_length_px`` the tracker would mark nodes past
     # the observed length invisible, but the rendered 2 mm cable measures a few pixels short: no tip.)
