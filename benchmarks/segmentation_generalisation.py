@@ -45,9 +45,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dyndlo_vision.learning.segdata import SceneSampler, SegDataConfig  # noqa: E402
 from dyndlo_vision.learning.segtrain import external_split  # noqa: E402
-from dyndlo_vision.policies.segmenter import load_segmenter  # noqa: E402
+from dyndlo_vision.policies.segmenter import onnx_bytes  # noqa: E402
 from dyndlo_vision.tracking import BackgroundSegmenter, dice  # noqa: E402
 from dyndlo_vision.tracking.centerline import extract_centerline  # noqa: E402
+from dyndlo_vision.tracking.learned import LearnedSegmenter  # noqa: E402
 from dyndlo_vision.tracking.tracker import Plane, lift_with_plane  # noqa: E402
 
 EXTERNAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "external"
@@ -343,7 +344,7 @@ def part_loopcam(model: str | None, episodes: int = 3) -> dict:
     env.close()
     out = {}
     for short in (240, 360, 480):
-        seg = load_segmenter(model, short_side=short)
+        seg = LearnedSegmenter(onnx_bytes(model), short_side=short)
         ts = []
         for k in range(30):
             t = time.perf_counter()
@@ -373,7 +374,7 @@ def main() -> int:
     ap.add_argument("--out", required=True)
     args = ap.parse_args()
     cv2.setNumThreads(1)
-    seg = load_segmenter(args.model, short_side=args.short_side)
+    seg = LearnedSegmenter(onnx_bytes(args.model), short_side=args.short_side)
     report: dict = {
         "model": args.model or "shipped",
         "short_side": args.short_side,

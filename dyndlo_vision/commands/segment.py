@@ -77,11 +77,12 @@ def _hsv(text: str, name: str) -> tuple[int, int, int]:
 
 def _segmenter(args: argparse.Namespace) -> Any:
     if args.segmenter == "learned":
-        from dyndlo_vision.policies.segmenter import load_segmenter
+        from dyndlo_vision.policies.segmenter import onnx_bytes
+        from dyndlo_vision.tracking.learned import LearnedSegmenter
 
         if args.short_side < 16:
             raise ValueError(f"--short-side must be >= 16, got {args.short_side}")
-        return load_segmenter(args.model, short_side=args.short_side)
+        return LearnedSegmenter(onnx_bytes(args.model), short_side=args.short_side)
     if args.model:
         raise ValueError("--model is for --segmenter learned")
     if args.segmenter == "background":

@@ -116,9 +116,10 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
     home = base.scene.gripper_home[0]
     scale = pixels_per_metre(calib, home)
     if segmenter == "learned":
-        from dyndlo_vision.policies.segmenter import load_segmenter
+        from dyndlo_vision.policies.segmenter import onnx_bytes
+        from dyndlo_vision.tracking.learned import LearnedSegmenter
 
-        inner: Any = load_segmenter()
+        inner: Any = LearnedSegmenter(onnx_bytes())
     else:
         inner = BackgroundSegmenter(render_without_cable(camera), open_radius=0)
     segmenter = GripperMaskedSegmenter(inner, GRIPPER_MASK_RADIUS_M * scale)

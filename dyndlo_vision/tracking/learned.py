@@ -1,7 +1,7 @@
 """The learned cable segmenter at run time: a small CNN (ONNX) evaluated with OpenCV's ``cv2.dnn``.
 
-Pure computation on arrays: the network arrives as ONNX bytes (the shipped one through
-:func:`dyndlo_vision.policies.segmenter.load_segmenter`). The frame is resized so that its shorter side is
+Pure computation on arrays: the network arrives as ONNX bytes (the shipped one from
+:func:`dyndlo_vision.policies.segmenter.onnx_bytes`). The frame is resized so that its shorter side is
 ``short_side`` pixels (the scale the network was trained at; 640x480 -> 320x240), rounded to a multiple of 8,
 fed as ``RGB / 255 - 0.5``; the logits (at half that size) are resized bilinearly to the frame and
 thresholded, so the mask has the frame's size. cv2.dnn runs the network 3-4x faster than torch on one core

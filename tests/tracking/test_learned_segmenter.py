@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from dyndlo_vision.policies.segmenter import load_segmenter, segmenter_metadata
+from dyndlo_vision.policies.segmenter import onnx_bytes, segmenter_metadata
 from dyndlo_vision.tracking import dice
 from dyndlo_vision.tracking.learned import LearnedSegmenter
 from dyndlo_vision.tracking.polylines import extract_polylines
@@ -17,7 +17,7 @@ from dyndlo_vision.tracking.synthetic import render_cable, s_curve
 
 @pytest.fixture(scope="module")
 def seg() -> LearnedSegmenter:
-    return load_segmenter()
+    return LearnedSegmenter(onnx_bytes())
 
 
 def _textured(h: int, w: int, seed: int) -> np.ndarray:
@@ -102,7 +102,7 @@ def test_bad_input_is_refused(seg: LearnedSegmenter) -> None:
     with pytest.raises(ValueError, match="short_side"):
         LearnedSegmenter(b"x", short_side=4)
     with pytest.raises(FileNotFoundError, match="nowhere.onnx"):
-        load_segmenter("/nowhere.onnx")
+        onnx_bytes("/nowhere.onnx")
 
 
 def test_polylines_of_two_crossing_cables() -> None:

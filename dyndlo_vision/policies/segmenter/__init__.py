@@ -1,7 +1,10 @@
 """The shipped learned cable segmenter: ``cable-segmenter.onnx`` and the JSON beside it (how it was made).
 
-:func:`load_segmenter` returns a :class:`dyndlo_vision.tracking.learned.LearnedSegmenter` over the shipped
-ONNX file, or over a file of one's own from ``dyndlo-vision seg-train`` (``OUT/cable_segmenter.onnx``).
+This module only hands out the bytes and the metadata (``policies`` imports nothing above ``tasks``); the
+network runs in :class:`dyndlo_vision.tracking.learned.LearnedSegmenter`::
+
+    seg = LearnedSegmenter(onnx_bytes())                       # the shipped network
+    seg = LearnedSegmenter(onnx_bytes("runs/seg/cable_segmenter.onnx"), short_side=240)
 """
 
 from __future__ import annotations
@@ -11,9 +14,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from dyndlo_vision.tracking.learned import LearnedSegmenter
-
-__all__ = ["SHIPPED_NAME", "load_segmenter", "segmenter_metadata"]
+__all__ = ["SHIPPED_NAME", "onnx_bytes", "segmenter_metadata"]
 
 SHIPPED_NAME = "cable-segmenter"
 
@@ -23,22 +24,19 @@ def _shipped(suffix: str) -> Any:
 
 
 def segmenter_metadata() -> dict[str, Any]:
-    """The shipped segmenter's JSON (the command and data that produced it, and its measured scores)."""
+    """The shipped segmenter's JSON (the commands and data that produced it, and its measured scores)."""
     return dict(json.loads(_shipped(".json").read_text()))
 
 
-def load_segmenter(path: str | Path | None = None, **kwargs: Any) -> LearnedSegmenter:
-    """The shipped segmenter (``path=None``) or the ONNX file at ``path``; ``kwargs`` go to the segmenter.
+def onnx_bytes(path: str | Path | None = None) -> bytes:
+    """The shipped network (``path=None``) or the ONNX file at ``path`` (e.g. from ``seg-train``), as bytes.
 
     Raises:
         FileNotFoundError: ``path`` does not exist.
-        ValueError: the file is not an ONNX network OpenCV can run.
     """
     if path is None:
-        data = _shipped(".onnx").read_bytes()
-    else:
-        p = Path(path)
-        if not p.is_file():
-            raise FileNotFoundError(f"segmenter file {p} does not exist")
-        data = p.read_bytes()
-    return LearnedSegmenter(data, **kwargs)
+        return bytes(_shipped(".onnx").read_bytes())
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"segmenter file {p} does not exist")
+    return p.read_bytes()
