@@ -12,4 +12,7 @@ COMMANDS: dict[str, str] = {
     "plot": "plot",
     "train": "train",
     "distill": "distill",
+    "seg-data": "seg_data",
+    "seg-train": "seg_train",
+    "segment": "segment",
 }

@@ -85,6 +85,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "camera pipeline; the filter predicts across it (default 0; at most 250; a multiple of the 40 ms "
         "period is exact, other values round up to one)",
     )
+    p.add_argument(
+        "--segmenter",
+        choices=["background", "learned"],
+        default="background",
+        help="tracked observation: the classical background segmenter (default) or the shipped learned CNN",
+    )
     p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     p.add_argument(
         "--quiet", action="store_true", help="no progress bar on stderr (shown for --episodes > 1)"
@@ -113,6 +119,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--latency-ms must be in [0, {1000.0 * MAX_LATENCY_S:g}] ms, got {args.latency_ms}")
     if args.latency_ms and args.observation != "tracked":
         raise ValueError(f"--latency-ms applies to the tracked observation, not to {args.observation!r}")
+    if args.segmenter != "background" and args.observation != "tracked":
+        raise ValueError(f"--segmenter applies to the tracked observation, not to {args.observation!r}")
     out = Path(args.out)
     check_output_folder(out)
 
@@ -145,6 +153,7 @@ def run(args: argparse.Namespace) -> int:
                 args.camera,
                 video if i == 0 else None,
                 latency_s=1e-3 * args.latency_ms,
+                segmenter=args.segmenter,
             )
             episodes.append(record)
             bar.update(1)
@@ -163,6 +172,7 @@ def run(args: argparse.Namespace) -> int:
         "multi_step": multi_step,
         "observation": args.observation,
         "latency_ms": args.latency_ms,
+        "segmenter": args.segmenter,
         **summarize(episodes),
         "cycle_ms_note": "controller time per 40 ms cycle: camera render + tracking + filter + policy + "
         "planning (the simulated robot's physics is timed apart as send_ms); percentiles over the cycles of "
@@ -249,6 +259,7 @@ def film_episode(
     video: list[np.ndarray] | None,
     latency_s: float = 0.0,
     point_filter: Any = None,
+    segmenter: str = "background",
 ) -> dict[str, Any]:
     """One closed-loop episode (:func:`~dyndlo_vision.control.episode.run_loop_episode`), filmed.
 
@@ -281,6 +292,7 @@ def film_episode(
         point_filter=point_filter,
         watch=film if video is not None else None,
         open_camera=video is not None,
+        segmenter=segmenter,
     )
 
 

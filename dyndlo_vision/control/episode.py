@@ -61,6 +61,7 @@ def run_loop_episode(
     point_filter: Any = None,
     watch: Callable[[EpisodeMoment], None] | None = None,
     open_camera: bool = False,
+    segmenter: str = "background",
 ) -> dict[str, Any]:
     """One closed-loop episode from ``env.reset(seed=seed)``; returns its record.
 
@@ -77,6 +78,7 @@ def run_loop_episode(
         latency_s: Tracked observation: the camera's delay; the filter predicts across it.
         point_filter: Tracked observation: the tip filter (default: ``tracked_state``'s).
         watch: Called at every control cycle and at every instant after the last re-plan up to the outcome.
+        segmenter: Tracked observation: ``"background"`` (classical) or ``"learned"`` (the shipped CNN).
         open_camera: Give ``watch`` a camera on the scene that renders the present (the tracker's own
             camera when tracking without delay).
 
@@ -98,7 +100,8 @@ def run_loop_episode(
     if observation == "tracked":
         from dyndlo_vision.control.sim_perception import tracked_state
 
-        source, camera = tracked_state(env, camera_name, point_filter=point_filter, latency_s=latency_s)
+        source, camera = tracked_state(env, camera_name, point_filter=point_filter, latency_s=latency_s,
+                                       segmenter=segmenter)
     elif observation == "noisy":
         source = NoisyState(env, seed=seed)
     else:

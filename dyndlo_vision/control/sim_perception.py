@@ -36,6 +36,9 @@ GRIPPER_MASK_RADIUS_M = 0.03  # the 2 cm gripper sphere plus a margin
 # The tip filter's tuned acceleration noise without and with a camera latency (why: tracking.params).
 LOOP_SIGMA_ACCEL = LOOP_FILTER.sigma_accel
 LATENT_LOOP_SIGMA_ACCEL = LATENT_LOOP_FILTER.sigma_accel
+#: Segmenters the loop can use: the classical background segmenter against the scene rendered without the
+#: cable (default), or the shipped learned CNN (no background image needed).
+LOOP_SEGMENTERS = ("background", "learned")
 #: Longest simulated camera latency (s): beyond a quarter second the loop re-plans on a past the cable has
 #: long left.
 MAX_LATENCY_S = 0.25
@@ -96,33 +99,41 @@ def pixels_per_metre(camera: Any, point: NDArray[np.float64], plane: Plane = MOT
 
 def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFilter | None = None,
                   width: int = 640, height: int = 480,
-                  latency_s: float = 0.0) -> tuple[TrackedState, MujocoCamera]:
+                  latency_s: float = 0.0, segmenter: str = "background") -> tuple[TrackedState, MujocoCamera]:
     """A :class:`TrackedState` on a MuJoCo camera of ``env`` (call after ``env.reset``).
 
     The background image is rendered now, with the cable hidden, so call it at the start of an episode. With
     ``latency_s`` > 0 the tracker sees each frame that long after it was rendered (:class:`DelayedCamera`)
     and the filter predicts across the delay. The camera returned renders the present (for videos).
+    ``segmenter`` is one of :data:`LOOP_SEGMENTERS`; either way the gripper is masked by its projected pose.
     """
+    if segmenter not in LOOP_SEGMENTERS:
+        raise ValueError(f"segmenter={segmenter!r}; expected one of {list(LOOP_SEGMENTERS)}")
     if checked_latency_s(latency_s) > MAX_LATENCY_S:
         raise ValueError(f"latency_s must be at most {MAX_LATENCY_S} s, got {latency_s!r}")
     base = as_sim_env(env)
     mujoco.mj_forward(base.model, base.data)
     camera = MujocoCamera(base.model, base.data, camera_name, width=width, height=height)
     calib = camera.calibration
-    background = render_without_cable(camera)
     home = base.scene.gripper_home[0]
     scale = pixels_per_metre(calib, home)
-    segmenter = GripperMaskedSegmenter(BackgroundSegmenter(background, open_radius=0),
-                                       GRIPPER_MASK_RADIUS_M * scale)
+    if segmenter == "learned":
+        from dyndlo_vision.policies.segmenter import onnx_bytes
+        from dyndlo_vision.tracking.learned import LearnedSegmenter
+
+        inner: Any = LearnedSegmenter(onnx_bytes())
+    else:
+        inner = BackgroundSegmenter(render_without_cable(camera), open_radius=0)
+    masked = GripperMaskedSegmenter(inner, GRIPPER_MASK_RADIUS_M * scale)
     # Nodes are spread over the observed centreline (from the gripper mask's edge to the far end): the last
     # one is the tip whenever the tip is in view. (With ``cable_length_px`` the tracker would mark nodes past
     # the observed length invisible, but the rendered 2 mm cable measures a few pixels short: no tip.)
-    tracker = CableTracker(calib, segmenter=segmenter, n_nodes=base.scene.config.cable.num_nodes,
+    tracker = CableTracker(calib, segmenter=masked, n_nodes=base.scene.config.cable.num_nodes,
                            plane=MOTION_PLANE)
 
     def project(p: NDArray[np.float64]) -> NDArray[np.float64]:
         uv = calib.project(np.asarray(p, dtype=float)[None])[0]
-        segmenter.center_uv = uv
+        masked.center_uv = uv
         return uv
 
     # The newest measurement is always at least the latency old, so the filter's coasting limit and the

@@ -1,0 +1,44 @@
+"""``dyndlo-vision seg-data``: write a domain-randomised image/mask dataset rendered from our MuJoCo scenes.
+
+Thin wrapper over :func:`dyndlo_vision.learning.segdata.write_dataset`. Run it again with the same ``--out``,
+``--seed`` and sizes to resume (or to extend it with a larger ``--count``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+HELP = "render a domain-randomised cable image/mask dataset (resumable)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``seg-data``."""
+    p.add_argument(
+        "--out", required=True, metavar="DIR", help="dataset folder (created; resumed if it holds one)"
+    )
+    p.add_argument("--count", type=int, default=2000, help="number of samples")
+    p.add_argument("--seed", type=int, default=0, help="seed of the randomisation (training used 0)")
+    p.add_argument("--width", type=int, default=320, help="image width in pixels")
+    p.add_argument("--height", type=int, default=240, help="image height in pixels")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Writes (or resumes) the dataset; 0 on success."""
+    from tqdm import tqdm
+
+    from dyndlo_vision.learning.segdata import SegDataConfig, write_dataset
+
+    config = SegDataConfig(width=args.width, height=args.height)
+    config.check()
+    if args.count < 1:
+        raise ValueError(f"--count must be >= 1, got {args.count}")
+    with tqdm(
+        total=args.count, desc="seg-data", unit="img", file=sys.stderr, disable=args.quiet, dynamic_ncols=True
+    ) as bar:
+        n = write_dataset(Path(args.out), args.count, args.seed, config, progress=bar)
+    if not args.quiet:
+        print(f"wrote {n} new samples to {args.out}", file=sys.stderr)
+    return 0

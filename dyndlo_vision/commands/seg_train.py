@@ -1,0 +1,72 @@
+"""``dyndlo-vision seg-train``: train the learned cable segmenter on a ``seg-data`` dataset; export ONNX.
+
+Thin wrapper over :func:`dyndlo_vision.learning.segtrain.train`. ``--resume`` continues from
+``OUT/checkpoint.pt`` (written every 250 steps and on Ctrl-C).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+HELP = "train the learned cable segmenter on a seg-data dataset (resumable), export ONNX"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``seg-train``."""
+    p.add_argument("--data", required=True, metavar="DIR", help="dataset written by seg-data")
+    p.add_argument("--out", required=True, metavar="DIR", help="run folder (checkpoint, ONNX, JSON)")
+    p.add_argument("--steps", type=int, default=6000, help="optimiser steps")
+    p.add_argument("--batch", type=int, default=8, help="images per step")
+    p.add_argument("--lr", type=float, default=3e-3, help="peak learning rate (cosine decay)")
+    p.add_argument("--seed", type=int, default=0, help="seed of sampling and augmentation")
+    p.add_argument(
+        "--external", metavar="DIR", help="labelled real photos (shared/data/external) to fine-tune on"
+    )
+    p.add_argument(
+        "--external-share",
+        type=float,
+        default=0.0,
+        help="share of each batch from the external train split (its held-out half is never used)",
+    )
+    p.add_argument("--init", metavar="CHECKPOINT.pt", help="start from these weights (fine-tuning)")
+    p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    p.add_argument("--resume", action="store_true", help="continue OUT/checkpoint.pt")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Trains; 0 on success, 130 on Ctrl-C (checkpoint saved)."""
+    import sys
+
+    from dyndlo_vision.learning.segtrain import TrainConfig, train
+
+    if args.steps < 1 or args.batch < 1:
+        raise ValueError(f"--steps and --batch must be >= 1, got {args.steps}, {args.batch}")
+    if not 0.0 <= args.external_share <= 1.0:
+        raise ValueError(f"--external-share must be in [0, 1], got {args.external_share}")
+    if args.threads < 1:
+        raise ValueError(f"--threads must be >= 1, got {args.threads}")
+    cfg = TrainConfig(
+        steps=args.steps, batch=args.batch, lr=args.lr, seed=args.seed, external_share=args.external_share
+    )
+    try:
+        meta = train(
+            Path(args.data),
+            Path(args.out),
+            cfg,
+            resume=args.resume,
+            external=Path(args.external) if args.external else None,
+            init=Path(args.init) if args.init else None,
+            progress=not args.quiet,
+            threads=args.threads,
+        )
+    except KeyboardInterrupt:
+        print(
+            f"interrupted; resume with: dyndlo-vision seg-train --resume --data {args.data} --out {args.out} "
+            f"--steps {args.steps}",
+            file=sys.stderr,
+        )
+        return 130
+    print(f"wrote {args.out}/cable_segmenter.onnx ({meta['parameters']} parameters)", file=sys.stderr)
+    return 0

@@ -1,0 +1,158 @@
+"""``dyndlo-vision segment INPUT... --out DIR``: cable masks and ordered centrelines of photos and folders.
+
+Each image is processed on its own (no memory between images; sizes may differ). For ``NAME.ext`` it writes
+``DIR/NAME_mask.png`` (0/255, the input's size) and ``DIR/NAME_centerline.json`` (ordered polylines in
+pixels, longest first, each end marked free or cut by the border). Every input is read and every output name
+checked before anything is written, and each file is written atomically: bad input (a missing or unreadable
+file, a folder without images, two inputs with one name, an existing output without ``--overwrite``) exits
+with status 2 and leaves nothing behind.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+HELP = "segment cables in photos/image folders: NAME_mask.png and NAME_centerline.json per image"
+
+SEGMENTERS = ("learned", "background", "hsv")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``segment``."""
+    p.add_argument("inputs", nargs="+", metavar="INPUT", help="image files and/or folders of images")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
+    p.add_argument(
+        "--segmenter",
+        choices=SEGMENTERS,
+        default="learned",
+        help="learned CNN (default), background contrast, or HSV bounds",
+    )
+    p.add_argument(
+        "--model", metavar="FILE.onnx", help="learned: an ONNX file from seg-train instead of the shipped"
+    )
+    p.add_argument(
+        "--short-side",
+        type=int,
+        default=240,
+        help="learned: the image's shorter side is resized to this before the network",
+    )
+    p.add_argument("--hsv-lower", default="0,80,60", help="hsv: lower H,S,V bound (OpenCV ranges)")
+    p.add_argument("--hsv-upper", default="179,255,255", help="hsv: upper H,S,V bound")
+    p.add_argument("--max-cables", type=int, default=8, help="most polylines per image")
+    p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _collect(inputs: list[str]) -> list[Path]:
+    from dyndlo_vision.cameras.files import IMAGE_SUFFIXES
+
+    files: list[Path] = []
+    for text in inputs:
+        p = Path(text)
+        if p.is_dir():
+            found = sorted(f for f in p.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES)
+            if not found:
+                raise ValueError(f"folder {p} holds no images (looked for {', '.join(IMAGE_SUFFIXES)})")
+            files.extend(found)
+        elif p.is_file():
+            files.append(p)
+        else:
+            raise FileNotFoundError(f"input {p} does not exist")
+    return files
+
+
+def _hsv(text: str, name: str) -> tuple[int, int, int]:
+    try:
+        vals = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        vals = ()
+    if len(vals) != 3:
+        raise ValueError(f"{name} must be three integers H,S,V, got {text!r}")
+    return vals  # type: ignore[return-value]
+
+
+def _segmenter(args: argparse.Namespace) -> Any:
+    if args.segmenter == "learned":
+        from dyndlo_vision.policies.segmenter import onnx_bytes
+        from dyndlo_vision.tracking.learned import LearnedSegmenter
+
+        if args.short_side < 16:
+            raise ValueError(f"--short-side must be >= 16, got {args.short_side}")
+        return LearnedSegmenter(onnx_bytes(args.model), short_side=args.short_side)
+    if args.model:
+        raise ValueError("--model is for --segmenter learned")
+    if args.segmenter == "background":
+        from dyndlo_vision.tracking.segmentation import BackgroundSegmenter
+
+        return BackgroundSegmenter(open_radius=0)
+    from dyndlo_vision.tracking.segmentation import segment_hsv
+
+    lo, hi = _hsv(args.hsv_lower, "--hsv-lower"), _hsv(args.hsv_upper, "--hsv-upper")
+    segment_hsv(__import__("numpy").zeros((2, 2, 3), "uint8"), lo, hi)  # checks the bounds now
+    return lambda rgb: segment_hsv(rgb, lo, hi, clean=True)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Segments every input; 0 on success."""
+    import cv2
+    import numpy as np
+    from tqdm import tqdm
+
+    from dyndlo_vision._atomic import write_atomic
+    from dyndlo_vision.tracking.polylines import extract_polylines
+
+    if args.max_cables < 1:
+        raise ValueError(f"--max-cables must be >= 1, got {args.max_cables}")
+    files = _collect(args.inputs)
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise NotADirectoryError(f"--out {out} exists and is not a folder")
+    stems: dict[str, Path] = {}
+    for f in files:
+        if f.stem in stems:
+            raise ValueError(f"inputs {stems[f.stem]} and {f} would both write {f.stem}_mask.png; rename one")
+        stems[f.stem] = f
+        if not args.overwrite:
+            for suffix in ("_mask.png", "_centerline.json"):
+                if (out / f"{f.stem}{suffix}").exists():
+                    raise FileExistsError(f"{out / (f.stem + suffix)} exists; pass --overwrite to replace it")
+    # Every input must decode before anything is written (truncated files included).
+    for f in files:
+        if cv2.imread(str(f), cv2.IMREAD_COLOR) is None:
+            raise ValueError(f"cannot read image {f} (not an image OpenCV decodes, or truncated)")
+    segmenter = _segmenter(args)
+    out.mkdir(parents=True, exist_ok=True)
+    name = args.segmenter if args.segmenter != "learned" else f"learned:{args.model or 'shipped'}"
+    for f in tqdm(files, desc="segment", unit="img", file=sys.stderr, disable=args.quiet, dynamic_ncols=True):
+        bgr = cv2.imread(str(f), cv2.IMREAD_COLOR)
+        if bgr is None:
+            raise ValueError(f"cannot read image {f}")
+        rgb = np.ascontiguousarray(bgr[..., ::-1])
+        mask = np.asarray(segmenter(rgb), dtype=bool)
+        polys = extract_polylines(mask, max_cables=args.max_cables)
+        mask_u8 = np.where(mask, 255, 0).astype(np.uint8)
+        doc = {
+            "image": str(f),
+            "width": int(rgb.shape[1]),
+            "height": int(rgb.shape[0]),
+            "segmenter": name,
+            "mask_pixels": int(mask.sum()),
+            "polylines": [p.to_json() for p in polys],
+        }
+        write_atomic(out / f"{f.stem}_mask.png", lambda tmp, m=mask_u8: _imwrite(tmp, m))
+        write_atomic(
+            out / f"{f.stem}_centerline.json",
+            lambda tmp, d=doc: Path(tmp).write_text(json.dumps(d, indent=1)),
+        )
+    return 0
+
+
+def _imwrite(path: str, img: Any) -> None:
+    import cv2
+
+    if not cv2.imwrite(path, img):
+        raise OSError(f"could not write {path}")

@@ -1,0 +1,546 @@
+"""Domain-randomised image/mask pairs of cables rendered from our own MuJoCo scenes (labels for free).
+
+Each *scene group* builds one :class:`dyndlo_vision.sim.Scene` with a random cable (length, segments, radius),
+a random initial path, random props (boxes and capsule bars near the cable) and a gripper of random size and
+colour, lets it settle for a random (often too short) time and then moves the gripper at random between
+samples, so the cable is caught hanging, swinging and whipping. Every sample of a group draws its own:
+
+* camera pose (look-at from a random direction, distance and field of view) so the cable is 1-12 px wide,
+* cable colour (saturated colours, black, white, greys, browns) and rendered radius,
+* lighting (key light position and strength, head light ambient/diffuse),
+* background: the rendered floor, or a procedural texture (value noise, stripes, checkers, wood grain,
+  clutter of shapes, plain with a gradient) composited behind everything the scene rendered,
+* distractors drawn in 2D: gripper-like blobs, boxes, bars, extra cables (these are labelled: a real photo's
+  mask holds every cable), occluders in front of the cable (its label is removed under them),
+* camera effects: motion blur, defocus, colour gains and gamma, Gaussian noise, JPEG compression.
+
+The label is MuJoCo's segmentation render of the cable flex (plus the drawn cables), rendered at twice the
+output size and area-averaged, so the image is anti-aliased like a photo. Everything a sample is made of
+is drawn from ``numpy.random.default_rng((seed, group))``: a dataset is reproducible, and generation resumes
+by regenerating the group of the first missing sample.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["SegDataConfig", "SceneSampler", "procedural_background", "sample_path", "write_dataset"]
+
+
+@dataclass(frozen=True)
+class SegDataConfig:
+    """What a dataset is made of (stored in its ``dataset.json``)."""
+
+    width: int = 320
+    height: int = 240
+    samples_per_scene: int = 4
+    #: Share of samples whose background is replaced by a procedural texture (the rest keep the floor).
+    texture_share: float = 0.8
+    #: Least and most cable width in output pixels.
+    min_width_px: float = 0.7
+    max_width_px: float = 12.0
+
+    def check(self) -> None:
+        for name in ("width", "height", "samples_per_scene"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or v < 1:
+                raise ValueError(f"{name} must be a positive int, got {v!r}")
+        if self.width < 32 or self.height < 32:
+            raise ValueError(f"image size must be at least 32x32, got {self.width}x{self.height}")
+        if not 0.0 <= self.texture_share <= 1.0:
+            raise ValueError(f"texture_share must be in [0, 1], got {self.texture_share!r}")
+        if not 0.5 <= self.min_width_px <= self.max_width_px:
+            raise ValueError(
+                f"cable widths must satisfy 0.5 <= min_width_px <= max_width_px, got "
+                f"{self.min_width_px!r}, {self.max_width_px!r}"
+            )
+
+
+# ----------------------------------------------------------------------------- 2D pieces (pure numpy/cv2)
+def _value_noise(rng: np.random.Generator, h: int, w: int, octaves: int = 4) -> NDArray[np.float32]:
+    """Multi-octave value noise in [0, 1]."""
+    out = np.zeros((h, w), np.float32)
+    amp, total = 1.0, 0.0
+    cells = int(rng.integers(2, 6))
+    for _ in range(octaves):
+        small = rng.random((cells, cells)).astype(np.float32)
+        out += amp * cv2.resize(small, (w, h), interpolation=cv2.INTER_CUBIC)
+        total += amp
+        amp *= float(rng.uniform(0.35, 0.65))
+        cells *= 2
+    out /= total
+    lo, hi = float(out.min()), float(out.max())
+    return (out - lo) / max(hi - lo, 1e-6)
+
+
+def _random_colour(rng: np.random.Generator) -> NDArray[np.float32]:
+    return rng.uniform(0, 255, 3).astype(np.float32)
+
+
+def _splatter(rng: np.random.Generator, img: NDArray[np.float32]) -> None:
+    """Paint drips and splashes: thin strokes of varying width, jagged turns and dots (not cables: a cable
+    keeps its width and bends smoothly)."""
+    h, w = img.shape[:2]
+    palette = [_random_colour(rng) for _ in range(int(rng.integers(2, 6)))]
+    for _ in range(int(rng.integers(30, 250))):
+        col = tuple(float(c) for c in palette[int(rng.integers(len(palette)))])
+        p = np.array([rng.uniform(0, w), rng.uniform(0, h)])
+        heading = float(rng.uniform(0, 2 * math.pi))
+        for _ in range(int(rng.integers(1, 25))):
+            heading += float(rng.normal(0, 0.7))
+            q = p + float(rng.uniform(1, 8)) * np.array([math.cos(heading), math.sin(heading)])
+            th = int(rng.integers(1, 5))
+            cv2.line(img, (int(p[0]), int(p[1])), (int(q[0]), int(q[1])), col, th, cv2.LINE_AA)
+            if rng.random() < 0.15:
+                cv2.circle(img, (int(q[0]), int(q[1])), int(rng.integers(1, 5)), col, -1, cv2.LINE_AA)
+            p = q
+
+
+def procedural_background(rng: np.random.Generator, h: int, w: int) -> NDArray[np.uint8]:
+    """A random textured or cluttered background (H, W, 3) uint8 RGB."""
+    kind = rng.choice(
+        ["plain", "noise", "stripes", "checker", "wood", "clutter", "splatter"],
+        p=[0.1, 0.16, 0.12, 0.1, 0.14, 0.2, 0.18],
+    )
+    c1, c2 = _random_colour(rng), _random_colour(rng)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    ang = float(rng.uniform(0, math.pi))
+    proj = xx * math.cos(ang) + yy * math.sin(ang)
+    if kind == "plain":
+        t = (proj - proj.min()) / max(float(np.ptp(proj)), 1.0) * float(rng.uniform(0, 0.5))
+    elif kind == "noise":
+        t = _value_noise(rng, h, w, int(rng.integers(2, 6)))
+    elif kind == "stripes":
+        period = float(rng.uniform(4, 60))
+        t = 0.5 + 0.5 * np.sin(2 * math.pi * proj / period)
+        if rng.random() < 0.5:
+            t = (t > 0.5).astype(np.float32)
+    elif kind == "checker":
+        period = float(rng.uniform(6, 80))
+        proj2 = -xx * math.sin(ang) + yy * math.cos(ang)
+        t = ((np.floor(proj / period) + np.floor(proj2 / period)) % 2).astype(np.float32)
+    elif kind == "wood":
+        warp = _value_noise(rng, h, w, 3) * float(rng.uniform(10, 60))
+        t = 0.5 + 0.5 * np.sin(2 * math.pi * (proj + warp) / float(rng.uniform(5, 30)))
+        t = t ** float(rng.uniform(0.5, 2.0))
+    else:  # clutter (shapes) or splatter (paint drips) on noise
+        t = _value_noise(rng, h, w, 3) * 0.4
+    img = c1[None, None, :] * (1 - t[..., None]) + c2[None, None, :] * t[..., None]
+    if kind == "clutter" or rng.random() < 0.3:
+        for _ in range(int(rng.integers(3, 25))):
+            col = tuple(float(c) for c in _random_colour(rng))
+            cx, cy = int(rng.integers(0, w)), int(rng.integers(0, h))
+            s = int(rng.integers(4, max(6, min(h, w) // 3)))
+            shape = rng.integers(0, 3)
+            if shape == 0:
+                cv2.rectangle(img, (cx - s, cy - s // 2), (cx + s, cy + s // 2), col, -1)
+            elif shape == 1:
+                cv2.circle(img, (cx, cy), s // 2, col, -1, cv2.LINE_AA)
+            else:
+                cv2.ellipse(
+                    img,
+                    (cx, cy),
+                    (s, max(3, s // 3)),
+                    float(rng.uniform(0, 180)),
+                    0,
+                    360,
+                    col,
+                    -1,
+                    cv2.LINE_AA,
+                )
+    if kind == "splatter" or rng.random() < 0.1:
+        _splatter(rng, img)
+    img += (
+        rng.normal(0, float(rng.uniform(0, 10)), (h, w, 1)).astype(np.float32)
+        * _value_noise(rng, h, w, 2)[..., None]
+    )
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def sample_path(rng: np.random.Generator, h: int, w: int) -> NDArray[np.float64]:
+    """A smooth random pixel curve (K, 2) starting inside the image (for drawn extra cables)."""
+    n = int(rng.integers(40, 160))
+    step = float(rng.uniform(2.0, 5.0))
+    heading = float(rng.uniform(0, 2 * math.pi))
+    curv = np.cumsum(rng.normal(0, 0.08, n)) * float(rng.uniform(0.1, 1.0))
+    turn = np.convolve(rng.normal(0, 0.15, n) + curv * 0.05, np.ones(7) / 7, mode="same")
+    angles = heading + np.cumsum(turn)
+    p0 = np.array([rng.uniform(0, w), rng.uniform(0, h)])
+    steps = np.column_stack((np.cos(angles), np.sin(angles))) * step
+    return p0 + np.vstack([np.zeros(2), np.cumsum(steps, axis=0)])
+
+
+def _draw_tube(
+    img: NDArray[np.float32],
+    cover: NDArray[np.uint8],
+    pts: NDArray[np.float64],
+    width: float,
+    colour: NDArray[np.float32],
+    rng: np.random.Generator,
+) -> None:
+    """Draws a shaded tube (dark rim, body, highlight) into ``img`` and its coverage into ``cover``."""
+    shift = 4
+    p = np.round(pts * (1 << shift)).astype(np.int32).reshape(-1, 1, 2)
+    th = max(1, int(round(width)))
+    layer = np.zeros(cover.shape, np.uint8)
+    cv2.polylines(layer, [p], False, 255, th, cv2.LINE_AA, shift)
+    a = (layer.astype(np.float32) / 255.0)[..., None]
+    body = colour * float(rng.uniform(0.6, 1.0))
+    img *= 1 - a
+    img += a * body
+    if th >= 3 and rng.random() < 0.8:
+        hl = np.zeros(cover.shape, np.uint8)
+        off = np.array([rng.uniform(-0.25, 0.25) * th] * 2)
+        ph = np.round((pts + off) * (1 << shift)).astype(np.int32).reshape(-1, 1, 2)
+        cv2.polylines(hl, [ph], False, 255, max(1, th // 3), cv2.LINE_AA, shift)
+        b = (hl.astype(np.float32) / 255.0)[..., None] * a * float(rng.uniform(0.2, 0.7))
+        img *= 1 - b
+        img += b * np.minimum(255.0, colour * 0.5 + 160.0)
+    np.maximum(cover, layer, out=cover)
+
+
+def _cable_colour(rng: np.random.Generator) -> NDArray[np.float64]:
+    """RGB in [0, 1]: saturated colours, black, white, greys, browns."""
+    kind = rng.choice(["hue", "black", "white", "grey", "brown"], p=[0.45, 0.2, 0.12, 0.13, 0.1])
+    if kind == "black":
+        return np.full(3, rng.uniform(0.02, 0.12)) + rng.uniform(0, 0.03, 3)
+    if kind == "white":
+        return np.full(3, rng.uniform(0.8, 1.0)) - rng.uniform(0, 0.05, 3)
+    if kind == "grey":
+        return np.full(3, rng.uniform(0.25, 0.7))
+    if kind == "brown":
+        return np.array([0.45, 0.3, 0.15]) * rng.uniform(0.5, 1.3)
+    hsv = np.uint8([[[rng.integers(0, 180), rng.integers(120, 256), rng.integers(100, 256)]]])
+    return cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)[0, 0].astype(np.float64) / 255.0
+
+
+def _motion_kernel(rng: np.random.Generator) -> NDArray[np.float32] | None:
+    length = int(rng.integers(3, 12))
+    k = np.zeros((length, length), np.float32)
+    ang = float(rng.uniform(0, 180))
+    c = (length - 1) / 2.0
+    d = np.array([math.cos(math.radians(ang)), math.sin(math.radians(ang))]) * c
+    cv2.line(
+        k, (int(round(c - d[0])), int(round(c - d[1]))), (int(round(c + d[0])), int(round(c + d[1]))), 1.0, 1
+    )
+    s = float(k.sum())
+    return k / s if s > 0 else None
+
+
+def _look_at_quat(forward: NDArray[np.float64], roll: float) -> NDArray[np.float64]:
+    import mujoco
+
+    f = forward / np.linalg.norm(forward)
+    up = np.array([0.0, 0.0, 1.0])
+    if abs(f @ up) > 0.98:
+        up = np.array([0.0, 1.0, 0.0])
+    x = np.cross(f, up)
+    x /= np.linalg.norm(x)
+    y = np.cross(x, f)
+    c, s = math.cos(roll), math.sin(roll)
+    x, y = c * x + s * y, -s * x + c * y
+    mat = np.column_stack((x, y, -f))  # MuJoCo cameras look along their -z axis
+    q = np.zeros(4)
+    mujoco.mju_mat2Quat(q, mat.reshape(-1))
+    return q
+
+
+# ----------------------------------------------------------------------------- MuJoCo scenes
+def _build_scene(scene_cls: Any, config_cls: Any, rng: np.random.Generator, kwargs: dict[str, Any]) -> Any:
+    """Builds the scene; a draw that does not settle (unstable) is retried with a stiffer, shorter settle."""
+    for attempt in range(5):
+        try:
+            return scene_cls(config_cls(**kwargs))
+        except ValueError:
+            if attempt == 4:
+                raise
+            kwargs = {**kwargs, "settle_s": float(rng.uniform(0.02, 0.2))}
+    raise AssertionError("unreachable")
+
+
+class SceneSampler:
+    """Renders randomised samples of one scene group (see the module docstring)."""
+
+    def __init__(self, config: SegDataConfig, seed: int, group: int) -> None:
+        from dyndlo_vision.sim import BoxProp, CableParams, CapsuleProp, Scene, SceneConfig
+        from dyndlo_vision.sim.rendering import make_renderer
+
+        config.check()
+        self.config = config
+        self.rng = np.random.default_rng((int(seed), int(group)))
+        rng = self.rng
+        length = float(rng.uniform(0.3, 1.0))
+        radius = float(rng.uniform(0.0015, 0.006))
+        segments = max(4, min(int(rng.integers(12, 31)), int(length / (2.6 * radius))))
+        cable = CableParams(
+            length_m=length,
+            num_segments=segments,
+            radius_m=radius,
+            young_pa=float(10 ** rng.uniform(5.5, 7.5)),
+        )
+        tcp = np.array([rng.uniform(0.3, 0.7), rng.uniform(-0.1, 0.1), rng.uniform(0.5, 1.0)])
+        # Random initial path: a random walk from the TCP (the cable settles from there).
+        n = 8
+        dirs = rng.normal(0, 1, (n, 3)) * np.array([1.0, 0.5, 1.0]) + np.array([0, 0, -rng.uniform(0, 1.5)])
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        path = tcp + np.vstack([np.zeros(3), np.cumsum(dirs * 1.4 * length / n, axis=0)])
+        path[:, 2] += max(0.0, 0.05 - float(path[:, 2].min()))  # lift it above the floor
+        tcp = path[0]
+        centre = path.mean(axis=0)
+        boxes = tuple(
+            BoxProp(
+                f"box{i}",
+                tuple(centre + rng.normal(0, 0.25, 3) * [1, 1, 0.5]),
+                tuple(rng.uniform(0.02, 0.2, 3)),
+                tuple(list(_cable_colour(rng)) + [1.0]),
+            )
+            for i in range(int(rng.integers(0, 3)))
+        )
+        capsules = tuple(
+            CapsuleProp(
+                f"bar{i}",
+                tuple(a),
+                tuple(a + rng.normal(0, 0.12, 3)),
+                float(rng.uniform(0.012, 0.04)),
+                tuple(list(_cable_colour(rng)) + [1.0]),
+            )
+            for i, a in enumerate(centre + rng.normal(0, 0.25, (int(rng.integers(0, 2)), 3)))
+        )
+        w2, h2 = 2 * config.width, 2 * config.height
+        self.scene = _build_scene(
+            Scene,
+            SceneConfig,
+            rng,
+            dict(
+                cable=cable,
+                grippers_m=(tuple(tcp),),
+                initial_path_m=tuple(map(tuple, path)),
+                settle_s=float(rng.uniform(0.02, 0.6)),
+                boxes=boxes,
+                capsules=capsules,
+                image_size=(w2, h2),
+            ),
+        )
+        m = self.scene.model
+        self.cam_id = int(m.camera("tracking").id)
+        self.flex_id = 0
+        self.floor_geom = int(m.geom("floor").id)
+        self.tcp_geom = int(m.geom("tcp_0_geom").id)
+        self.renderer = make_renderer(m, h2, w2)
+        self.scene.reset()
+
+    def close(self) -> None:
+        if self.renderer is not None:
+            self.renderer.close()
+            self.renderer = None
+
+    def _move(self) -> None:
+        """Drives the gripper to a random nearby point for a random time (the cable swings)."""
+        rng, sc = self.rng, self.scene
+        home = sc.gripper_home[0]
+        target = home + rng.normal(0, 0.12, 3) * np.array([1.0, 0.6, 0.8])
+        vel = rng.normal(0, 1.0, 3)
+        sc.set_tcp_reference(target[None, :], vel[None, :])
+        sc.step(int(rng.integers(10, 150)))
+        if not sc.is_finite():
+            sc.reset()
+
+    def sample(self) -> tuple[NDArray[np.uint8], NDArray[np.uint8], dict[str, Any]]:
+        """One (RGB (H, W, 3) uint8, mask (H, W) uint8 0/255, metadata) sample."""
+        import mujoco
+
+        rng, cfg, m, d = self.rng, self.config, self.scene.model, self.scene.data
+        self._move()
+        w, h = cfg.width, cfg.height
+        nodes = self.scene.cable_nodes()
+        centre = nodes.mean(axis=0)
+        extent = float(np.linalg.norm(np.ptp(nodes, axis=0))) + 0.05
+        fovy = float(rng.uniform(30, 70))
+        f_px = 0.5 * h / math.tan(math.radians(fovy) / 2)
+        cover = float(rng.uniform(0.25, 1.3))
+        dist = max(0.15, extent * f_px / (cover * h))
+        width_px = float(np.exp(rng.uniform(math.log(cfg.min_width_px), math.log(cfg.max_width_px))))
+        radius = width_px * dist / (2 * f_px)
+        view = rng.normal(0, 1, 3) * np.array([0.5, 1.0, 0.5]) + np.array([0, -1.5, 0])  # mostly from -y
+        view /= np.linalg.norm(view)
+        look = centre + rng.normal(0, 0.15, 3) * extent
+        m.cam_pos[self.cam_id] = look + view * dist
+        m.cam_quat[self.cam_id] = _look_at_quat(-view, float(rng.normal(0, 0.3)))
+        m.cam_fovy[self.cam_id] = fovy
+        m.flex_radius[self.flex_id] = radius
+        colour = _cable_colour(rng)
+        m.flex_rgba[self.flex_id] = [*colour, 1.0]
+        m.geom_size[self.tcp_geom, 0] = float(rng.uniform(0.3, 2.5)) * max(radius * 4, 0.008)
+        grip = _cable_colour(rng) if rng.random() < 0.5 else np.full(3, rng.uniform(0.05, 0.3))
+        m.geom_rgba[self.tcp_geom] = [*grip, 1.0]
+        m.light_diffuse[0] = rng.uniform(0.1, 1.0, 3) * rng.uniform(0.6, 1.0)
+        m.light_pos[0] = centre + rng.normal(0, 1.5, 3) + np.array([0, 0, 1.5])
+        m.vis.headlight.ambient[:] = rng.uniform(0.05, 0.6)
+        m.vis.headlight.diffuse[:] = rng.uniform(0.1, 0.7)
+        m.geom_rgba[self.floor_geom] = [*rng.uniform(0.2, 1.0, 3), 1.0]
+        mujoco.mj_forward(m, d)
+        r = self.renderer
+        r.update_scene(d, camera=self.cam_id)
+        rgb2 = r.render().astype(np.float32)
+        r.enable_segmentation_rendering()
+        try:
+            r.update_scene(d, camera=self.cam_id)
+            seg = r.render()
+        finally:
+            r.disable_segmentation_rendering()
+        ids, types = seg[..., 0], seg[..., 1]
+        cable2 = ((types == int(mujoco.mjtObj.mjOBJ_FLEX)) & (ids == self.flex_id)).astype(np.float32)
+        bg2 = (types == -1) | ((types == int(mujoco.mjtObj.mjOBJ_GEOM)) & (ids == self.floor_geom))
+        textured = bool(rng.random() < cfg.texture_share)
+        if textured:
+            bg = procedural_background(rng, h, w).astype(np.float32)
+            bg2f = bg2.astype(np.float32)
+            bg_big = cv2.resize(bg, (2 * w, 2 * h), interpolation=cv2.INTER_LINEAR)
+            rgb2 = rgb2 * (1 - bg2f[..., None]) + bg_big * bg2f[..., None]
+        img = cv2.resize(rgb2, (w, h), interpolation=cv2.INTER_AREA)
+        cov = cv2.resize(cable2, (w, h), interpolation=cv2.INTER_AREA)
+        cover_u8 = np.clip(cov * 255 + 0.5, 0, 255).astype(np.uint8)
+        # Distractors and extra cables, drawn in 2D.
+        n_extra = int(rng.integers(1, 5)) if rng.random() < 0.35 else 0
+        for _ in range(n_extra):
+            _draw_tube(
+                img,
+                cover_u8,
+                sample_path(rng, h, w),
+                float(np.exp(rng.uniform(math.log(cfg.min_width_px), math.log(cfg.max_width_px)))),
+                (_cable_colour(rng) * 255).astype(np.float32),
+                rng,
+            )
+        for _ in range(int(rng.integers(0, 4))):  # blobs (grippers, parts), boxes: they hide what is behind
+            col = tuple(float(c) for c in (_cable_colour(rng) * 255))
+            cx, cy, s = int(rng.integers(0, w)), int(rng.integers(0, h)), int(rng.integers(6, max(8, h // 4)))
+            occl = np.zeros((h, w), np.uint8)
+            if rng.random() < 0.5:
+                cv2.circle(occl, (cx, cy), s // 2, 255, -1, cv2.LINE_AA)
+            else:
+                cv2.rectangle(occl, (cx - s // 2, cy - s // 3), (cx + s // 2, cy + s // 3), 255, -1)
+            a = (occl.astype(np.float32) / 255.0)[..., None]
+            img = img * (1 - a) + a * np.asarray(col, np.float32)
+            cover_u8[occl >= 128] = 0
+        if rng.random() < 0.25:  # an occluder (a pole) in front of everything
+            x0 = int(rng.integers(0, w))
+            bw = int(rng.integers(6, max(8, w // 8)))
+            col = tuple(float(c) for c in (_cable_colour(rng) * 255))
+            if rng.random() < 0.5:
+                cv2.rectangle(img, (x0, 0), (x0 + bw, h), col, -1)
+                cover_u8[:, x0 : x0 + bw + 1] = 0
+            else:
+                y0 = int(rng.integers(0, h))
+                cv2.rectangle(img, (0, y0), (w, y0 + bw), col, -1)
+                cover_u8[y0 : y0 + bw + 1, :] = 0
+        # Camera effects.
+        cov = cover_u8.astype(np.float32) / 255.0
+        if rng.random() < 0.35:
+            k = _motion_kernel(rng)
+            if k is not None:
+                img = cv2.filter2D(img, -1, k)
+                cov = cv2.filter2D(cov, -1, k)
+        if rng.random() < 0.3:
+            sigma = float(rng.uniform(0.3, 1.2))
+            img = cv2.GaussianBlur(img, (0, 0), sigma)
+        img = img * rng.uniform(0.7, 1.3, 3).astype(np.float32) * float(rng.uniform(0.6, 1.3))
+        img = 255.0 * (np.clip(img, 0, 255) / 255.0) ** float(rng.uniform(0.7, 1.4))
+        img += rng.normal(0, float(rng.uniform(0, 8)), img.shape).astype(np.float32)
+        rgb = np.clip(img + 0.5, 0, 255).astype(np.uint8)
+        if rng.random() < 0.7:
+            ok, buf = cv2.imencode(
+                ".jpg", rgb[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(rng.integers(30, 96))]
+            )
+            rgb = np.ascontiguousarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])
+        # A pixel is cable where it is at least 40 % covered, or, across a line thinner than a pixel (whose
+        # coverage is split between neighbours), where it holds at least half of the local peak coverage.
+        peak = cv2.dilate(cov, np.ones((3, 3), np.uint8))
+        cable = (cov >= np.minimum(0.4, 0.5 * peak)) & (cov >= 0.12)
+        mask = np.where(cable, 255, 0).astype(np.uint8)
+        meta = {
+            "width_px": round(width_px, 2),
+            "textured": textured,
+            "extra_cables": n_extra,
+            "colour": [round(float(c), 3) for c in colour],
+            "fovy_deg": round(fovy, 1),
+        }
+        return rgb, mask, meta
+
+
+def _sample_names(index: int) -> tuple[str, str]:
+    return f"{index:06d}.png", f"{index:06d}_mask.png"
+
+
+def _write_png_atomic(path: Path, img: NDArray[np.uint8]) -> None:
+    tmp = path.with_name(path.name + ".part.png")
+    if not cv2.imwrite(str(tmp), img):
+        raise OSError(f"could not write {tmp}")
+    tmp.replace(path)
+
+
+def write_dataset(out: Path, count: int, seed: int, config: SegDataConfig, progress: Any = None) -> int:
+    """Writes samples ``0 .. count-1`` into ``out`` (``NNNNNN.png``, ``NNNNNN_mask.png``, ``meta.jsonl``).
+
+    Resumes: samples whose mask exists are kept, and a group is regenerated from its start (deterministic) to
+    reach the first missing one. ``out/dataset.json`` records the config and seed; resuming with another
+    config or seed is refused. Returns the number of samples written by this call.
+    """
+    config.check()
+    if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+        raise ValueError(f"count must be a positive int, got {count!r}")
+    out = Path(out)
+    manifest = out / "dataset.json"
+    info = {"format": "dyndlo-segdata-1", "seed": int(seed), "config": asdict(config)}
+    if out.exists() and not out.is_dir():
+        raise NotADirectoryError(f"--out {out} exists and is not a folder")
+    if manifest.exists():
+        old = json.loads(manifest.read_text())
+        if old.get("seed") != info["seed"] or old.get("config") != info["config"]:
+            raise ValueError(
+                f"{out} holds a dataset made with seed {old.get('seed')} and config {old.get('config')}; "
+                f"asked for seed {seed} and config {info['config']}: use another --out"
+            )
+    elif out.exists() and any(out.iterdir()):
+        raise FileExistsError(f"--out {out} is a non-empty folder that holds no dataset.json")
+    out.mkdir(parents=True, exist_ok=True)
+    manifest.write_text(json.dumps(info, indent=1))
+    for p in out.glob("*.part.png"):
+        p.unlink()
+    per = config.samples_per_scene
+    written = 0
+    done = {i for i in range(count) if (out / _sample_names(i)[1]).exists()}
+    if progress is not None:
+        progress.update(len(done))
+    group = 0
+    with open(out / "meta.jsonl", "a") as meta_file:
+        while group * per < count:
+            idx = range(group * per, min(count, (group + 1) * per))
+            if all(i in done for i in idx):
+                group += 1
+                continue
+            sampler = SceneSampler(config, seed, group)
+            try:
+                for i in idx:
+                    rgb, mask, meta = sampler.sample()
+                    if i in done:
+                        continue
+                    img_name, mask_name = _sample_names(i)
+                    _write_png_atomic(out / img_name, np.ascontiguousarray(rgb[..., ::-1]))
+                    _write_png_atomic(out / mask_name, mask)
+                    meta_file.write(json.dumps({"index": i, "group": group, **meta}) + "\n")
+                    meta_file.flush()
+                    written += 1
+                    if progress is not None:
+                        progress.update(1)
+            finally:
+                sampler.close()
+            group += 1
+    return written

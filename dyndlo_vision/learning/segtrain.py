@@ -1,0 +1,353 @@
+"""Training of the learned cable segmenter (:class:`CableNet`) on ``seg-data`` datasets, ONNX export.
+
+The network is a small encoder-decoder (28 k parameters): three stride-2 convolutions to 1/8 of the
+input, two dilated convolutions (dilation 2 and 4) for context, and two decoder stages with skips back
+to 1/2 of the input, where one logit per pixel is produced. At run time the logits are upsampled to the
+frame and thresholded at 0 (:class:`dyndlo_vision.tracking.learned.LearnedSegmenter`); training applies
+the same bilinear upsampling before the loss, so what is trained is what runs. Inference runs through
+``cv2.dnn`` on the exported ONNX file: on one core it runs several times faster than torch
+(docs/RESULTS.md, "Learned cable segmenter").
+
+Fine-tuning on labelled real photos (``--external``) mixes them into the batches; only the ``train`` half
+of :func:`external_split` is used, the other half is held out for reporting.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["CableNet", "TrainConfig", "export_onnx", "external_split", "load_external", "train"]
+
+
+def _torch() -> Any:
+    import torch
+
+    return torch
+
+
+def build_net(c1: int = 8, c2: int = 16, c3: int = 32) -> Any:
+    """The :class:`CableNet` module (torch is imported only here)."""
+    torch = _torch()
+    nn = torch.nn
+    functional = torch.nn.functional
+
+    def cbr(i: int, o: int, k: int = 3, s: int = 1, d: int = 1) -> Any:
+        return nn.Sequential(
+            nn.Conv2d(i, o, k, s, padding=d * (k // 2), dilation=d, bias=False), nn.BatchNorm2d(o), nn.ReLU()
+        )
+
+    class CableNet(nn.Module):  # type: ignore[misc,name-defined]
+        def __init__(self) -> None:
+            super().__init__()
+            self.e1, self.e2, self.e3 = cbr(3, c1, s=2), cbr(c1, c2, s=2), cbr(c2, c3, s=2)
+            self.e4, self.e5 = cbr(c3, c3, d=2), cbr(c3, c3, d=4)
+            self.d2, self.d2b = cbr(c3 + c2, c2, k=1), cbr(c2, c2)
+            self.d1, self.out = cbr(c2 + c1, c1, k=1), nn.Conv2d(c1, 1, 1)
+
+        def forward(self, x: Any) -> Any:
+            e1 = self.e1(x)
+            e2 = self.e2(e1)
+            e = self.e5(self.e4(self.e3(e2)))
+            d = functional.interpolate(e, scale_factor=2.0, mode="bilinear", align_corners=False)
+            d = self.d2b(self.d2(torch.cat([d, e2], 1)))
+            d = functional.interpolate(d, scale_factor=2.0, mode="bilinear", align_corners=False)
+            return self.out(self.d1(torch.cat([d, e1], 1)))
+
+    return CableNet()
+
+
+CableNet = build_net  # the factory is the public name of the architecture
+
+
+def export_onnx(net: Any) -> bytes:
+    """The network (eval mode, batch norm folded by the exporter) as ONNX bytes with dynamic H, W."""
+    torch = _torch()
+    net = net.eval()
+    buf = io.BytesIO()
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(
+            net,
+            torch.zeros(1, 3, 240, 320),
+            buf,
+            dynamo=False,
+            input_names=["rgb"],
+            output_names=["logit"],
+            dynamic_axes={"rgb": {2: "h", 3: "w"}, "logit": {2: "h2", 3: "w2"}},
+            opset_version=13,
+        )
+    return buf.getvalue()
+
+
+# ----------------------------------------------------------------------------- data
+def _read_rgb(path: Path) -> NDArray[np.uint8]:
+    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise ValueError(f"cannot read image {path}")
+    return np.ascontiguousarray(bgr[..., ::-1])
+
+
+def load_dataset(folder: Path) -> tuple[list[NDArray[np.uint8]], list[NDArray[np.uint8]]]:
+    """Images and 0/1 masks of a ``seg-data`` folder (samples with both files)."""
+    folder = Path(folder)
+    if not (folder / "dataset.json").is_file():
+        raise ValueError(f"{folder} is not a seg-data dataset (no dataset.json)")
+    images, masks = [], []
+    for mp in sorted(folder.glob("[0-9]*_mask.png")):
+        ip = mp.with_name(mp.name.replace("_mask", ""))
+        if not ip.is_file():
+            continue
+        images.append(_read_rgb(ip))
+        masks.append((cv2.imread(str(mp), cv2.IMREAD_GRAYSCALE) > 127).astype(np.uint8))
+    if not images:
+        raise ValueError(f"{folder} holds no samples")
+    return images, masks
+
+
+def external_split(root: Path) -> dict[str, list[tuple[Path, Path]]]:
+    """(image, mask) pairs of ``root`` (the shared external data) split in two halves, by sorted order.
+
+    mBEST (``mbest/S*/imgN.jpg`` with ``imgN_labels.png``, any label > 0 is cable) and cables_dataset
+    (``NNNNN.jpg`` with ``NNNNN_mask_all.png``): within each folder, images in even positions of the sorted
+    list are ``train``, odd positions ``heldout``.
+    """
+    root = Path(root)
+    pairs: dict[str, list[tuple[Path, Path]]] = {"train": [], "heldout": []}
+    folders = sorted((root / "mbest").glob("S*")) + [root / "cables_dataset"]
+    for folder in folders:
+        items = []
+        for img in sorted(folder.glob("*.jpg"), key=lambda p: (len(p.stem), p.stem)):
+            lab = img.with_name(img.stem + "_labels.png")
+            if not lab.is_file():
+                lab = img.with_name(img.stem + "_mask_all.png")
+            if lab.is_file():
+                items.append((img, lab))
+        for k, item in enumerate(items):
+            pairs["train" if k % 2 == 0 else "heldout"].append(item)
+    return pairs
+
+
+def load_external(pairs: list[tuple[Path, Path]], short_side: int = 240) -> tuple[list[Any], list[Any]]:
+    """Images and 0/1 masks, resized so the shorter side is ``short_side`` (as the segmenter sees them)."""
+    images, masks = [], []
+    for img_path, lab_path in pairs:
+        rgb = _read_rgb(img_path)
+        lab = cv2.imread(str(lab_path), cv2.IMREAD_GRAYSCALE)
+        s = short_side / min(rgb.shape[:2])
+        size = (int(round(rgb.shape[1] * s)), int(round(rgb.shape[0] * s)))
+        images.append(cv2.resize(rgb, size, interpolation=cv2.INTER_AREA))
+        m = cv2.resize((lab > 0).astype(np.float32), size, interpolation=cv2.INTER_AREA)
+        masks.append((m >= 0.5).astype(np.uint8))
+    return images, masks
+
+
+def _augment(
+    rng: np.random.Generator, rgb: NDArray[np.uint8], mask: NDArray[np.uint8], crop: tuple[int, int]
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    ch, cw = crop
+    s = float(np.exp(rng.uniform(math.log(0.6), math.log(1.5))))
+    h, w = rgb.shape[:2]
+    s = max(s, ch / h + 1e-3, cw / w + 1e-3)
+    size = (int(math.ceil(w * s)), int(math.ceil(h * s)))
+    img = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR)
+    m = cv2.resize(mask.astype(np.float32), size, interpolation=cv2.INTER_LINEAR)
+    y = int(rng.integers(0, size[1] - ch + 1))
+    x = int(rng.integers(0, size[0] - cw + 1))
+    img, m = img[y : y + ch, x : x + cw], m[y : y + ch, x : x + cw]
+    if rng.random() < 0.5:
+        img, m = img[:, ::-1], m[:, ::-1]
+    if rng.random() < 0.5:
+        img, m = img[::-1], m[::-1]
+    x_in = img.astype(np.float32) * (1.0 / 255.0) - 0.5
+    if rng.random() < 0.3:  # colour jitter: channel shuffle, grey
+        x_in = (
+            x_in[..., rng.permutation(3)]
+            if rng.random() < 0.5
+            else np.repeat(x_in.mean(-1, keepdims=True), 3, -1)
+        )
+    return np.ascontiguousarray(x_in.transpose(2, 0, 1)), (m >= 0.4).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Hyperparameters of :func:`train` (stored in the checkpoint and the shipped JSON)."""
+
+    steps: int = 6000
+    batch: int = 8
+    crop_h: int = 160
+    crop_w: int = 224
+    lr: float = 3e-3
+    pos_weight: float = 3.0
+    seed: int = 0
+    #: Share of each batch drawn from the external train split (0: synthetic only).
+    external_share: float = 0.0
+    checkpoint_every: int = 250
+
+
+def _atomic_save(obj: Any, path: Path) -> None:
+    torch = _torch()
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+def train(
+    data: Path,
+    out: Path,
+    config: TrainConfig,
+    *,
+    resume: bool = False,
+    external: Path | None = None,
+    init: Path | None = None,
+    progress: bool = True,
+    threads: int = 1,
+) -> dict[str, Any]:
+    """Trains (or resumes) a :class:`CableNet`; writes ``out/checkpoint.pt``, ``history.json``, and at the end
+    ``cable_segmenter.onnx`` with ``cable_segmenter.json``. Returns the metadata written to the JSON."""
+    torch = _torch()
+    from tqdm import tqdm
+
+    torch.set_num_threads(int(threads))
+    out = Path(out)
+    ckpt_path = out / "checkpoint.pt"
+    if resume:
+        if not ckpt_path.is_file():
+            raise FileNotFoundError(f"--resume: no checkpoint at {ckpt_path}")
+    elif out.exists() and any(out.iterdir()):
+        raise FileExistsError(f"--out {out} already holds files; use --resume to continue, or another folder")
+    if config.external_share > 0 and external is None:
+        raise ValueError("external_share > 0 needs --external DIR")
+    images, masks = load_dataset(Path(data))
+    ext_images: list[Any] = []
+    ext_masks: list[Any] = []
+    if external is not None and config.external_share > 0:
+        ext_images, ext_masks = load_external(external_split(Path(external))["train"])
+        if not ext_images:
+            raise ValueError(f"no labelled images found under {external}")
+    out.mkdir(parents=True, exist_ok=True)
+    net = build_net()
+    opt = torch.optim.Adam(net.parameters(), lr=config.lr)
+    step = 0
+    history: list[dict[str, float]] = []
+    rng = np.random.default_rng(config.seed)
+    if resume:
+        ck = torch.load(ckpt_path, weights_only=False)
+        if ck["config"] != asdict(config):
+            raise ValueError(
+                f"--resume with other settings than the checkpoint's: {ck['config']} vs {asdict(config)}"
+            )
+        net.load_state_dict(ck["net"])
+        opt.load_state_dict(ck["opt"])
+        step, history = int(ck["step"]), list(ck["history"])
+        rng.bit_generator.state = ck["rng"]
+    elif init is not None:
+        net.load_state_dict(torch.load(Path(init), weights_only=False)["net"])
+    pos_weight = torch.tensor([config.pos_weight])
+    bar = tqdm(
+        total=config.steps,
+        initial=step,
+        desc="seg-train",
+        unit="step",
+        file=sys.stderr,
+        disable=not progress,
+        dynamic_ncols=True,
+    )
+    net.train()
+    t0 = time.perf_counter()
+    running = 0.0
+    try:
+        while step < config.steps:
+            lr = config.lr * (0.03 + 0.97 * 0.5 * (1 + math.cos(math.pi * step / config.steps)))
+            for g in opt.param_groups:
+                g["lr"] = lr
+            xs, ys = [], []
+            for _ in range(config.batch):
+                if ext_images and rng.random() < config.external_share:
+                    k = int(rng.integers(len(ext_images)))
+                    x, y = _augment(rng, ext_images[k], ext_masks[k], (config.crop_h, config.crop_w))
+                else:
+                    k = int(rng.integers(len(images)))
+                    x, y = _augment(rng, images[k], masks[k], (config.crop_h, config.crop_w))
+                xs.append(x)
+                ys.append(y)
+            xb = torch.from_numpy(np.stack(xs))
+            yb = torch.from_numpy(np.stack(ys))[:, None]
+            logit = torch.nn.functional.interpolate(
+                net(xb), size=yb.shape[2:], mode="bilinear", align_corners=False
+            )
+            bce = torch.nn.functional.binary_cross_entropy_with_logits(logit, yb, pos_weight=pos_weight)
+            p = torch.sigmoid(logit)
+            inter = (p * yb).sum(dim=(1, 2, 3))
+            dice = 1 - (2 * inter + 1) / (p.sum(dim=(1, 2, 3)) + yb.sum(dim=(1, 2, 3)) + 1)
+            loss = bce + dice.mean()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            step += 1
+            running = 0.98 * running + 0.02 * float(loss.detach()) if step > 1 else float(loss.detach())
+            bar.update(1)
+            bar.set_postfix(loss=f"{running:.3f}")
+            if step % 50 == 0:
+                history.append({"step": step, "loss": running, "lr": lr, "wall_s": time.perf_counter() - t0})
+            if step % config.checkpoint_every == 0 or step == config.steps:
+                _atomic_save(
+                    {
+                        "net": net.state_dict(),
+                        "opt": opt.state_dict(),
+                        "step": step,
+                        "history": history,
+                        "rng": rng.bit_generator.state,
+                        "config": asdict(config),
+                    },
+                    ckpt_path,
+                )
+    except KeyboardInterrupt:
+        _atomic_save(
+            {
+                "net": net.state_dict(),
+                "opt": opt.state_dict(),
+                "step": step,
+                "history": history,
+                "rng": rng.bit_generator.state,
+                "config": asdict(config),
+            },
+            ckpt_path,
+        )
+        bar.close()
+        raise
+    bar.close()
+    (out / "history.json").write_text(json.dumps(history))
+    onnx = export_onnx(net)
+    (out / "cable_segmenter.onnx").write_bytes(onnx)
+    meta = {
+        "architecture": "CableNet(c1=8, c2=16, c3=32)",
+        "parameters": int(sum(p.numel() for p in net.parameters())),
+        "input": "RGB float32 NCHW, value/255 - 0.5; logits at 1/2 of the input; upsampled, > 0 = cable",
+        "train_config": asdict(config),
+        "data": str(data),
+        "data_manifest": json.loads((Path(data) / "dataset.json").read_text()),
+        "samples": len(images),
+        "external_train_images": len(ext_images),
+        "external_split": "dyndlo_vision.learning.segtrain.external_split: even positions train, odd held out"
+        if ext_images
+        else None,
+        "init": str(init) if init is not None else None,
+        "final_loss": running,
+        "torch": torch.__version__,
+    }
+    (out / "cable_segmenter.json").write_text(json.dumps(meta, indent=1))
+    return meta

@@ -1,0 +1,126 @@
+"""The shipped learned segmenter (ONNX through cv2.dnn) and the multi-cable polylines."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from dyndlo_vision.policies.segmenter import onnx_bytes, segmenter_metadata
+from dyndlo_vision.tracking import dice
+from dyndlo_vision.tracking.learned import LearnedSegmenter
+from dyndlo_vision.tracking.polylines import extract_polylines
+from dyndlo_vision.tracking.synthetic import render_cable, s_curve
+
+
+@pytest.fixture(scope="module")
+def seg() -> LearnedSegmenter:
+    return LearnedSegmenter(onnx_bytes())
+
+
+def _textured(h: int, w: int, seed: int) -> np.ndarray:
+    """A grey blotchy texture with a slight colour tint (a wall, a mat)."""
+    rng = np.random.default_rng(seed)
+    grey = rng.uniform(70, 190, (h // 16, w // 16)).astype(np.float32)
+    grey = cv2.resize(grey, (w, h), interpolation=cv2.INTER_CUBIC)
+    tint = rng.uniform(0.85, 1.15, 3).astype(np.float32)
+    return np.clip(grey[..., None] * tint, 0, 255).astype(np.uint8)
+
+
+COLOURS = [(230, 70, 40), (40, 80, 220), (60, 200, 60), (20, 20, 20), (240, 240, 240)]
+
+
+def test_shipped_model_is_small_and_documented() -> None:
+    meta = segmenter_metadata()
+    assert meta["parameters"] < 300_000
+    assert "seg-train" in meta["command"] and "seg-data" in meta["data_command"]
+
+
+@pytest.mark.parametrize("background", [(150, 150, 150), (200, 190, 170), (40, 40, 40)])
+@pytest.mark.parametrize("colour", COLOURS)
+def test_segments_cables_of_any_colour_and_width(
+    seg: LearnedSegmenter, colour: tuple[int, int, int], background: tuple[int, int, int]
+) -> None:
+    for thickness in (3, 7, 11):
+        rgb, truth = render_cable(s_curve(80, 560, 240, amp=90), (480, 640), thickness, colour, background)
+        mask = seg(rgb)
+        assert mask.shape == truth.shape and mask.dtype == bool
+        assert dice(mask, truth) > 0.75, f"{colour} on {background}, {thickness} px: {dice(mask, truth):.2f}"
+
+
+@pytest.mark.parametrize("colour", [(20, 20, 20), (240, 240, 240)])
+def test_segments_dark_and_white_cables_on_texture(
+    seg: LearnedSegmenter, colour: tuple[int, int, int]
+) -> None:
+    for seed in range(3):
+        rgb, truth = render_cable(
+            s_curve(80, 560, 240, amp=90), (480, 640), 7, colour, _textured(480, 640, seed)
+        )
+        # Measured 0.41-0.53 with the shipped network (0.6-0.9 with the one before its last fine-tuning stage,
+        # which scored lower on the real photos; docs/RESULTS.md): a floor against regressions, not a target.
+        assert dice(seg(rgb), truth) > 0.35, f"{colour}, texture {seed}: {dice(seg(rgb), truth):.2f}"
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="known weakness (docs/RESULTS.md): a saturated cable whose brightness "
+    "matches a blotchy texture is missed; the network leans on brightness contrast",
+)
+def test_segments_coloured_cables_on_texture(seg: LearnedSegmenter) -> None:
+    scores = []
+    for seed in range(3):
+        for colour in COLOURS[:3]:
+            rgb, truth = render_cable(
+                s_curve(80, 560, 240, amp=90), (480, 640), 7, colour, _textured(480, 640, seed)
+            )
+            scores.append(dice(seg(rgb), truth))
+    assert min(scores) > 0.5, np.round(scores, 2)
+
+
+def test_a_blob_is_not_cable(seg: LearnedSegmenter) -> None:
+    # A dark sphere (a gripper) and a box on a plain wall, no cable: (almost) nothing is cable.
+    rgb = np.full((480, 640, 3), 190, np.uint8)
+    cv2.circle(rgb, (300, 200), 30, (30, 30, 30), -1, cv2.LINE_AA)
+    cv2.rectangle(rgb, (420, 300), (520, 380), (40, 60, 160), -1)
+    assert seg(rgb).mean() < 0.002
+
+
+@pytest.mark.parametrize("shape", [(333, 517), (480, 640), (97, 61)])
+def test_mask_has_the_input_size(seg: LearnedSegmenter, shape: tuple[int, int]) -> None:
+    rgb = np.random.default_rng(0).integers(0, 255, (*shape, 3), dtype=np.uint8)
+    assert seg(rgb).shape == shape
+    assert seg.probability(rgb).shape == shape
+
+
+def test_bad_input_is_refused(seg: LearnedSegmenter) -> None:
+    with pytest.raises(ValueError, match="uint8 RGB"):
+        seg(np.zeros((10, 10), np.uint8))
+    with pytest.raises(ValueError, match="uint8 RGB"):
+        seg(np.zeros((10, 10, 3), np.float32))
+    with pytest.raises(ValueError, match="ONNX"):
+        LearnedSegmenter(b"not a network")
+    with pytest.raises(ValueError, match="short_side"):
+        LearnedSegmenter(b"x", short_side=4)
+    with pytest.raises(FileNotFoundError, match="nowhere.onnx"):
+        onnx_bytes("/nowhere.onnx")
+
+
+def test_polylines_of_two_crossing_cables() -> None:
+    mask = np.zeros((200, 300), np.uint8)
+    cv2.line(mask, (20, 30), (280, 170), 1, 4)
+    cv2.line(mask, (40, 180), (260, 20), 1, 4)
+    polys = extract_polylines(mask)
+    assert len(polys) == 2
+    for p in polys:
+        assert p.length_px > 200 and p.start_free and p.end_free
+        json.dumps(p.to_json())
+    # A cable that leaves the image has one free end.
+    mask = np.zeros((100, 200), np.uint8)
+    cv2.line(mask, (0, 50), (150, 50), 1, 3)
+    (p,) = extract_polylines(mask)
+    assert p.start_free != p.end_free
+    assert extract_polylines(np.zeros((50, 50), bool)) == []
+    with pytest.raises(ValueError, match="2-D"):
+        extract_polylines(np.zeros((5, 5, 3)))
