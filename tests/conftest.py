@@ -43,7 +43,12 @@ def pytest_configure(config: pytest.Config) -> None:
 def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]):  # type: ignore[no-untyped-def]
     outcome = yield
     report = outcome.get_result()
-    if report.skipped and _in_ci() and item.get_closest_marker("ci_may_skip") is None:
+    # An expected failure (``xfail``: reported as skipped, with ``wasxfail``) is a documented known weakness,
+    # not a missing piece; a strict one fails when it starts passing. Turned into a failure here it would not
+    # even fail the run: pytest does not count a failed report that carries ``wasxfail``.
+    expected_failure = hasattr(report, "wasxfail")
+    allowed = item.get_closest_marker("ci_may_skip") is not None
+    if report.skipped and not expected_failure and not allowed and _in_ci():
         reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
         report.outcome = "failed"
         report.longrepr = f"skipped under CI, where nothing may be missing: {reason}"
