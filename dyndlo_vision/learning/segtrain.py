@@ -266,6 +266,12 @@ def train(
         disable=not progress,
         dynamic_ncols=True,
     )
+    def save_checkpoint() -> None:
+        """Everything a resumed run needs: weights, optimiser, step, history and the random stream."""
+        state = {"net": net.state_dict(), "opt": opt.state_dict(), "step": step, "history": history,
+                 "rng": rng.bit_generator.state, "config": asdict(config)}
+        _atomic_save(state, ckpt_path)
+
     net.train()
     t0 = time.perf_counter()
     running = 0.0
@@ -304,29 +310,9 @@ def train(
             if step % 50 == 0:
                 history.append({"step": step, "loss": running, "lr": lr, "wall_s": time.perf_counter() - t0})
             if step % config.checkpoint_every == 0 or step == config.steps:
-                _atomic_save(
-                    {
-                        "net": net.state_dict(),
-                        "opt": opt.state_dict(),
-                        "step": step,
-                        "history": history,
-                        "rng": rng.bit_generator.state,
-                        "config": asdict(config),
-                    },
-                    ckpt_path,
-                )
+                save_checkpoint()
     except KeyboardInterrupt:
-        _atomic_save(
-            {
-                "net": net.state_dict(),
-                "opt": opt.state_dict(),
-                "step": step,
-                "history": history,
-                "rng": rng.bit_generator.state,
-                "config": asdict(config),
-            },
-            ckpt_path,
-        )
+        save_checkpoint()
         bar.close()
         raise
     bar.close()
