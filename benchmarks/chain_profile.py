@@ -31,7 +31,7 @@ from dyndlo_vision.sim import CableParams, PhysicsOptions, Scene  # noqa: E402
 from dyndlo_vision.tasks import TipControl  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from chain_speed import tip_control_plans  # noqa: E402
+from chain_speed import step_from_python, tip_control_plans  # noqa: E402
 
 
 def _dense(m: mujoco.MjModel) -> None:
@@ -80,17 +80,9 @@ def build(cable: CableParams, physics: PhysicsOptions, change: Any, pos: list, v
 
 
 def loop(scene: Scene, controls: list) -> tuple[float, int]:
-    m, d = scene.model, scene.data
-    warnings = 0
-    cpu = time.thread_time()
-    for ctrl in controls:
-        scene.reset()
-        for k in range(len(ctrl)):
-            d.ctrl[:] = ctrl[k]
-            mujoco.mj_step(m, d)
-        warnings += int(sum(d.warning[i].number for i in range(len(d.warning))))
-    steps = sum(len(c) for c in controls)
-    return (time.thread_time() - cpu) / steps * 1e6, warnings
+    """CPU microseconds per ``mj_step`` over the motions, and MuJoCo's warnings."""
+    cpu_s, _, warnings = step_from_python(scene, controls)
+    return cpu_s / sum(len(c) for c in controls) * 1e6, warnings
 
 
 def stage_profile(scene: Scene, controls: list) -> dict[str, float]:

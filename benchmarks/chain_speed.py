@@ -67,13 +67,10 @@ def tip_control_plans(episodes: int, settle_s: float, dt: float) -> tuple[list[n
     return pos, vel
 
 
-def time_scene(config: SceneConfig, pos: list[np.ndarray], vel: list[np.ndarray]) -> dict[str, float]:
-    """CPU/wall time of the same motions with ``mj_step`` from Python and with the C rollout."""
-    scene = Scene(config)
-    home = scene.gripper_home[0]
-    controls = [scene.tcp_controls((home + p)[:, None], v[:, None]) for p, v in zip(pos, vel, strict=True)]
+def step_from_python(scene: Scene, controls: list[np.ndarray]) -> tuple[float, float, int]:
+    """Each control sequence from a reset, one ``mj_step`` per row from Python: CPU s, wall s, MuJoCo
+    warnings."""
     m, d = scene.model, scene.data
-    steps = sum(len(c) for c in controls)
     warnings = 0
     wall, cpu = time.perf_counter(), time.thread_time()
     for ctrl in controls:
@@ -82,7 +79,16 @@ def time_scene(config: SceneConfig, pos: list[np.ndarray], vel: list[np.ndarray]
             d.ctrl[:] = ctrl[k]
             mujoco.mj_step(m, d)
         warnings += int(sum(d.warning[i].number for i in range(len(d.warning))))
-    step_cpu, step_wall = time.thread_time() - cpu, time.perf_counter() - wall
+    return time.thread_time() - cpu, time.perf_counter() - wall, warnings
+
+
+def time_scene(config: SceneConfig, pos: list[np.ndarray], vel: list[np.ndarray]) -> dict[str, float]:
+    """CPU/wall time of the same motions with ``mj_step`` from Python and with the C rollout."""
+    scene = Scene(config)
+    home = scene.gripper_home[0]
+    controls = [scene.tcp_controls((home + p)[:, None], v[:, None]) for p, v in zip(pos, vel, strict=True)]
+    steps = sum(len(c) for c in controls)
+    step_cpu, step_wall, warnings = step_from_python(scene, controls)
     wall, cpu = time.perf_counter(), time.thread_time()
     resets = 0
     for ctrl in controls:
@@ -93,7 +99,7 @@ def time_scene(config: SceneConfig, pos: list[np.ndarray], vel: list[np.ndarray]
     sim_s = steps * scene.timestep
     return {"step_cpu_us": step_cpu / steps * 1e6, "step_wall_us": step_wall / steps * 1e6,
             "rollout_sim_per_cpu_s": sim_s / roll_cpu, "rollout_sim_per_wall_s": sim_s / roll_wall,
-            "warnings": warnings, "rollout_resets": resets, "nv": m.nv}
+            "warnings": warnings, "rollout_resets": resets, "nv": scene.model.nv}
 
 
 def time_episodes(config: SceneConfig, episodes: int) -> dict[str, float]:
