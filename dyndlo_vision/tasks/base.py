@@ -42,11 +42,15 @@ class EpisodeMonitor:
     min_goal_distance_m: float = np.inf
     last_p_dlo: NDArray[np.float64] | None = None
     samples: int = 0
+    #: The simulation blew up (MuJoCo's bad-acceleration reset, a non-finite or runaway state). The episode
+    #: ends there; it counts as an avoid condition and never as a success, so a plan that breaks the
+    #: simulator is not rewarded for what the broken state shows.
+    diverged: bool = False
 
     @property
     def any_avoid(self) -> bool:
-        """I_avoid over the episode so far."""
-        return any(self.avoid.values())
+        """I_avoid over the episode so far (a divergence counts)."""
+        return self.diverged or any(self.avoid.values())
 
 
 class Task(ABC):
@@ -264,6 +268,7 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
             self._simulate(int(np.ceil(remaining / self._dt)))
             final = True
         diverged = not self.scene.is_finite()
+        self._monitor.diverged = self._monitor.diverged or diverged
         terms, success, extra = self.task.evaluate(self.scene, self._goal, self._monitor, final or diverged)
         reward = float(sum(terms.values()))
         info: dict[str, Any] = {**terms, **extra, "is_success": bool(success),
@@ -438,10 +443,17 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         mujoco.mj_forward(self.scene.model, self.scene.data)
 
     def outcome(self) -> tuple[float, bool, dict[str, Any]]:
-        """Reward, success and info of the episode as it stands, evaluated as its final step."""
+        """Reward, success and info of the episode as it stands, evaluated as its final step.
+
+        A blow-up since the reset (also one while the control loop drove the scene through :meth:`follow`)
+        scores as in :meth:`step`: an avoid condition, no success, ``info["diverged"]``.
+        """
+        self._monitor.diverged = self._monitor.diverged or not self.scene.is_finite()
         terms, success, extra = self.task.evaluate(self.scene, self._goal, self._monitor, True)
         info = {**terms, **extra, "is_success": bool(success), "avoid": dict(self._monitor.avoid),
                 "sim_time_s": self.scene.time}
+        if self._monitor.diverged:
+            info["diverged"] = True
         return float(sum(terms.values())), bool(success), info
 
     def is_done_early(self) -> bool:

@@ -88,7 +88,7 @@ class Hooking(Task):
         info = {"min_distance_m": monitor.min_goal_distance_m}
         if not final:
             return {"r_avoid": 0.0, "r_distance": 0.0, "r_success": 0.0, "r_dyn": 0.0}, False, info
-        success = self.hooked(scene)
+        success = self.hooked(scene) and not monitor.diverged
         terms = implicit_reward(self.coefficients(), monitor.any_avoid, success, not success,
                                 monitor.max_mean_height_m)
         return terms, success, info

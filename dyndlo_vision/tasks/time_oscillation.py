@@ -130,6 +130,8 @@ class TimeOscillation(Task):
                  final: bool) -> tuple[dict[str, float], bool, dict[str, Any]]:
         terms = {"r_avoid": 0.0, "r_distance": 0.0, **self._pending}
         self._pending = {key: 0.0 for key in self._pending}
+        if final and monitor.diverged:
+            terms["r_avoid"] += self.coefficients().avoid  # the blow-up's own avoid step
         arrived = self._arrival_s is not None
         success = bool(arrived and self._max_osc < OSCILLATION_THRESHOLD_M and not monitor.any_avoid)
         if final:

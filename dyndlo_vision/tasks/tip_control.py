@@ -68,7 +68,7 @@ class TipControl(Task):
 
     def evaluate(self, scene: Scene, goal: NDArray[np.float64], monitor: EpisodeMonitor,
                  final: bool) -> tuple[dict[str, float], bool, dict[str, Any]]:
-        hit = monitor.min_goal_distance_m < self.success_radius_m
+        hit = monitor.min_goal_distance_m < self.success_radius_m and not monitor.diverged
         info = {"min_distance_m": monitor.min_goal_distance_m, "max_tcp_speed_m_s": monitor.max_tcp_speed_m_s}
         if not final:
             return {"r_avoid": 0.0, "r_distance": 0.0, "r_success": 0.0, "r_dyn": 0.0}, False, info

@@ -125,7 +125,7 @@ class Vaulting(Task):
         info = {"middle_x_m": float(middle[0])}
         if not final:
             return {"r_avoid": 0.0, "r_distance": 0.0, "r_success": 0.0, "r_dyn": 0.0}, False, info
-        success = self.landed_beyond(scene)
+        success = self.landed_beyond(scene) and not monitor.diverged
         terms = implicit_reward(self.coefficients(), monitor.any_avoid, success, not success,
                                 monitor.max_mean_height_m)
         return terms, success, info

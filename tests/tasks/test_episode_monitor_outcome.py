@@ -123,3 +123,43 @@ def test_tcp_near_the_base_axis_is_a_shoulder_breach_in_the_episode() -> None:
     _feed(env, env.p_dlo(), tcp=np.array([[[0.2, 0.0, 0.6]]]))
     assert env.monitor.avoid == {"outreach": False, "velocity": False, "collision": False, "shoulder": True}
     assert env.outcome()[2]["r_avoid"] == -5.0
+
+
+@pytest.mark.parametrize("task", ["tip-control", "hooking", "vaulting", "time-oscillation"])
+def test_a_diverged_episode_ends_as_an_avoid_and_never_as_a_success(task: str, monkeypatch) -> None:
+    # A blow-up ends the episode at that step; whatever the broken state shows, it is no success, and it
+    # pays lambda_1 like any avoid condition. Each task is first set up to succeed but for the divergence,
+    # and the same episode without the divergence is the control.
+    def episode(diverge: bool) -> dict:
+        env = make_env(task).unwrapped
+        env.reset(seed=0, options={"goal": GOAL} if task == "tip-control" else None)
+        if task == "tip-control":
+            _feed(env, [GOAL])  # the tip on the target: a hit
+        elif task == "hooking":
+            monkeypatch.setattr(env.task, "hooked", lambda scene: True)
+        elif task == "vaulting":
+            monkeypatch.setattr(env.task, "landed_beyond", lambda scene: True)
+        if diverge:
+            monkeypatch.setattr(env.scene, "is_finite", lambda: False)
+        action = np.zeros(env.action_space.shape, np.float32)
+        _, _, terminated, truncated, info = env.step(action)
+        assert terminated and not truncated
+        assert env.monitor.diverged is diverge and env.outcome()[1] is info["is_success"]
+        return {**info, "avoid_coefficient": env.task.coefficients().avoid}
+
+    clean, broken = episode(False), episode(True)
+    # The control loop drives the scene without env.step; its score, outcome(), sees the blow-up too.
+    env = make_env(task).unwrapped
+    env.reset(seed=0, options={"goal": GOAL} if task == "tip-control" else None)
+    monkeypatch.setattr(env.scene, "is_finite", lambda: False)
+    _, success, info = env.outcome()
+    assert success is False and info["diverged"] is True and env.monitor.diverged
+    assert "diverged" not in clean and broken["diverged"] is True
+    lam1 = broken["avoid_coefficient"]
+    if task == "time-oscillation":
+        # Explicit task: lambda_1 for the step that blew up, on top of the per-step terms so far.
+        assert broken["r_avoid"] == pytest.approx(clean["r_avoid"] + lam1)
+    else:
+        assert clean["is_success"] and clean["r_avoid"] == 0.0 and clean["r_success"] > 0
+        assert broken["r_avoid"] == lam1 < 0 and broken["r_success"] == 0.0
+    assert broken["is_success"] is False
