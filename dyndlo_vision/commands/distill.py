@@ -33,6 +33,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="observation-noise model (JSON) the student sees P_DLO through; 'packaged' for the "
         "shipped tracker model (default: true state)",
     )
+    p.add_argument(
+        "--env-option",
+        action="append",
+        metavar="KEY=VALUE",
+        help="task option of the tip-control environment, e.g. cable=chain (repeatable; default: the "
+        "teacher's own options, from the JSON beside it)",
+    )
     p.add_argument("--seed", type=int, default=1, help="episode seeds start at SEED * 1e6 (default 1)")
     p.add_argument("--workers", type=int, default=2, help="processes collecting episodes (default 2)")
     p.add_argument(
@@ -54,12 +61,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Resolve the options, then run the rounds."""
+    from dyndlo_vision import policies
+    from dyndlo_vision.commands.train import parse_assignments
     from dyndlo_vision.learning.distill import DistillConfig, distill
     from dyndlo_vision.tasks.noise import resolve_noise_model_path
 
     noise = resolve_noise_model_path(args.obs_noise)
+    options = parse_assignments(args.env_option, "--env-option")
+    _, teacher_meta = policies.resolve(args.teacher)
     config = DistillConfig(
         teacher=args.teacher,
+        task_options={**teacher_meta.get("env_options", {}), **options},
         rounds=args.rounds,
         episodes=args.episodes,
         first_round_episodes=args.first_round_episodes,

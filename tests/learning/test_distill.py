@@ -319,3 +319,21 @@ def test_collect_reports_episodes_from_worker_processes() -> None:
     assert [ok for _, ok in sorted(seen)] == list(data.successes)
     _, first = np.unique(data.seeds, return_index=True)
     assert list(data.seeds[np.sort(first)]) == seeds
+
+
+def test_cli_distill_env_options_default_to_the_teachers(tmp_path, monkeypatch) -> None:
+    """The student learns in the teacher's environment (its JSON's env_options); --env-option overrides."""
+    monkeypatch.setattr(distill_module, "collect", _fake_collect)
+    path, _ = policies.resolve("tip-control-single-step")
+    teacher = tmp_path / "teacher.zip"
+    shutil.copyfile(path, teacher)
+    teacher.with_suffix(".json").write_text(json.dumps(
+        {"task": "tip-control", "multi_step": False, "algo": "sac", "env_options": {"cable": "rod"}}
+    ))
+    fast = ["--teacher", str(teacher), "--workers", "1", "--first-round-episodes", "2", "--epochs", "1",
+            "--quiet"]
+    assert main(["distill", *fast, "--out", str(tmp_path / "inherit")]) == 0
+    assert json.loads((tmp_path / "inherit" / "config.json").read_text())["task_options"] == {"cable": "rod"}
+    assert main(["distill", *fast, "--env-option", "cable=chain", "--out", str(tmp_path / "override")]) == 0
+    stored = json.loads((tmp_path / "override" / "config.json").read_text())
+    assert stored["task_options"] == {"cable": "chain"}
