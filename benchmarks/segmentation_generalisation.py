@@ -46,6 +46,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from dyndlo_vision.learning.segdata import SceneSampler, SegDataConfig  # noqa: E402
 from dyndlo_vision.learning.segtrain import external_split  # noqa: E402
 from dyndlo_vision.policies.segmenter import onnx_bytes  # noqa: E402
+from dyndlo_vision.sim.cable_look import CableLook  # noqa: E402
 from dyndlo_vision.tracking import BackgroundSegmenter, dice  # noqa: E402
 from dyndlo_vision.tracking.centerline import extract_centerline  # noqa: E402
 from dyndlo_vision.tracking.learned import LearnedSegmenter  # noqa: E402
@@ -184,7 +185,7 @@ def _whip_video(style: str, seed: int, seconds: float = 3.0):
         rgb = np.clip(acc / sub + 0.5, 0, 255).astype(np.uint8)
         seg_r.update_scene(d, camera="tracking")
         s = seg_r.render()
-        truth = (s[..., 1] == int(mujoco.mjtObj.mjOBJ_FLEX)) & (s[..., 0] == 0)
+        truth = CableLook.of(sc.model).mask(s)
         frames.append(rgb)
         truths.append(truth)
         tips.append(sc.cable_nodes()[-1].copy())
@@ -338,7 +339,7 @@ def part_loopcam(model: str | None, episodes: int = 3) -> dict:
         frames.append(cam.read().rgb)
         rend.update_scene(base.data, camera="tracking")
         s = rend.render()
-        truths.append(s[..., 1] == int(mujoco.mjtObj.mjOBJ_FLEX))
+        truths.append(CableLook.of(base.model).mask(s))
     cam.close()
     rend.close()
     env.close()

@@ -109,16 +109,16 @@ def test_demo_episodes_aggregate_and_a_full_length_miss_is_filmed_to_its_outcome
 ) -> None:
     """``--episodes 2``: top-level numbers are the run's, rows per episode; episode 0 misses and runs long.
 
-    Seed 100056 misses and runs all 40 decisions; the environment then follows the last plan for the 0.5 s
+    Seed 100230 misses and runs all 40 decisions (one of the shipped policy's 2 misses in seeds 100000-100999); the environment then follows the last plan for the 0.5 s
     settle time before it scores the episode, and the video and plot go on through that time.
     """
     seen = spy_outputs(monkeypatch)
     out = tmp_path / "demo"
-    argv = ["demo", "--out", str(out), "--observation", "true", "--seed", "100056", "--episodes", "2"]
+    argv = ["demo", "--out", str(out), "--observation", "true", "--seed", "100230", "--episodes", "2"]
     assert main([*argv, "--quiet"]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     rows = metrics["episodes"]
-    assert [r["seed"] for r in rows] == [100056, 100057]
+    assert [r["seed"] for r in rows] == [100230, 100231]
     assert [r["success"] for r in rows] == [False, True]
     assert metrics["num_episodes"] == 2 and metrics["successes"] == 1 and metrics["success_rate"] == 0.5
     assert metrics["success_ci95"] == list(wilson_interval(1, 2))
@@ -154,6 +154,7 @@ def test_overlay_colours_are_the_legends_and_stand_apart_from_the_scene() -> Non
     import gymnasium as gym
 
     import dyndlo_vision  # noqa: F401
+    from dyndlo_vision.sim.cable_look import CableLook
     from dyndlo_vision.tracking import annotate
 
     # The tracker's drawing is what the legend says it is.
@@ -162,7 +163,8 @@ def test_overlay_colours_are_the_legends_and_stand_apart_from_the_scene() -> Non
         name = text.split()[0].rstrip(":")
         assert min(NAMED_RGB, key=lambda n: np.linalg.norm(np.subtract(NAMED_RGB[n], rgb))) == name, text
     model = gym.make("DynDLO/TipControl-v0", multi_step=True).unwrapped.model
-    scene = {"target sphere": 255 * model.geom("target_geom").rgba[:3], "cable": 255 * model.flex_rgba[0][:3]}
+    cable_rgb = 255 * CableLook.of(model).rgba(model)[:3]
+    scene = {"target sphere": 255 * model.geom("target_geom").rgba[:3], "cable": cable_rgb}
     overlay = {"true P_DLO": demo.TRUE_RGB, "target ring": demo.TARGET_RGB, "tracked cable": demo.CABLE_RGB,
                "estimate": demo.ESTIMATE_RGB}
     for name, rgb in overlay.items():
@@ -321,11 +323,11 @@ def test_demo_that_fails_while_writing_leaves_no_new_folder_and_no_partial_outpu
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [100000, 100056])
+@pytest.mark.parametrize("seed", [100000, 100230])
 def test_demo_loop_on_true_state_is_the_environment_episode(seed: int) -> None:
     """The demo's loop on true state scores a multi-step episode exactly as ``env.step`` does.
 
-    Seed 100056 misses and runs all 40 decisions: after the last re-plan the environment follows that plan for
+    Seed 100230 misses and runs all 40 decisions: after the last re-plan the environment follows that plan for
     the settle time, and so must the loop (holding the TCP instead once changed the outcome of this seed; the
     loop sends it one period at a time, for the video, and must still end in the environment's state).
     """
@@ -344,6 +346,8 @@ def test_demo_loop_on_true_state_is_the_environment_episode(seed: int) -> None:
         steps += 1
     end_time = env.unwrapped.scene.time
     end_tip = env.unwrapped.p_dlo()
+    if seed == 100230:
+        assert steps == 40 and not info["is_success"]  # the full-length miss this case is about
     record = film_episode(env, model, seed, "true", "tracking", None)
     assert record["cycles"] == steps
     assert record["success"] == info["is_success"] and record["avoid"] == info["avoid"]

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 from dyndlo_vision.cameras.simulated import DelayedCamera, MujocoCamera, checked_latency_s
 from dyndlo_vision.control.sim_env import as_sim_env
 from dyndlo_vision.control.state_sources import TrackedState
-from dyndlo_vision.sim.scene import CABLE_NAME
+from dyndlo_vision.sim.cable_look import CableLook
 from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
 from dyndlo_vision.tracking import (
     LATENT_LOOP_FILTER,
@@ -73,19 +73,18 @@ def render_without_cable(camera: MujocoCamera) -> NDArray[np.uint8]:
     blob there once it has moved (the live gripper is masked by its projected position instead).
     """
     model = camera.model
-    fid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_FLEX, CABLE_NAME)
+    cable = CableLook.of(model)
     geoms = [g for g in range(model.ngeom) if model.geom(g).name.startswith("tcp_")]
     sites = [k for k in range(model.nsite) if model.site(k).name.startswith("tcp_")]
-    saved = (
-        float(model.flex_rgba[fid, 3]), model.geom_rgba[geoms, 3].copy(), model.site_rgba[sites, 3].copy()
-    )
-    model.flex_rgba[fid, 3] = 0.0
+    saved = (cable.alphas(model), model.geom_rgba[geoms, 3].copy(), model.site_rgba[sites, 3].copy())
+    cable.set_alphas(model, 0.0)
     model.geom_rgba[geoms, 3] = 0.0
     model.site_rgba[sites, 3] = 0.0
     try:
         return camera.read().rgb
     finally:
-        model.flex_rgba[fid, 3], model.geom_rgba[geoms, 3], model.site_rgba[sites, 3] = saved
+        cable.set_alphas(model, saved[0])
+        model.geom_rgba[geoms, 3], model.site_rgba[sites, 3] = saved[1], saved[2]
 
 
 def pixels_per_metre(camera: Any, point: NDArray[np.float64], plane: Plane = MOTION_PLANE) -> float:

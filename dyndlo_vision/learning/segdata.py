@@ -271,6 +271,7 @@ class SceneSampler:
 
     def __init__(self, config: SegDataConfig, seed: int, group: int) -> None:
         from dyndlo_vision.sim import BoxProp, CableParams, CapsuleProp, Scene, SceneConfig
+        from dyndlo_vision.sim.cable_look import CableLook
         from dyndlo_vision.sim.rendering import make_renderer
 
         config.check()
@@ -280,11 +281,14 @@ class SceneSampler:
         length = float(rng.uniform(0.3, 1.0))
         radius = float(rng.uniform(0.0015, 0.006))
         segments = max(4, min(int(rng.integers(12, 31)), int(length / (2.6 * radius))))
+        # The rod, as when the shipped segmenter's data were made (before the chain became the default): the
+        # same seeds give the same samples. Only the drawn shape matters here, and both models draw a tube.
         cable = CableParams(
             length_m=length,
             num_segments=segments,
             radius_m=radius,
             young_pa=float(10 ** rng.uniform(5.5, 7.5)),
+            model="rod",
         )
         tcp = np.array([rng.uniform(0.3, 0.7), rng.uniform(-0.1, 0.1), rng.uniform(0.5, 1.0)])
         # Random initial path: a random walk from the TCP (the cable settles from there).
@@ -331,7 +335,7 @@ class SceneSampler:
         )
         m = self.scene.model
         self.cam_id = int(m.camera("tracking").id)
-        self.flex_id = 0
+        self.cable_look = CableLook.of(m)
         self.floor_geom = int(m.geom("floor").id)
         self.tcp_geom = int(m.geom("tcp_0_geom").id)
         self.renderer = make_renderer(m, h2, w2)
@@ -375,9 +379,9 @@ class SceneSampler:
         m.cam_pos[self.cam_id] = look + view * dist
         m.cam_quat[self.cam_id] = _look_at_quat(-view, float(rng.normal(0, 0.3)))
         m.cam_fovy[self.cam_id] = fovy
-        m.flex_radius[self.flex_id] = radius
+        self.cable_look.set_radius(m, radius)
         colour = _cable_colour(rng)
-        m.flex_rgba[self.flex_id] = [*colour, 1.0]
+        self.cable_look.set_rgba(m, [*colour, 1.0])
         m.geom_size[self.tcp_geom, 0] = float(rng.uniform(0.3, 2.5)) * max(radius * 4, 0.008)
         grip = _cable_colour(rng) if rng.random() < 0.5 else np.full(3, rng.uniform(0.05, 0.3))
         m.geom_rgba[self.tcp_geom] = [*grip, 1.0]
@@ -397,7 +401,7 @@ class SceneSampler:
         finally:
             r.disable_segmentation_rendering()
         ids, types = seg[..., 0], seg[..., 1]
-        cable2 = ((types == int(mujoco.mjtObj.mjOBJ_FLEX)) & (ids == self.flex_id)).astype(np.float32)
+        cable2 = self.cable_look.mask(seg).astype(np.float32)
         bg2 = (types == -1) | ((types == int(mujoco.mjtObj.mjOBJ_GEOM)) & (ids == self.floor_geom))
         textured = bool(rng.random() < cfg.texture_share)
         if textured:

@@ -53,6 +53,16 @@ def joint_name(prefix: str, index: int) -> str:
     return f"{prefix}_ball_{index}"
 
 
+def geom_prefix(prefix: str) -> str:
+    """What every capsule geom's name starts with (and no other geom's in our scenes)."""
+    return f"{prefix}_geom_"
+
+
+def geom_name(prefix: str, index: int) -> str:
+    """Name of capsule ``index``'s geom."""
+    return f"{geom_prefix(prefix)}{index}"
+
+
 def twist_actuator_name(prefix: str, index: int) -> str:
     """Name of the twist-stiffness correction actuator of joint ``index``."""
     return f"{prefix}_twist_{index}"
@@ -92,7 +102,7 @@ def chain_bodies_mjcf(cable: CableParams, prefix: str, quat: Sequence[float], in
                 f'{pad}  <joint name="{joint_name(prefix, i)}" type="ball" stiffness="{k_bend:.9g}" '
                 f'damping="{damping}"/>'
             )
-        opening.append(f"{head}\n{pad}  <geom name=\"{prefix}_geom_{i}\" {geom}/>")
+        opening.append(f"{head}\n{pad}  <geom name=\"{geom_name(prefix, i)}\" {geom}/>")
     closing = [indent + "  " * i + "</body>" for i in reversed(range(cable.num_segments))]
     return "\n" + "\n".join(opening) + "\n" + "\n".join(closing)
 

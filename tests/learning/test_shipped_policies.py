@@ -47,7 +47,7 @@ def test_shipped_tip_control_policy_meets_its_published_rate_on_unseen_seeds(nam
     """20 episodes on seeds outside training and the published evaluation; the published 95 % interval sets
     how many must hit (a policy that regressed, or a metadata file that overstates it, fails)."""
     meta = policies.metadata(name)
-    env = gym.make(task_entry(meta["task"]).env_id, multi_step=meta["multi_step"])
+    env = gym.make(task_entry(meta["task"]).env_id, multi_step=meta["multi_step"], **meta["env_options"])
     model = policies.load(name, env=env)
     hits = 0
     for seed in UNSEEN_SEEDS:
@@ -95,9 +95,10 @@ def test_shipped_hooking_policy_hooks_on_the_nominal_cable_and_on_cables_it_neve
 
     meta = policies.metadata("hooking")
     assert meta["evaluation"]["success_rate"] >= 0.9
-    env = gym.make(task_entry("hooking").env_id)
+    env = gym.make(task_entry("hooking").env_id, **meta["env_options"])
     model = policies.load("hooking", env=env)
-    for episode_env in (env, CableRandomization(gym.make(task_entry("hooking").env_id), every_episodes=1)):
+    randomized = CableRandomization(gym.make(task_entry("hooking").env_id, **meta["env_options"]), every_episodes=1)
+    for episode_env in (env, randomized):
         for seed in UNSEEN_SEEDS[:3]:
             obs, start = episode_env.reset(seed=seed)
             action, _ = model.predict(obs, deterministic=True)
@@ -112,13 +113,15 @@ def test_shipped_vaulting_policy_vaults_and_replays_its_recorded_cables() -> Non
     from dyndlo_vision.tasks.wrappers import CableRandomization
 
     meta = policies.metadata("vaulting")
-    env = gym.make(task_entry("vaulting").env_id)
+    env = gym.make(task_entry("vaulting").env_id, **meta["env_options"])
     model = policies.load("vaulting", env=env)
     obs, _ = env.reset(seed=0)
     _, reward, _, _, info = env.step(model.predict(obs, deterministic=True)[0])
     assert info["is_success"] and not any(info["avoid"].values())
     assert reward == pytest.approx(meta["evaluation"]["nominal_cable"]["reward"])
-    random_cables = CableRandomization(gym.make(task_entry("vaulting").env_id), every_episodes=1)
+    random_cables = CableRandomization(
+        gym.make(task_entry("vaulting").env_id, **meta["env_options"]), every_episodes=1
+    )
     recorded = meta["evaluation"]["first_episodes"]
     successes = [seed for seed, ok in recorded.items() if ok][:2]
     failures = [seed for seed, ok in recorded.items() if not ok][:1]
@@ -136,7 +139,7 @@ def test_shipped_vaulting_policy_meets_its_published_rate_on_unseen_cables() -> 
     from dyndlo_vision.tasks import make_env
 
     meta = policies.metadata("vaulting")
-    env = make_env("vaulting", randomize_cable_every=1)
+    env = make_env("vaulting", randomize_cable_every=1, **meta["env_options"])
     model = policies.load("vaulting", env=env)
     hits = 0
     for seed in UNSEEN_SEEDS:

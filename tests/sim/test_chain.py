@@ -109,12 +109,12 @@ def test_damping_defaults_per_model() -> None:
     """Left unset, the damping takes each model's default; the quadratic term is the chain's only."""
     from dyndlo_vision.sim.cable import DEFAULT_DAMPING_QUADRATIC_S2, DEFAULT_DAMPING_S
 
-    chain, rod = _chain(), CableParams()
+    chain, rod = _chain(), CableParams(model="rod")
     assert (chain.damping_s, chain.damping_quadratic_s2) == (DEFAULT_DAMPING_S["chain"],
                                                              DEFAULT_DAMPING_QUADRATIC_S2["chain"])
     assert (rod.damping_s, rod.damping_quadratic_s2) == (0.002, 0.0)
     with pytest.raises(ValueError, match="chain cable only"):
-        CableParams(damping_quadratic_s2=0.01)
+        CableParams(damping_quadratic_s2=0.01, model="rod")
     scene = Scene(SceneConfig(cable=chain, settle_s=0.0))
     joint = scene.model.joint(chain_model.joint_name(CABLE_NAME, 1))
     k = chain.bending_stiffness_nm2 / chain.segment_length_m
@@ -125,7 +125,7 @@ def test_damping_defaults_per_model() -> None:
 
 def test_rod_rejects_implicit_integrators() -> None:
     with pytest.raises(ValueError, match="does not support the rod cable"):
-        SceneConfig(physics=PhysicsOptions(integrator="implicitfast"))
+        SceneConfig(cable=CableParams(model="rod"), physics=PhysicsOptions(integrator="implicitfast"))
     SceneConfig(cable=_chain(), physics=PhysicsOptions(integrator="implicitfast"))
 
 

@@ -27,7 +27,8 @@ def _dominant_frequency(signal: np.ndarray, dt: float) -> float:
 def test_hanging_chain_first_mode(integrator: str) -> None:
     """A nearly stiffness-free hanging cable swings at omega_1 = 1.2025 sqrt(g / L) (Bessel J0 root)."""
     length = 0.5
-    cable = CableParams(length_m=length, num_segments=30, young_pa=1e3, damping_s=0.0, radius_m=0.002)
+    cable = CableParams(length_m=length, num_segments=30, young_pa=1e3, damping_s=0.0, radius_m=0.002,
+                        model="rod")
     home = (0.5, 0.0, 0.8)
     tilt = math.radians(4.0)
     # Straight line from the clamped first edge, tilted by 4 degrees: mostly the first mode.
@@ -148,7 +149,7 @@ def test_timestep_convergence() -> None:
 
 def test_unstable_cable_parameters_get_a_clear_error() -> None:
     """A rod too stiff for an explicit integrator at 2 ms blows up while settling: ValueError naming both."""
-    config = SceneConfig(cable=CableParams(young_pa=1e9), grippers_m=((0.45, 0.0, 0.6),),
+    config = SceneConfig(cable=CableParams(young_pa=1e9, model="rod"), grippers_m=((0.45, 0.0, 0.6),),
                          physics=PhysicsOptions(integrator="Euler", timestep_s=0.002), settle_s=0.5)
     with pytest.raises(ValueError, match=r"unstable while settling with CableParams\(.*young_pa=1000000000"):
         Scene(config)
@@ -176,7 +177,7 @@ def test_twist_armature_keeps_explicit_euler_stable_under_random_actions() -> No
     diverged = {}
     for armature in (0.0, 1e-8):
         physics = PhysicsOptions(integrator="Euler", twist_armature_kg_m2=armature)
-        env = gym.make("DynDLO/TipControl-v0", physics=physics)
+        env = gym.make("DynDLO/TipControl-v0", physics=physics, cable="rod")
         rng = np.random.default_rng(0)
         outcomes = []
         for seed in range(3):  # measured: episodes 0 and 2 diverge without armature

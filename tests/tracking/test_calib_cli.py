@@ -106,8 +106,13 @@ def test_calibration_projects_world_points_where_mujoco_renders_them(
     rows, cols = np.nonzero(red)
     assert rows.size > 30
     curve = calib.project(nodes)
+    # The chain's capsules end in hemispherical caps: the drawn cable reaches one radius (2 mm) past its free
+    # end node, so the centreline the pixels are measured against does too.
+    free_end = nodes[-1] + 0.002 * (nodes[-1] - nodes[-2]) / np.linalg.norm(nodes[-1] - nodes[-2])
+    dense_curve = np.vstack([curve, calib.project(free_end[None])])
     dense = np.concatenate(
-        [np.linspace(a, b, 20, endpoint=False) for a, b in zip(curve[:-1], curve[1:], strict=True)]
+        [np.linspace(a, b, 20, endpoint=False) for a, b in zip(dense_curve[:-1], dense_curve[1:], strict=True)]
+        + [dense_curve[-1:]]
     )
     to_curve = np.hypot(cols[:, None] - dense[None, :, 0], rows[:, None] - dense[None, :, 1]).min(axis=1)
     in_view = np.all((curve > 2) & (curve < [width - 3, height - 3]), axis=1)
