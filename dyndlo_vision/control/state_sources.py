@@ -19,6 +19,7 @@ from dyndlo_vision.cameras.protocol import Camera
 from dyndlo_vision.control.clocks import ClockSync
 from dyndlo_vision.control.sim_env import SimEnv, as_sim_env
 from dyndlo_vision.robots.protocol import TcpState
+from dyndlo_vision.tracking.tracker import tip_from_polyline
 
 log = logging.getLogger(__name__)
 
@@ -111,6 +112,11 @@ class TrackedState:
             the source was read with, when the capture time lies among them (a delayed camera); otherwise
             the current one.
         max_missing_frames: Consecutive frames the camera may fail to deliver before the source reports lost.
+        cable_length_m: The cable's length, if known (the loop knows its cable). The tip (``point_index`` -1)
+            is then :func:`~dyndlo_vision.tracking.tracker.tip_from_polyline`: a polyline shorter than the
+            cable ends where the cable disappears, so the missing length is continued straight; under
+            :data:`~dyndlo_vision.tracking.tracker.MIN_SEEN_LENGTH_FRACTION` of the cable the tip is not seen
+            and the filter predicts. None: the polyline's end is the tip.
         clock_sync: Maps the camera's capture times onto the robot's clock (the TCP states' ``t``), so the
             filter updates and predicts on one clock. ``"auto"`` (default): a :class:`~dyndlo_vision.control.
             clocks.ClockSync` on ``time.monotonic()`` when the camera's ``clock`` is ``"monotonic"`` (a live
@@ -130,7 +136,10 @@ class TrackedState:
         project: Any = None,
         max_missing_frames: int = 3,
         clock_sync: ClockSync | str | None = "auto",
+        cable_length_m: float | None = None,
     ) -> None:
+        if cable_length_m is not None and not cable_length_m > 0:
+            raise ValueError(f"cable_length_m must be positive or None, got {cable_length_m!r}")
         if clock_sync == "auto":
             clock_sync = ClockSync() if getattr(camera, "clock", None) == "monotonic" else None
         if clock_sync is not None and not isinstance(clock_sync, ClockSync):
@@ -142,6 +151,11 @@ class TrackedState:
         self.point_index = point_index
         self.project = project
         self.max_missing_frames = max_missing_frames
+        self.cable_length_m = cable_length_m
+        #: Frames whose tip was continued past the polyline's end, and frames whose polyline was too short for
+        #: a tip (diagnostics; with ``cable_length_m``).
+        self.extended_tips = 0
+        self.unseen_tips = 0
         self.missing_frames = 0
         self.last_frame: Any = None
         self._tcp_history: deque[tuple[float, NDArray[np.float64]]] = deque(maxlen=TCP_HISTORY_LENGTH)
@@ -191,12 +205,23 @@ class TrackedState:
             t_capture = frame.t_capture
             if self.clock_sync is not None:
                 t_capture = self.clock_sync.to_robot(t_capture)
-            anchor = None if self.project is None else self.project(self._tcp_position_at(t_capture))
+            held = self._tcp_position_at(t_capture)
+            anchor = None if self.project is None else self.project(held)
             meas = self.tracker.process(frame.rgb, t_capture, depth=frame.depth, anchor_uv=anchor)
             point = meas.point(self.point_index)
-            polyline = np.where(meas.visible[:, None], meas.nodes_uv, np.nan)
             if point is not None:
                 pixel = meas.nodes_uv[self.point_index]
+            if self.point_index == -1 and self.cable_length_m is not None and meas.visible.any():
+                tip = tip_from_polyline(meas, held, self.cable_length_m)
+                if tip is None:
+                    point = pixel = None  # too little of the cable to place its tip: not seen
+                    self.unseen_tips += 1
+                elif point is None or not np.array_equal(tip, point):
+                    point = tip  # continued past where the cable disappears
+                    camera = getattr(self.tracker, "camera", None)  # not self.project: it moves the gripper mask
+                    pixel = None if camera is None else camera.project(tip[None])[0]
+                    self.extended_tips += 1
+            polyline = np.where(meas.visible[:, None], meas.nodes_uv, np.nan)
             t2 = time.perf_counter()
             stage["track"] = 1e3 * (t2 - t1)
             measured = self.filter.update(point, t_capture)

@@ -417,3 +417,50 @@ def test_tracked_state_refuses_latencies_it_cannot_bridge() -> None:
     for bad, match in ((0.3, "at most 0.25 s"), (-0.01, ">= 0"), (float("nan"), ">= 0"), ("40ms", ">= 0")):
         with pytest.raises(ValueError, match=match):
             tracked_state(env, latency_s=bad)  # type: ignore[arg-type]
+
+
+class ShortPolyline:
+    """A 'tracker' that sees the true cable only over its first ``seen`` share (the rest hidden)."""
+
+    def __init__(self, env: gym.Env, seen: float) -> None:
+        self.env = env.unwrapped
+        self.seen = seen
+        self.camera = None
+
+    def reset(self) -> None:
+        pass
+
+    def process(self, rgb: np.ndarray, t: float, depth: object = None, anchor_uv: object = None) -> object:
+        from dyndlo_vision.tracking.tracker import Measurement
+
+        # As the tracker does: nodes spread over what it sees, the last one where the cable disappears.
+        nodes = self.env.cable_nodes()[1:]  # node 0 is the held end
+        seen = nodes[: round(self.seen * len(nodes))]
+        return Measurement(seen, np.zeros((len(seen), 2)), np.ones(len(seen), bool), t)
+
+
+@pytest.mark.parametrize(("seen", "measured"), [(1.0, True), (0.8, True), (0.3, False)])
+def test_with_the_known_cable_a_short_polyline_is_continued_or_not_taken_for_the_tip(
+    seen: float, measured: bool
+) -> None:
+    """The loop knows its cable: the end of a polyline that stops short is not the tip. Continued straight by
+    the missing length it is, for a cable hanging at rest; with under half the cable seen nothing is measured."""
+    from dyndlo_vision.tracking import PointFilter
+
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    env.reset(seed=0)
+    base = env.unwrapped
+    length = base.scene.config.cable.length_m
+    camera = StoppingCamera(env, frames=100)
+    source = TrackedState(camera, ShortPolyline(env, seen), PointFilter(sigma_accel=200.0), cable_length_m=length)
+    reading = source.read(base.scene.time, SimRobot(env).state())
+    assert reading.measured is measured
+    if measured:
+        # The settled cable hangs almost straight: the continued tip is within a few millimetres of the truth.
+        assert np.linalg.norm(reading.position - base.p_dlo()) < 0.005
+        assert source.extended_tips == (seen < 1.0) and source.unseen_tips == 0
+    else:
+        assert source.unseen_tips == 1
+    # Without the cable's length the polyline's end is taken as the tip, however short.
+    naive = TrackedState(StoppingCamera(env, 100), ShortPolyline(env, 0.8), PointFilter(sigma_accel=200.0))
+    assert np.linalg.norm(naive.read(base.scene.time, SimRobot(env).state()).position - base.p_dlo()) > 0.05
