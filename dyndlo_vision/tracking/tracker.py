@@ -71,11 +71,13 @@ class Measurement:
 
 
 #: Shortest share of the cable's known length that the measured polyline (from the held end) must cover for its
-#: tip to be estimated at all; below it the tip is *not seen*. Measured in the loop (tip control, chain, the
-#: shipped policies, tracked, seeds 500000+, about 1 200 frames): the polyline's own end was 16-425 mm from the
-#: tip whenever it covered less than 0.97 of the cable (the tip behind the target sphere; the hanging cable's
-#: lower part lost against the floor). Continued straight by the missing length (:func:`tip_from_polyline`) it
-#: was within 15 mm down to 0.3 of the cable, and up to 113 mm off below 0.3. 0.5 keeps a margin.
+#: tip to be estimated at all; below it the tip is *not seen*. Measured in the loop (``python
+#: benchmarks/tip_completion.py``: tip control, chain, the shipped policies, tracked, seeds 500000+; 1 833
+#: frames; docs/RESULTS.md): where the polyline covered 0.8-0.97 of the cable (looked at: the tip behind the
+#: target sphere) its end was 33-64 mm from the tip (medians), continued straight by the missing length
+#: (:func:`tip_from_polyline`) 2.5-7.8 mm (max 21 mm); at 0.5-0.8, 3 frames, 25-37 mm. An earlier run, whose loop
+#: still took the polyline's end for the tip, also had frames below 0.3 of the cable: continued, they were up to
+#: 113 mm off. 0.5 is the boundary.
 MIN_SEEN_LENGTH_FRACTION = 0.5
 
 
