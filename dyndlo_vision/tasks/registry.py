@@ -121,7 +121,7 @@ def build_task_env(
     """The bare environment of ``task`` with task ``options`` (Gymnasium's entry point for the ids).
 
     The ``cable`` option takes a :class:`~dyndlo_vision.sim.CableParams`, or, so that it can be given on the
-    command line (``--env-option cable=chain``), a cable model name (``"rod"``, ``"chain"``) or a mapping of
+    command line (``--env-option cable=rod``), a cable model name (``"rod"``, ``"chain"``) or a mapping of
     ``CableParams`` fields: either changes the task's own nominal cable (its length and segments kept; the
     damping becomes the new model's default unless given).
 
