@@ -16,7 +16,10 @@ world position (m) at the frame's time, empty without ``--calib``, before the fi
 filter is lost (no measurement for longer than its coasting limit). The tracked point is not measured where
 the centreline cannot place it: the point's nodes are invisible, or the cable runs out of the image (or into a
 region too thick to be cable) at the end the point is measured from. Without a calibration the filter runs in
-pixels and only draws the annotated video's point and uncertainty ellipse.
+pixels and only draws the annotated video's point and uncertainty ellipse. With ``--cable-length`` (world mode,
+the tip) a polyline shorter than the cable ends where the cable disappears: the tip is placed by continuing it
+straight by the missing length (``u,v`` is that point's pixel), and with under half the cable in view it is
+not measured (:func:`~dyndlo_vision.tracking.tracker.tip_from_polyline`).
 
 Outputs are written to temporary files beside their destinations and renamed at the end, so after any error
 neither the CSV nor the video exists.
@@ -109,6 +112,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=0,
         help="radius of the mask opening that removes speckle (default 0, none: an opening erases cables "
         "only 1-2 px wide, like the simulator's; 1 for noisy footage of thicker cables)",
+    )
+    p.add_argument(
+        "--cable-length",
+        type=float,
+        metavar="L",
+        help="length of the cable in metres from where it leaves the held end (the gripper) to its tip; with "
+        "--calib/--plane and --point tip, a polyline shorter than that is continued straight by the missing "
+        "length (the tip hidden behind something), and under half of it the tip is not measured (visible=0)",
     )
     p.add_argument("--nodes", type=int, default=20, help="centreline nodes (default 20)")
     p.add_argument("--annotated", metavar="OUT.mp4", help="also write an annotated MP4")
@@ -212,6 +223,7 @@ class _Settings:
     open_radius: int
     anchor: NDArray[np.float64] | None
     nodes: int
+    cable_length_m: float | None
     fps: float | None
     filter: FilterParams
     quiet: bool
@@ -254,6 +266,11 @@ def _settings(args: argparse.Namespace) -> _Settings:
         raise ValueError(f"--open-radius must be >= 0, got {args.open_radius}")
     if args.nodes < 2:
         raise ValueError(f"--nodes must be at least 2, got {args.nodes}")
+    cable_length = _positive(args.cable_length, "--cable-length")
+    if cable_length is not None and plane is None:
+        raise ValueError("--cable-length needs --calib and --plane: the cable's length is measured in metres")
+    if cable_length is not None and parse_point(args.point) != 1.0:
+        raise ValueError(f"--cable-length places the free tip; it cannot be used with --point {args.point}")
     defaults = _WORLD_FILTER if plane is not None else _PIXEL_FILTER
     filter_params = replace(
         defaults,
@@ -288,6 +305,7 @@ def _settings(args: argparse.Namespace) -> _Settings:
         open_radius=int(args.open_radius),
         anchor=None if args.anchor is None else parse_floats(args.anchor, 2, "--anchor"),
         nodes=int(args.nodes),
+        cable_length_m=cable_length,
         fps=_positive(args.fps, "--fps"),
         filter=filter_params,
         quiet=bool(args.quiet),
@@ -511,6 +529,10 @@ class _PointTracker:
         self.n_measured = 0
         #: Frames whose point was not measured because the cable ran into a region too thick to be cable.
         self.n_cut_by_zone = 0
+        #: With --cable-length: frames whose tip was continued past the polyline's end, and frames with too
+        #: little of the cable in view to place the tip.
+        self.n_continued = 0
+        self.n_too_short = 0
 
     def step(self, frame: Frame, video: Path, draw: bool) -> tuple[list[object], NDArray[np.uint8] | None]:
         """Tracks one frame; returns its CSV row and, when ``draw``, the annotated RGB image."""
@@ -560,6 +582,21 @@ class _PointTracker:
                 if self.world
                 else np.append(uv, 0.0)
             )
+        if z is not None and self.world and cfg.cable_length_m is not None:
+            # The polyline's end is the tip only if the polyline is as long as the cable; otherwise the cable
+            # disappears there (behind something) and goes on, or too little of it is seen to place the tip.
+            from dyndlo_vision.tracking.tracker import tip_from_polyline
+
+            held = meas.nodes_xyz[np.flatnonzero(meas.visible & np.all(np.isfinite(meas.nodes_xyz), axis=1))[0]]
+            tip = tip_from_polyline(meas, held, cfg.cable_length_m)
+            if tip is None:
+                uv = z = None
+                self.n_too_short += 1
+            elif not np.array_equal(tip, z):
+                z = tip
+                assert self.calib is not None
+                uv = self.calib.project(tip[None])[0]
+                self.n_continued += 1
         measured = z is not None
         self.filter.update(z, frame.t_capture)
         est = self.filter.estimate(frame.t_capture)
@@ -677,6 +714,13 @@ def _run(args: argparse.Namespace) -> int:
             f"found regions too thick to be cable (wider than {100 * _MAX_CABLE_WIDTH_SHARE:g}% of the "
             f"image's shorter side), which were ignored; the point was not measured in "
             f"{pipeline.n_cut_by_zone} frames where the cable ran into them{hint}",
+            file=sys.stderr,
+        )
+    if cfg.cable_length_m is not None:
+        print(
+            f"note: --cable-length {cfg.cable_length_m:g} m: the tip was continued past the polyline's end in "
+            f"{pipeline.n_continued} frames, and not measured in {pipeline.n_too_short} frames that showed "
+            "less than half the cable",
             file=sys.stderr,
         )
     if pipeline.n_measured == 0 and pipeline.background == "median":

@@ -467,6 +467,24 @@ def test_frame_background_on_the_simulated_scene_measures_only_what_it_sees(
 
 
 @pytest.mark.slow
+def test_with_the_cable_length_a_stub_at_the_gripper_is_not_the_tip(
+    sim_clip: SimClip, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """The case above with ``--cable-length``: the stub left at the gripper (frame 13, 194 px off without it) is
+    too little of the cable to place the tip, so the tip is not measured there; what is measured is right."""
+    out = tmp_path / "sim.csv"
+    # 0.48 m: the 50 cm cable less the 2 cm under the gripper sphere, as a user would measure it.
+    args = ["--calib", str(sim_clip.calib), "--plane", "0,1,0,0", "--background", "frame", "--quiet",
+            "--cable-length", "0.48"]
+    assert main(["track", str(sim_clip.video), *args, "--out", str(out)]) == 0
+    assert "--cable-length 0.48 m" in capsys.readouterr().err
+    visible, err = _sim_errors(sim_clip, out)
+    print(f"sim frame, cable length: measured {visible.mean():.2f}, error px {np.round(err, 1).tolist()}")
+    assert not visible[13] and visible.sum() >= 2
+    assert np.all(err[visible] < SIM_TIP_TOL_PX), err
+
+
+@pytest.mark.slow
 def test_defaults_on_the_demo_video_follow_the_cable(tmp_path: Path) -> None:
     """The user's case: ``track`` with defaults on the annotated video ``demo`` writes.
 
@@ -528,6 +546,16 @@ def _parallel_plane(camera: PinholeCamera) -> str:
 
 BAD_INPUTS = {
     "missing video": (["{tmp}/none.mp4", "--out", "{out}"], "none.mp4"),
+    "cable length without a plane": (["{video}", "--cable-length", "0.5", "--out", "{out}"], "--cable-length"),
+    "cable length not positive": (
+        ["{video}", "--calib", "{calib}", "--plane", "0,1,0,0", "--cable-length", "-1", "--out", "{out}"],
+        "--cable-length must be a positive",
+    ),
+    "cable length with a fraction": (
+        ["{video}", "--calib", "{calib}", "--plane", "0,1,0,0", "--cable-length", "0.5", "--point", "0.5",
+         "--out", "{out}"],
+        "--point 0.5",
+    ),
     "missing calibration": (
         ["{video}", "--calib", "{tmp}/no.json", "--plane", "0,1,0,0", "--out", "{out}"],
         "no.json",
