@@ -82,6 +82,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="NX,NY,NZ,D",
         help="world plane n.x + d = 0 the cable moves in, e.g. 0,1,0,0 for y = 0; needs --calib",
     )
+    p.add_argument(
+        "--segmenter",
+        choices=("background", "learned"),
+        default="background",
+        help="'background' (default): contrast with a background model (--background); 'learned': the "
+        "shipped CNN of `dyndlo-vision segment` (or --segmenter-model), each frame on its own, for textured "
+        "or cluttered scenes; an HSV range (--hsv-lower/--hsv-upper) replaces either",
+    )
+    p.add_argument(
+        "--segmenter-model", metavar="FILE.onnx", help="learned: an ONNX file from seg-train instead of the shipped"
+    )
     p.add_argument("--hsv-lower", metavar="H,S,V", help="lower HSV bound (OpenCV: H 0-179, S, V 0-255)")
     p.add_argument("--hsv-upper", metavar="H,S,V", help="upper HSV bound; H lower > upper wraps through red")
     p.add_argument(
@@ -220,6 +231,8 @@ class _Settings:
     plane: tuple[NDArray[np.float64], float] | None
     hsv: tuple[NDArray[np.int64], NDArray[np.int64]] | None
     background: str
+    segmenter: str
+    segmenter_model: Path | None
     open_radius: int
     anchor: NDArray[np.float64] | None
     nodes: int
@@ -262,6 +275,15 @@ def _settings(args: argparse.Namespace) -> _Settings:
         raise ValueError(
             "--background applies to automatic segmentation; it cannot be used with an HSV range"
         )
+    if args.segmenter == "learned" and (hsv is not None or args.background is not None):
+        raise ValueError(
+            "--segmenter learned segments each frame on its own: it takes neither --background nor an HSV range"
+        )
+    model = None if args.segmenter_model is None else Path(args.segmenter_model)
+    if model is not None and args.segmenter != "learned":
+        raise ValueError("--segmenter-model is for --segmenter learned")
+    if model is not None and not model.is_file():
+        raise FileNotFoundError(f"--segmenter-model {model} does not exist")
     if args.open_radius < 0:
         raise ValueError(f"--open-radius must be >= 0, got {args.open_radius}")
     if args.nodes < 2:
@@ -302,6 +324,8 @@ def _settings(args: argparse.Namespace) -> _Settings:
         plane=plane,
         hsv=hsv,
         background=str(args.background or "auto"),
+        segmenter=str(args.segmenter),
+        segmenter_model=model,
         open_radius=int(args.open_radius),
         anchor=None if args.anchor is None else parse_floats(args.anchor, 2, "--anchor"),
         nodes=int(args.nodes),
@@ -352,7 +376,7 @@ def sample_evenly(items: Iterable[T], max_items: int) -> list[T]:
 
 
 def _segmenter(cfg: _Settings) -> tuple[Callable[[NDArray[np.uint8]], NDArray[np.bool_]], str]:
-    """The frame -> mask function the settings ask for, and its kind: 'median', 'frame' or 'hsv'.
+    """The frame -> mask function the settings ask for, and its kind: 'median', 'frame', 'hsv' or 'learned'.
 
     Learns the median background when asked ('median', or 'auto' on a video long enough).
     """
@@ -362,6 +386,11 @@ def _segmenter(cfg: _Settings) -> tuple[Callable[[NDArray[np.uint8]], NDArray[np
     if cfg.hsv is not None:
         lo, hi = cfg.hsv
         return (lambda rgb: segment_hsv(rgb, lo, hi, clean=True)), "hsv"
+    if cfg.segmenter == "learned":
+        from dyndlo_vision.policies.segmenter import onnx_bytes
+        from dyndlo_vision.tracking.learned import LearnedSegmenter
+
+        return LearnedSegmenter(onnx_bytes(cfg.segmenter_model)), "learned"
     segmenter = BackgroundSegmenter(open_radius=cfg.open_radius)
     if cfg.background == "frame":
         return segmenter, "frame"
