@@ -210,9 +210,10 @@ def part_whip(seg, seed: int) -> dict:
         res = {}
         for name, s in methods.items():
             dices = []
-            # Two tip rules: "pixel length" spreads the nodes over the cable's expected length in pixels (a node
-            # past the observed end is invisible: the tip is not measured); "known length" spreads them over
-            # the observed polyline and places the tip with tip_from_polyline from the gripper, as the loop does.
+            # Two tip rules: "pixel length" spreads the nodes over the cable's expected length in pixels (a
+            # node past the observed end is invisible: the tip is not measured); "known length" spreads them
+            # over the observed polyline and places the tip with tip_from_polyline from the gripper, as the
+            # loop does.
             tips_by_rule: dict[str, list] = {"pixel length": [], "known length": []}
             for rgb, truth, tip, tcp in zip(frames, truths, tips, tcps, strict=True):
                 mask = s(rgb)
@@ -233,12 +234,14 @@ def part_whip(seg, seed: int) -> dict:
             n = len(frames)
             entry: dict = {"frames": n, "dice": float(np.mean(dices))}
             for rule, found in tips_by_rule.items():
-                errs = [float(np.linalg.norm(p - t)) for p, t, _ in found if p is not None and np.all(np.isfinite(p))]
-                gripper = [float(np.linalg.norm(p - g)) < 0.04 for p, _, g in found
-                           if p is not None and np.all(np.isfinite(p))]
+                seen = [(p, t, g) for p, t, g in found if p is not None and np.all(np.isfinite(p))]
+                errs = [float(np.linalg.norm(p - t)) for p, t, _ in seen]
+                gripper = [float(np.linalg.norm(p - g)) < 0.04 for p, _, g in seen]
                 entry[rule] = {
                     "measured_share": len(errs) / n,
-                    "tip_rmse_mm_measured": float(1e3 * math.sqrt(np.mean(np.square(errs)))) if errs else None,
+                    "tip_rmse_mm_measured": (
+                        float(1e3 * math.sqrt(np.mean(np.square(errs)))) if errs else None
+                    ),
                     "wrong_measured_share": sum(e > 0.05 for e in errs) / n,
                     "gripper_as_tip_share": sum(gripper) / n,
                 }
@@ -327,7 +330,6 @@ def part_loopcam(model: str | None, episodes: int = 3) -> dict:
     """The control loop's own camera: tip control's "tracking" view (640x480, the 1.6 px red cable) after one
     random action per episode; learned-mask DICE and time at three network scales, and the classical one."""
     import gymnasium as gym
-    import mujoco
 
     from dyndlo_vision.cameras.simulated import MujocoCamera
     from dyndlo_vision.sim.rendering import make_renderer

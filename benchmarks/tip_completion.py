@@ -68,7 +68,8 @@ def main() -> None:
             continue
         end, cont = 1000 * data[sel, 1], 1000 * data[sel, 2]
         table.append({"share_of_cable": [lo, hi], "frames": int(sel.sum()),
-                      "end_mm_median": round(float(np.median(end)), 1), "end_mm_max": round(float(end.max()), 1),
+                      "end_mm_median": round(float(np.median(end)), 1),
+                      "end_mm_max": round(float(end.max()), 1),
                       "continued_mm_median": round(float(np.median(cont)), 1),
                       "continued_mm_max": round(float(cont.max()), 1)})
     print(json.dumps({"policy": args.policy, "episodes": args.episodes, "seed": args.seed,

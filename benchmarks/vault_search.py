@@ -50,8 +50,10 @@ def main() -> None:
     env = make_env("vaulting", **parse_options(args.env_option))
     base = env.unwrapped
     nominal = base.scene.config.cable
-    cables = [nominal] + [draw_cable(nominal, DEFAULT_CABLE_RANGES, np.random.default_rng(args.cable_seed + k))
-                          for k in range(args.cables)]
+    cables = [nominal] + [
+        draw_cable(nominal, DEFAULT_CABLE_RANGES, np.random.default_rng(args.cable_seed + k))
+        for k in range(args.cables)
+    ]
     obs, _ = env.reset(seed=0)
 
     def score(action: np.ndarray) -> tuple[float, int]:
@@ -66,23 +68,25 @@ def main() -> None:
     start = np.asarray(FlickVault(env)(obs), dtype=float)
     rng = np.random.default_rng(args.seed)
     if args.random:
-        # The nominal cable alone: the cheap filter. Ties (most random actions score the same) go to the first.
+        # The nominal cable alone: the cheap filter. Ties (most random actions score the same) go to the
+        # first.
         best_random, best_random_reward, hits = start, -np.inf, 0
         env.reset(seed=0, options={"cable": nominal})
-        for k in range(args.random):
+        for _ in range(args.random):
             action = rng.uniform(-1.0, 1.0, start.size)
             env.reset(seed=0)
             _, reward, _, _, info = env.step(action.astype(np.float32))
             hits += bool(info["is_success"])
             if reward > best_random_reward:
                 best_random, best_random_reward = action, float(reward)
-        print(f"random phase: {hits}/{args.random} vault the nominal cable; best reward {best_random_reward:.2f}",
-              flush=True)
+        print(f"random phase: {hits}/{args.random} vault the nominal cable; "
+              f"best reward {best_random_reward:.2f}", flush=True)
         if score(best_random)[0] > score(start)[0]:
             start = best_random
     mean, std = start.copy(), np.full(start.size, 0.3)
     best, (best_score, best_successes) = start, score(start)
-    print(f"start (FlickVault): mean reward {best_score:.2f}, {best_successes}/{len(cables)} vaults", flush=True)
+    print(f"start (FlickVault): mean reward {best_score:.2f}, {best_successes}/{len(cables)} vaults",
+          flush=True)
     t0 = time.perf_counter()
     for it in range(args.iterations):
         population = np.clip(mean + std * rng.standard_normal((args.population, start.size)), -1.0, 1.0)

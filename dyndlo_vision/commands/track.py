@@ -16,10 +16,10 @@ world position (m) at the frame's time, empty without ``--calib``, before the fi
 filter is lost (no measurement for longer than its coasting limit). The tracked point is not measured where
 the centreline cannot place it: the point's nodes are invisible, or the cable runs out of the image (or into a
 region too thick to be cable) at the end the point is measured from. Without a calibration the filter runs in
-pixels and only draws the annotated video's point and uncertainty ellipse. With ``--cable-length`` (world mode,
-the tip) a polyline shorter than the cable ends where the cable disappears: the tip is placed by continuing it
-straight by the missing length (``u,v`` is that point's pixel), and with under half the cable in view it is
-not measured (:func:`~dyndlo_vision.tracking.tracker.tip_from_polyline`).
+pixels and only draws the annotated video's point and uncertainty ellipse. With ``--cable-length`` (world
+mode, the tip) a polyline shorter than the cable ends where the cable disappears: the tip is placed by
+continuing it straight by the missing length (``u,v`` is that point's pixel), and with under half the cable in
+view it is not measured (:func:`~dyndlo_vision.tracking.tracker.tip_from_polyline`).
 
 Outputs are written to temporary files beside their destinations and renamed at the end, so after any error
 neither the CSV nor the video exists.
@@ -91,7 +91,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "or cluttered scenes; an HSV range (--hsv-lower/--hsv-upper) replaces either",
     )
     p.add_argument(
-        "--segmenter-model", metavar="FILE.onnx", help="learned: an ONNX file from seg-train instead of the shipped"
+        "--segmenter-model",
+        metavar="FILE.onnx",
+        help="learned: an ONNX file from seg-train instead of the shipped",
     )
     p.add_argument("--hsv-lower", metavar="H,S,V", help="lower HSV bound (OpenCV: H 0-179, S, V 0-255)")
     p.add_argument("--hsv-upper", metavar="H,S,V", help="upper HSV bound; H lower > upper wraps through red")
@@ -277,7 +279,8 @@ def _settings(args: argparse.Namespace) -> _Settings:
         )
     if args.segmenter == "learned" and (hsv is not None or args.background is not None):
         raise ValueError(
-            "--segmenter learned segments each frame on its own: it takes neither --background nor an HSV range"
+            "--segmenter learned segments each frame on its own: it takes neither --background nor an HSV "
+            "range"
         )
     model = None if args.segmenter_model is None else Path(args.segmenter_model)
     if model is not None and args.segmenter != "learned":
@@ -616,7 +619,8 @@ class _PointTracker:
             # disappears there (behind something) and goes on, or too little of it is seen to place the tip.
             from dyndlo_vision.tracking.tracker import tip_from_polyline
 
-            held = meas.nodes_xyz[np.flatnonzero(meas.visible & np.all(np.isfinite(meas.nodes_xyz), axis=1))[0]]
+            lifted = meas.visible & np.all(np.isfinite(meas.nodes_xyz), axis=1)
+            held = meas.nodes_xyz[np.flatnonzero(lifted)[0]]
             tip = tip_from_polyline(meas, held, cfg.cable_length_m)
             if tip is None:
                 uv = z = None
@@ -747,9 +751,9 @@ def _run(args: argparse.Namespace) -> int:
         )
     if cfg.cable_length_m is not None:
         print(
-            f"note: --cable-length {cfg.cable_length_m:g} m: the tip was continued past the polyline's end in "
-            f"{pipeline.n_continued} frames, and not measured in {pipeline.n_too_short} frames that showed "
-            "less than half the cable",
+            f"note: --cable-length {cfg.cable_length_m:g} m: the tip was continued past the polyline's end "
+            f"in {pipeline.n_continued} frames, and not measured in {pipeline.n_too_short} frames that "
+            "showed less than half the cable",
             file=sys.stderr,
         )
     if pipeline.n_measured == 0 and pipeline.background == "median":

@@ -142,7 +142,8 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
     frames = DelayedCamera(camera, latency_s) if latency_s > 0 else camera
     not_yet_arrived = math.ceil(latency_s / CONTROL_PERIOD_S - 1e-9)
     # The known cable: a polyline shorter than it ends where the cable disappears (behind the target sphere,
-    # say), so its end is not the tip; the tip is placed by continuing it (tracking.tracker.tip_from_polyline).
+    # say), so its end is not the tip; the tip is placed by continuing it (tracker.tip_from_polyline).
     source = TrackedState(frames, tracker, point_filter, point_index=-1, project=project,
-                          max_missing_frames=3 + not_yet_arrived, cable_length_m=base.scene.config.cable.length_m)
+                          max_missing_frames=3 + not_yet_arrived,
+                          cable_length_m=base.scene.config.cable.length_m)
     return source, camera

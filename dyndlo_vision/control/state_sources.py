@@ -218,7 +218,8 @@ class TrackedState:
                     self.unseen_tips += 1
                 elif point is None or not np.array_equal(tip, point):
                     point = tip  # continued past where the cable disappears
-                    camera = getattr(self.tracker, "camera", None)  # not self.project: it moves the gripper mask
+                    # The tracker's camera, not self.project: that one also moves the gripper mask.
+                    camera = getattr(self.tracker, "camera", None)
                     pixel = None if camera is None else camera.project(tip[None])[0]
                     self.extended_tips += 1
             polyline = np.where(meas.visible[:, None], meas.nodes_uv, np.nan)

@@ -32,7 +32,9 @@ class CableLook:
         """
         flex_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_FLEX, name)
         prefix = chain_model.geom_prefix(name)
-        geoms = np.array([g for g in range(model.ngeom) if model.geom(g).name.startswith(prefix)], dtype=np.int64)
+        geoms = np.array(
+            [g for g in range(model.ngeom) if model.geom(g).name.startswith(prefix)], dtype=np.int64
+        )
         if flex_id < 0 and geoms.size == 0:
             raise ValueError(f"no cable named {name!r} in the model (neither a flex nor {prefix}* geoms)")
         return cls(int(flex_id), geoms)

@@ -100,9 +100,10 @@ class FlickVault:
     """Task II scripted vault as a single-step policy ``obs -> action`` for ``DynDLO/Vaulting-v0``.
 
     Via points are offsets from the TCP's position in the observation, each interval a fixed duration:
-    :attr:`OFFSETS_M` and :attr:`INTERVALS_S` (the best of a search on the rod cable, ``model="rod"``; reward 10
-    on its nominal cable). It does not vault the chain, the default cable since issue 15: neither do 150
-    uniformly random actions nor 48 perturbations of this one (``benchmarks/vault_search.py``, docs/RESULTS.md).
+    :attr:`OFFSETS_M` and :attr:`INTERVALS_S` (the best of a search on the rod cable, ``model="rod"``; reward
+    10 on its nominal cable). It does not vault the chain, the default cable since issue 15: neither do 150
+    uniformly random actions nor 48 perturbations of this one (``benchmarks/vault_search.py``,
+    docs/RESULTS.md).
     """
 
     OFFSETS_M = ((0.063, 0.0, -0.125), (0.238, 0.0, 0.030), (0.125, 0.0, -0.020))

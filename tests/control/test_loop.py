@@ -444,7 +444,8 @@ def test_with_the_known_cable_a_short_polyline_is_continued_or_not_taken_for_the
     seen: float, measured: bool
 ) -> None:
     """The loop knows its cable: the end of a polyline that stops short is not the tip. Continued straight by
-    the missing length it is, for a cable hanging at rest; with under half the cable seen nothing is measured."""
+    the missing length it is, for a cable hanging at rest; with under half the cable seen nothing is
+    measured."""
     from dyndlo_vision.tracking import PointFilter
 
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
@@ -452,7 +453,8 @@ def test_with_the_known_cable_a_short_polyline_is_continued_or_not_taken_for_the
     base = env.unwrapped
     length = base.scene.config.cable.length_m
     camera = StoppingCamera(env, frames=100)
-    source = TrackedState(camera, ShortPolyline(env, seen), PointFilter(sigma_accel=200.0), cable_length_m=length)
+    source = TrackedState(camera, ShortPolyline(env, seen), PointFilter(sigma_accel=200.0),
+                          cable_length_m=length)
     reading = source.read(base.scene.time, SimRobot(env).state())
     assert reading.measured is measured
     if measured:

@@ -97,7 +97,9 @@ def test_shipped_hooking_policy_hooks_on_the_nominal_cable_and_on_cables_it_neve
     assert meta["evaluation"]["success_rate"] >= 0.9
     env = gym.make(task_entry("hooking").env_id, **meta["env_options"])
     model = policies.load("hooking", env=env)
-    randomized = CableRandomization(gym.make(task_entry("hooking").env_id, **meta["env_options"]), every_episodes=1)
+    randomized = CableRandomization(
+        gym.make(task_entry("hooking").env_id, **meta["env_options"]), every_episodes=1
+    )
     for episode_env in (env, randomized):
         for seed in UNSEEN_SEEDS[:3]:
             obs, start = episode_env.reset(seed=seed)

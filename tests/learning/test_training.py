@@ -143,7 +143,8 @@ def test_evaluate_random_actions_and_the_scripted_vault_by_name(tmp_path: Path) 
     assert exc.value.code == 2
     # The scripted vault by name: its task is known, and it vaults on the nominal cable of the model its shape
     # was searched on (the rod; it does not vault the chain).
-    assert main(["evaluate", "flick-vault", "--episodes", "1", "--env-option", "cable=rod", "--out", str(report)]) == 0
+    rod = ["--env-option", "cable=rod"]
+    assert main(["evaluate", "flick-vault", "--episodes", "1", *rod, "--out", str(report)]) == 0
     flick = json.loads(report.read_text())
     assert flick["task"] == "vaulting" and flick["successes"] == 1
 

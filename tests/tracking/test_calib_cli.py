@@ -111,7 +111,10 @@ def test_calibration_projects_world_points_where_mujoco_renders_them(
     free_end = nodes[-1] + 0.002 * (nodes[-1] - nodes[-2]) / np.linalg.norm(nodes[-1] - nodes[-2])
     dense_curve = np.vstack([curve, calib.project(free_end[None])])
     dense = np.concatenate(
-        [np.linspace(a, b, 20, endpoint=False) for a, b in zip(dense_curve[:-1], dense_curve[1:], strict=True)]
+        [
+            np.linspace(a, b, 20, endpoint=False)
+            for a, b in zip(dense_curve[:-1], dense_curve[1:], strict=True)
+        ]
         + [dense_curve[-1:]]
     )
     to_curve = np.hypot(cols[:, None] - dense[None, :, 0], rows[:, None] - dense[None, :, 1]).min(axis=1)

@@ -448,10 +448,9 @@ def test_defaults_track_the_cable_in_the_simulated_scene(sim_clip: SimClip, tmp_
 @pytest.mark.slow
 @pytest.mark.xfail(
     strict=True,
-    reason="issue 14, item 2 (no confident wrong answers): with the chain's whip, in frame 13 the floor swallows "
-    "all of the cable but a stub at the gripper, and the stub's end is reported as the measured tip, 194 px "
-    "from the true one. The rule that would catch it (a polyline much shorter than the cable: tip not seen) "
-    "is not built yet.",
+    reason="issue 14, item 2 (no confident wrong answers): with the chain's whip, in frame 13 the floor "
+    "swallows all of the cable but a stub at the gripper, and without --cable-length the stub's end is "
+    "reported as the measured tip, 194 px from the true one (with it: the next test)",
 )
 def test_frame_background_on_the_simulated_scene_measures_only_what_it_sees(
     sim_clip: SimClip, tmp_path: Path, capsys: pytest.CaptureFixture
@@ -470,8 +469,9 @@ def test_frame_background_on_the_simulated_scene_measures_only_what_it_sees(
 def test_with_the_cable_length_a_stub_at_the_gripper_is_not_the_tip(
     sim_clip: SimClip, tmp_path: Path, capsys: pytest.CaptureFixture
 ) -> None:
-    """The case above with ``--cable-length``: the stub left at the gripper (frame 13, 194 px off without it) is
-    too little of the cable to place the tip, so the tip is not measured there; what is measured is right."""
+    """The case above with ``--cable-length``: the stub left at the gripper (frame 13, 194 px off without
+    it) is too little of the cable to place the tip, so the tip is not measured there; what is measured is
+    right."""
     out = tmp_path / "sim.csv"
     # 0.48 m: the 50 cm cable less the 2 cm under the gripper sphere, as a user would measure it.
     args = ["--calib", str(sim_clip.calib), "--plane", "0,1,0,0", "--background", "frame", "--quiet",
@@ -524,9 +524,9 @@ def test_defaults_on_the_demo_video_follow_the_cable(tmp_path: Path) -> None:
     assert visible.mean() >= 0.8
     # Near the target the cable runs behind the sphere, and the demo's own drawings crowd around it (the
     # yellow ring, 14 px, and the estimate's marker, placed on the tip behind the sphere): there a measured
-    # point may sit on a drawing or on the sphere's rim (16-35 px from the tip, measured). Away from the target
-    # (true tip more than three ring radii from its centre) every measured point is within 20 px, and none is
-    # anywhere as far as the floor was.
+    # point may sit on a drawing or on the sphere's rim (16-35 px from the tip, measured). Away from the
+    # target (true tip more than three ring radii from its centre) every measured point is within 20 px, and
+    # none is anywhere as far as the floor was.
     camera = PinholeCamera.from_json(calib)
     centre_uv = camera.project(np.asarray(record["trace"]["goal"], dtype=float)[None])[0]
     near_target = np.linalg.norm(tip_uv - centre_uv, axis=1) < 3 * 14
@@ -546,7 +546,9 @@ def _parallel_plane(camera: PinholeCamera) -> str:
 
 BAD_INPUTS = {
     "missing video": (["{tmp}/none.mp4", "--out", "{out}"], "none.mp4"),
-    "cable length without a plane": (["{video}", "--cable-length", "0.5", "--out", "{out}"], "--cable-length"),
+    "cable length without a plane": (
+        ["{video}", "--cable-length", "0.5", "--out", "{out}"], "--cable-length"
+    ),
     "learned with a background": (
         ["{video}", "--segmenter", "learned", "--background", "median", "--out", "{out}"],
         "takes neither --background",
@@ -770,5 +772,6 @@ def test_learned_segmenter_tracks_the_synthetic_clip(
     assert visible.sum() >= 0.9 * (N_FRAMES - len(BLANK_FRAMES)), visible
     uv = _column(rows, "u,v")
     err_px = np.linalg.norm(uv[visible] - clip.camera.project(clip.tip_world[visible]), axis=1)
-    print(f"learned: measured {visible.sum()}, tip error px median {np.median(err_px):.1f}, max {err_px.max():.1f}")
+    print(f"learned: measured {visible.sum()}, tip error px median {np.median(err_px):.1f}, "
+          f"max {err_px.max():.1f}")
     assert np.median(err_px) < TIP_TOL_PX, err_px
