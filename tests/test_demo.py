@@ -357,3 +357,18 @@ def test_demo_loop_on_true_state_is_the_environment_episode(seed: int) -> None:
     assert record["end_time_s"] == pytest.approx(end_time)
     assert record["final_p_dlo_m"] == pytest.approx(end_tip.tolist(), abs=1e-9)
     assert np.isfinite(record["final_distance_m"])
+
+
+def test_the_status_line_tells_measured_continued_predicted_and_lost_apart() -> None:
+    from types import SimpleNamespace
+
+    from dyndlo_vision.commands.demo import estimate_state
+
+    def cycle(measured: bool, lost: bool = False, continued: bool = False) -> SimpleNamespace:
+        return SimpleNamespace(measured=measured, lost=lost, continued=continued)
+
+    assert estimate_state(cycle(True)) == "measured"
+    assert estimate_state(cycle(True, continued=True)) == "measured, continued"
+    assert estimate_state(cycle(False)) == "predicted"
+    assert estimate_state(cycle(False, lost=True)) == "lost"
+    assert estimate_state(cycle(True, lost=True)) == "lost"  # a lost source's reading is not an estimate

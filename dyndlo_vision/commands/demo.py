@@ -340,6 +340,20 @@ def _draw_truth_and_target(
             x += cv2.getTextSize(text, font, scale, 1)[0][0] + 14
 
 
+def estimate_state(record: Any) -> str:
+    """What a control cycle's P_DLO estimate rests on, for the video's status line.
+
+    ``"lost"``: no usable estimate. ``"measured"``: this cycle's frame gave the tip. ``"measured,
+    continued"``: it gave the tip only by continuing the tracked cable past where it disappears (the loop knows
+    the cable's length). ``"predicted"``: the filter's prediction, without a measurement this cycle.
+    """
+    if record.lost:
+        return "lost"
+    if record.measured:
+        return "measured, continued" if getattr(record, "continued", False) else "measured"
+    return "predicted"
+
+
 def _annotate(
     rgb: np.ndarray, record: Any, calib: Any, goal: np.ndarray, legend: tuple[tuple[str, Any], ...] = LEGEND
 ) -> np.ndarray:
@@ -349,10 +363,9 @@ def _annotate(
     from dyndlo_vision.tracking.annotate import annotate_frame
 
     est = _pixel(calib, record.p_dlo_estimate)
-    state = "measured" if record.measured else "predicted"
     img = annotate_frame(rgb, record.polyline_uv, None, point_uv=None if est is None else np.asarray(est),
                          point_measured=record.measured, t=record.t,
-                         status=f"{state}  ctrl {record.controller_ms:.1f} ms")
+                         status=f"{estimate_state(record)}  ctrl {record.controller_ms:.1f} ms")
     _draw_truth_and_target(img, record.p_dlo_true, calib, goal, legend)
     return cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
 

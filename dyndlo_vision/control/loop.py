@@ -53,6 +53,8 @@ class CycleRecord:
     deadline_missed: bool
     pixel: NDArray[np.float64] | None = None
     polyline_uv: NDArray[np.float64] | None = None
+    #: The measured tip was continued past where the tracked cable disappears (see ``PDloReading``).
+    continued: bool = False
 
 
 @dataclass
@@ -171,6 +173,7 @@ class ControlLoop:
             missed,
             reading.pixel,
             reading.polyline_uv,
+            reading.continued,
         )
 
     def _pace(self, t_robot_before: float, wall_before: float) -> None:

@@ -40,6 +40,8 @@ class PDloReading:
         stage_ms: Wall time per perception stage, e.g. {"camera": 12.1, "track": 3.9, "filter": 0.2}.
         pixel: (2,) pixel of the tracked point in the latest frame, when a camera was used.
         polyline_uv: (N, 2) tracked centreline in the latest frame, when a camera was used.
+        continued: The measurement placed the tip past where the tracked cable disappears (the polyline was
+            shorter than the known cable: :func:`~dyndlo_vision.tracking.tracker.tip_from_polyline`).
     """
 
     position: NDArray[np.float64]
@@ -50,6 +52,7 @@ class PDloReading:
     pixel: NDArray[np.float64] | None = None
     polyline_uv: NDArray[np.float64] | None = None
     frame: Any = None
+    continued: bool = False
 
 
 class TrueState:
@@ -192,7 +195,7 @@ class TrackedState:
         frame = self.camera.read()
         stage["camera"] = 1e3 * (time.perf_counter() - t0)
         pixel = polyline = None
-        measured = False
+        measured = continued = False
         if frame is None:
             self.missing_frames += 1
             log.warning("camera delivered no frame (%d in a row): predicting P_DLO", self.missing_frames)
@@ -218,6 +221,7 @@ class TrackedState:
                     self.unseen_tips += 1
                 elif point is None or not np.array_equal(tip, point):
                     point = tip  # continued past where the cable disappears
+                    continued = True
                     # The tracker's camera, not self.project: that one also moves the gripper mask.
                     camera = getattr(self.tracker, "camera", None)
                     pixel = None if camera is None else camera.project(tip[None])[0]
@@ -231,4 +235,5 @@ class TrackedState:
         est = self.filter.estimate(t_now)
         stage["filter"] += 1e3 * (time.perf_counter() - t3)
         lost = bool(est.lost or self.missing_frames > self.max_missing_frames)
-        return PDloReading(est.position, t_now, measured, lost, stage, pixel, polyline, frame)
+        return PDloReading(est.position, t_now, measured, lost, stage, pixel, polyline, frame,
+                           continued=measured and continued)

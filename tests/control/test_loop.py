@@ -457,6 +457,7 @@ def test_with_the_known_cable_a_short_polyline_is_continued_or_not_taken_for_the
                           cable_length_m=length)
     reading = source.read(base.scene.time, SimRobot(env).state())
     assert reading.measured is measured
+    assert reading.continued is (measured and seen < 1.0)
     if measured:
         # The settled cable hangs almost straight: the continued tip is within a few millimetres of the truth.
         assert np.linalg.norm(reading.position - base.p_dlo()) < 0.005
