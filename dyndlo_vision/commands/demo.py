@@ -343,9 +343,11 @@ def _draw_truth_and_target(
 def estimate_state(record: Any) -> str:
     """What a control cycle's P_DLO estimate rests on, for the video's status line.
 
-    ``"lost"``: no usable estimate. ``"measured"``: this cycle's frame gave the tip. ``"measured,
-    continued"``: it gave the tip only by continuing the tracked cable past where it disappears (the loop knows
-    the cable's length). ``"predicted"``: the filter's prediction, without a measurement this cycle.
+    - ``"lost"``: no usable estimate.
+    - ``"measured"``: this cycle's frame gave the tip.
+    - ``"measured, continued"``: it gave the tip only by continuing the tracked cable past where it
+      disappears (the loop knows the cable's length).
+    - ``"predicted"``: the filter's prediction, without a measurement this cycle.
     """
     if record.lost:
         return "lost"
