@@ -619,8 +619,7 @@ class _PointTracker:
             # disappears there (behind something) and goes on, or too little of it is seen to place the tip.
             from dyndlo_vision.tracking.tracker import tip_from_polyline
 
-            lifted = meas.visible & np.all(np.isfinite(meas.nodes_xyz), axis=1)
-            held = meas.nodes_xyz[np.flatnonzero(lifted)[0]]
+            held = meas.nodes_xyz[np.flatnonzero(meas.lifted)[0]]
             tip = tip_from_polyline(meas, held, cfg.cable_length_m)
             if tip is None:
                 uv = z = None

@@ -60,14 +60,23 @@ class Measurement:
             return None
         return p.copy()
 
+    @property
+    def lifted(self) -> NDArray[np.bool_]:
+        """(N,) nodes that are visible and have a finite world position."""
+        return self.visible & np.all(np.isfinite(self.nodes_xyz), axis=1)
+
+    def path_from(self, start_xyz: ArrayLike) -> NDArray[np.float64]:
+        """``start_xyz`` (the held end) followed by the lifted nodes in order, ``(1 + K, 3)``."""
+        return np.vstack([np.asarray(start_xyz, dtype=float).reshape(1, 3), self.nodes_xyz[self.lifted]])
+
     def length_from(self, start_xyz: ArrayLike) -> float:
         """World length of the measured cable: from ``start_xyz`` (the held end) through the visible, lifted
         nodes in order. 0 when no node is. Gaps between visible nodes count as straight."""
-        ok = self.visible & np.all(np.isfinite(self.nodes_xyz), axis=1)
-        if not ok.any():
-            return 0.0
-        pts = np.vstack([np.asarray(start_xyz, dtype=float).reshape(1, 3), self.nodes_xyz[ok]])
-        return float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
+        return _path_length(self.path_from(start_xyz))
+
+
+def _path_length(points: NDArray[np.float64]) -> float:
+    return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
 
 
 #: Shortest share of the cable's known length that the measured polyline (from the held end) must cover for
@@ -99,13 +108,12 @@ def tip_from_polyline(measurement: Measurement, start_xyz: ArrayLike, cable_leng
     """
     if not cable_length_m > 0:
         raise ValueError(f"cable_length_m must be positive, got {cable_length_m!r}")
-    ok = measurement.visible & np.all(np.isfinite(measurement.nodes_xyz), axis=1)
-    if not ok.any():
+    pts = measurement.path_from(start_xyz)
+    if len(pts) < 2:  # no node lifted
         return None
-    length = measurement.length_from(start_xyz)
+    length = _path_length(pts)
     if length < min_fraction * cable_length_m:
         return None
-    pts = np.vstack([np.asarray(start_xyz, dtype=float).reshape(1, 3), measurement.nodes_xyz[ok]])
     last = pts[-1]
     missing = cable_length_m - length
     if missing <= 0:
