@@ -7,8 +7,10 @@ plane are given (rays through the pixels are intersected with the plane), else i
 
 The automatic background is by default the per-pixel median of frames sampled across the video (any static
 background, a moving cable), or one colour per frame for videos too short for it. Segmented regions too thick
-to be cable (a floor the background model does not describe) are ignored, and a cable end that runs into one
-is not taken for the tip: the tool reports the point unmeasured rather than following such a region.
+to be cable (a floor the background model does not describe, or a blob several times the cable's own width: a
+gripper, a box; :class:`~dyndlo_vision.tracking.masks.CableShapedMask`) are ignored, and a cable end that runs
+into one is not taken for the tip: the tool reports the point unmeasured rather than following such a region.
+With ``--tcp-log`` the gripper's logged pose masks it in every frame and gives the held end.
 
 CSV columns ``frame,time_s,visible,u,v,x,y,z``: ``visible`` is 1 when the tracked point was measured in that
 frame; ``u,v`` is the measured pixel (raw, unfiltered; empty when not measured); ``x,y,z`` is the filtered
@@ -42,6 +44,12 @@ from typing import TYPE_CHECKING, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
+from dyndlo_vision.tracking.masks import (
+    MAX_WIDTH_RATIO,
+    MIN_CUT_RADIUS_PX,
+    CableShapedMask,
+    GripperMaskedSegmenter,
+)
 from dyndlo_vision.tracking.params import FilterParams
 
 if TYPE_CHECKING:
@@ -67,6 +75,8 @@ _AUTO_MIN_FRAMES = 8
 #: per-frame background colour segments a whole floor in front of a dark backdrop, and its skeleton is a line
 #: the tracker would otherwise follow with confidence.
 _MAX_CABLE_WIDTH_SHARE = 0.1
+#: ``--gripper-radius`` default: the simulator's 2 cm gripper sphere plus a margin (the loop masks the same).
+_GRIPPER_RADIUS_M = 0.03
 CSV_COLUMNS = ("frame", "time_s", "visible", "u", "v", "x", "y", "z")
 
 
@@ -133,6 +143,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="length of the cable in metres from where it leaves the held end (the gripper) to its tip; with "
         "--calib/--plane and --point tip, a polyline shorter than that is continued straight by the missing "
         "length (the tip hidden behind something), and under half of it the tip is not measured (visible=0)",
+    )
+    p.add_argument(
+        "--tcp-log",
+        metavar="TCP.csv",
+        help="the gripper's position over time, a CSV with columns time_s,x,y,z (s on the video's clock, m "
+        "in the calibration's world frame; other columns are ignored); needs --calib/--plane. The gripper "
+        "is masked out of every frame (a disk of --gripper-radius around its projection), its projection "
+        "is the held end, and with --cable-length the tip is continued from it",
+    )
+    p.add_argument(
+        "--gripper-radius",
+        type=float,
+        default=_GRIPPER_RADIUS_M,
+        metavar="R",
+        help=f"with --tcp-log: radius in m of the sphere around the TCP that is masked (default "
+        f"{_GRIPPER_RADIUS_M:g})",
+    )
+    p.add_argument(
+        "--max-width-ratio",
+        type=float,
+        default=MAX_WIDTH_RATIO,
+        metavar="K",
+        help=f"mask regions thicker than K times the cable's width measured in the frame (at least "
+        f"{2 * MIN_CUT_RADIUS_PX:g} px) are not cable: a gripper or a box is removed, and a cable end that "
+        f"runs into one is not taken for the tip (default {MAX_WIDTH_RATIO:g}; 0: off, only regions wider "
+        f"than {100 * _MAX_CABLE_WIDTH_SHARE:g}%% of the image are removed)",
     )
     p.add_argument("--nodes", type=int, default=20, help="centreline nodes (default 20)")
     p.add_argument("--annotated", metavar="OUT.mp4", help="also write an annotated MP4")
@@ -221,6 +257,54 @@ def point_on_nodes(
     return (1.0 - w) * nodes[i0] + w * nodes[i0 + 1]
 
 
+def read_tcp_log(path: Path) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Times (K,) and TCP positions (K, 3) from a CSV with columns ``time_s,x,y,z`` (any others ignored).
+
+    Raises:
+        ValueError: Naming the file and the problem: a missing column, a value that is not a finite number
+            (with its line), no rows, or times that do not increase.
+    """
+    with open(path, newline="", encoding="utf-8") as f:
+        reader = csv.DictReader(f)
+        columns = ("time_s", "x", "y", "z")
+        missing = [c for c in columns if c not in (reader.fieldnames or [])]
+        if missing:
+            raise ValueError(
+                f"--tcp-log {path}: missing column(s) {', '.join(missing)}; expected a header with "
+                f"time_s,x,y,z, got {reader.fieldnames}"
+            )
+        rows = []
+        for line, row in enumerate(reader, start=2):
+            try:
+                values = [float(row[c]) for c in columns]
+            except (TypeError, ValueError):
+                values = [math.nan]
+            if not all(math.isfinite(v) for v in values):
+                raise ValueError(
+                    f"--tcp-log {path} line {line}: expected finite numbers in time_s,x,y,z, got "
+                    f"{[row.get(c) for c in columns]}"
+                )
+            rows.append(values)
+    if not rows:
+        raise ValueError(f"--tcp-log {path} has no rows")
+    table = np.array(rows, dtype=np.float64)
+    bad = np.flatnonzero(np.diff(table[:, 0]) <= 0)
+    if bad.size:
+        raise ValueError(
+            f"--tcp-log {path}: time_s must increase from row to row; line {bad[0] + 3} has "
+            f"{table[bad[0] + 1, 0]!r} after {table[bad[0], 0]!r}"
+        )
+    return table[:, 0], table[:, 1:]
+
+
+def tcp_at(times: NDArray[np.float64], positions: NDArray[np.float64], t: float,
+           tolerance_s: float) -> NDArray[np.float64] | None:
+    """The TCP at time ``t``, linear between log rows; None more than ``tolerance_s`` outside the log."""
+    if t < times[0] - tolerance_s or t > times[-1] + tolerance_s:
+        return None
+    return np.array([np.interp(t, times, positions[:, k]) for k in range(3)])
+
+
 # ------------------------------------------------------------------------------------------- settings
 
 
@@ -239,6 +323,9 @@ class _Settings:
     anchor: NDArray[np.float64] | None
     nodes: int
     cable_length_m: float | None
+    tcp_log: Path | None
+    gripper_radius_m: float
+    max_width_ratio: float | None
     fps: float | None
     filter: FilterParams
     quiet: bool
@@ -296,6 +383,18 @@ def _settings(args: argparse.Namespace) -> _Settings:
         raise ValueError("--cable-length needs --calib and --plane: the cable's length is measured in metres")
     if cable_length is not None and parse_point(args.point) != 1.0:
         raise ValueError(f"--cable-length places the free tip; it cannot be used with --point {args.point}")
+    tcp_log = None if args.tcp_log is None else Path(args.tcp_log)
+    if tcp_log is not None and plane is None:
+        raise ValueError(
+            "--tcp-log needs --calib and --plane: the gripper's positions are in the world frame"
+        )
+    if tcp_log is not None and args.anchor is not None:
+        raise ValueError("--tcp-log gives the held end in every frame (the projected gripper); drop --anchor")
+    gripper_radius = _positive(args.gripper_radius, "--gripper-radius")
+    if not (math.isfinite(args.max_width_ratio) and (args.max_width_ratio == 0 or args.max_width_ratio > 1)):
+        raise ValueError(
+            f"--max-width-ratio must be 0 (off) or a number above 1, got {args.max_width_ratio!r}"
+        )
     defaults = _WORLD_FILTER if plane is not None else _PIXEL_FILTER
     filter_params = replace(
         defaults,
@@ -333,6 +432,9 @@ def _settings(args: argparse.Namespace) -> _Settings:
         anchor=None if args.anchor is None else parse_floats(args.anchor, 2, "--anchor"),
         nodes=int(args.nodes),
         cable_length_m=cable_length,
+        tcp_log=tcp_log,
+        gripper_radius_m=float(gripper_radius or _GRIPPER_RADIUS_M),
+        max_width_ratio=None if args.max_width_ratio == 0 else float(args.max_width_ratio),
         fps=_positive(args.fps, "--fps"),
         filter=filter_params,
         quiet=bool(args.quiet),
@@ -411,92 +513,6 @@ def _segmenter(cfg: _Settings) -> tuple[Callable[[NDArray[np.uint8]], NDArray[np
     return segmenter, "median"
 
 
-class CableShapedMask:
-    """Removes mask regions too thick to be a cable, and remembers where they were.
-
-    A background model that does not fit the scene (one colour per frame in front of a floor and a dark
-    backdrop, a lighting change under a median background) segments whole surfaces; the skeleton of such a
-    region is a line as long as the region, which the tracker would follow as the cable. Pixels of regions
-    thicker than the widest cable (a morphological opening with a disk of that diameter, by distance
-    transforms), and a band of half that width around them, are removed from the mask; :meth:`ends_in_zone`
-    tells whether a centreline ran into that zone, where the cable may continue unseen, so that the end is not
-    its tip.
-
-    Args:
-        segment: The frame -> mask function.
-        max_width_share: Widest cable as a share of the image's shorter side.
-    """
-
-    def __init__(
-        self, segment: Callable[[NDArray[np.uint8]], NDArray[np.bool_]], max_width_share: float
-    ) -> None:
-        self.segment = segment
-        self.max_width_share = float(max_width_share)
-        #: The last frame's excluded zone (regions too thick plus the band), None where there was none.
-        self.zone: NDArray[np.bool_] | None = None
-        #: Frames in which a zone was found.
-        self.frames_with_zone = 0
-
-    def __call__(self, rgb: NDArray[np.uint8]) -> NDArray[np.bool_]:
-        import cv2
-
-        mask = np.asarray(self.segment(rgb), dtype=bool)
-        radius = 0.5 * self.max_width_share * min(mask.shape)
-        # Distance of each mask pixel to the nearest non-mask pixel (OpenCV counts the image's outside as
-        # mask, so a floor cut by the image border stays thick up to the border).
-        depth = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5)
-        core = depth > radius
-        if not core.any():
-            self.zone = None
-            return mask
-        # Disks of the radius around the core pixels are the opening; the band beyond them swallows the
-        # slivers an opening leaves at the region's corners.
-        to_core = cv2.distanceTransform((~core).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5)
-        self.zone = to_core <= 1.5 * radius
-        self.frames_with_zone += 1
-        return mask & ~self.zone
-
-    def ends_in_zone(
-        self, path_uv: NDArray[np.float64], width_px: float, mask: NDArray[np.bool_]
-    ) -> tuple[bool, bool]:
-        """Whether the start and the end of a centreline path run into the last frame's zone.
-
-        The mask components the path lies on are looked up; their pixels next to the zone are where the cable
-        was cut, and each is assigned to the nearest point of the path: near its start or its end, that end is
-        cut (a skeleton stops short of its mask's end, so the end point itself may lie a little away from the
-        zone; cuts between bridged gaps in the middle of the path do not count).
-        """
-        import cv2
-
-        if self.zone is None or path_uv.shape[0] < 2:
-            return False, False
-        h, w = mask.shape
-        m8 = mask.astype(np.uint8)
-        _, labels = cv2.connectedComponents(m8, connectivity=8)
-        px = np.rint(path_uv).astype(np.int64)
-        px[:, 0] = np.clip(px[:, 0], 0, w - 1)
-        px[:, 1] = np.clip(px[:, 1], 0, h - 1)
-        on_path = np.unique(labels[px[:, 1], px[:, 0]])
-        on_path = on_path[on_path > 0]
-        if on_path.size == 0:
-            return False, False
-        beside_zone = cv2.dilate(self.zone.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-        rows, cols = np.nonzero(beside_zone & np.isin(labels, on_path))
-        if rows.size == 0:
-            return False, False
-        seg = np.hypot(*np.diff(path_uv, axis=0).T)
-        s = np.concatenate(([0.0], np.cumsum(seg)))
-        contact = np.column_stack((cols, rows)).astype(np.float64)
-        nearest = np.empty(contact.shape[0], dtype=np.int64)
-        for i0 in range(0, contact.shape[0], 256):  # bounded memory for long contacts
-            chunk = contact[i0 : i0 + 256]
-            d2 = np.sum((chunk[:, None, :] - path_uv[None, :, :]) ** 2, axis=2)
-            nearest[i0 : i0 + 256] = np.argmin(d2, axis=1)
-        s_contact = s[nearest]
-        tol = 2.0 * width_px + 2.0
-        return bool(np.any(s_contact <= tol)), bool(np.any(s_contact >= s[-1] - tol))
-
-
 class _AtomicOutputs:
     """Temporary files beside their destinations, renamed over them only by :meth:`commit`.
 
@@ -548,7 +564,13 @@ class _PointTracker:
         self.calib = calib
         self.world = calib is not None
         segment, self.background = _segmenter(cfg)
-        self.shape_filter = CableShapedMask(segment, _MAX_CABLE_WIDTH_SHARE)
+        #: With --tcp-log: the gripper's disk is cleared before the shape test (it is no cable either way).
+        self.tcp_log = None if cfg.tcp_log is None else read_tcp_log(cfg.tcp_log)
+        self.gripper_mask = None
+        if self.tcp_log is not None:
+            self.gripper_mask = GripperMaskedSegmenter(segment, 0.0)
+            segment = self.gripper_mask
+        self.shape_filter = CableShapedMask(segment, _MAX_CABLE_WIDTH_SHARE, cfg.max_width_ratio)
         self.tracker = CableTracker(
             camera=calib,
             segmenter=self.shape_filter,
@@ -556,6 +578,8 @@ class _PointTracker:
             plane=None if cfg.plane is None else Plane(cfg.plane[0], cfg.plane[1]),
         )
         self.filter = PointFilter(cfg.filter)
+        #: The video's frame rate (set by the run; how far outside the TCP log a frame may lie).
+        self.fps = 25.0
         self.held_end_found = False
         self.n_frames = 0
         self.n_measured = 0
@@ -565,6 +589,27 @@ class _PointTracker:
         #: little of the cable in view to place the tip.
         self.n_continued = 0
         self.n_too_short = 0
+        #: With --tcp-log: frames outside the log's time span (no gripper mask, no held end there).
+        self.n_without_tcp = 0
+
+    def _gripper(self, t: float) -> NDArray[np.float64] | None:
+        """With --tcp-log: the TCP at ``t``, its disk set in the gripper mask (None: no log or outside it)."""
+        if self.tcp_log is None:
+            return None
+        assert self.gripper_mask is not None and self.calib is not None
+        # Frames up to half a period outside the log still get its end row.
+        tcp = tcp_at(*self.tcp_log, t, tolerance_s=0.5 / max(self.fps, 1e-9))
+        if tcp is None:
+            self.gripper_mask.center_uv = None
+            self.n_without_tcp += 1
+            return None
+        depth = float(self.calib.world_to_camera(tcp[None])[0, 2])
+        if depth <= 0:
+            raise ValueError(f"--tcp-log: the gripper at {np.round(tcp, 3).tolist()} m (t = {t:.3f} s) is "
+                             "behind the camera; is the log in the calibration's world frame?")
+        self.gripper_mask.center_uv = self.calib.project(tcp[None])[0]
+        self.gripper_mask.radius_px = self.cfg.gripper_radius_m * float(self.calib.K[0, 0]) / depth
+        return tcp
 
     def step(self, frame: Frame, video: Path, draw: bool) -> tuple[list[object], NDArray[np.uint8] | None]:
         """Tracks one frame; returns its CSV row and, when ``draw``, the annotated RGB image."""
@@ -575,6 +620,9 @@ class _PointTracker:
         # from frame to frame, because a held end that moves (a robot's gripper) can come closer to a fixed
         # anchor pixel than the swinging tip does.
         anchor = None if self.held_end_found else cfg.anchor
+        tcp = self._gripper(frame.t_capture)
+        if tcp is not None:
+            anchor = self.gripper_mask.center_uv  # type: ignore[union-attr]
         try:
             meas = self.tracker.process(frame.rgb, frame.t_capture, anchor_uv=anchor)
         except ValueError as exc:
@@ -582,7 +630,7 @@ class _PointTracker:
         cl = meas.centerline
         if not self.held_end_found and cl is not None and cl.any_visible:
             self.held_end_found = True
-            if cfg.anchor is None:
+            if cfg.anchor is None and self.tcp_log is None:
                 # Either end could be node 0 (the walk's start), and a tip taken for the held end is a
                 # confident wrong answer: take the upper end, a hanging cable's held end.
                 if cl.path_uv[-1, 1] < cl.path_uv[0, 1]:
@@ -619,7 +667,7 @@ class _PointTracker:
             # disappears there (behind something) and goes on, or too little of it is seen to place the tip.
             from dyndlo_vision.tracking.tracker import tip_from_polyline
 
-            held = meas.nodes_xyz[np.flatnonzero(meas.lifted)[0]]
+            held = tcp if tcp is not None else meas.nodes_xyz[np.flatnonzero(meas.lifted)[0]]
             tip = tip_from_polyline(meas, held, cfg.cable_length_m)
             if tip is None:
                 uv = z = None
@@ -652,6 +700,13 @@ class _PointTracker:
         if zone is not None:  # shows where the cable cannot be seen: regions too thick to be cable
             rgb = rgb.copy()
             rgb[zone] = (0.6 * rgb[zone] + np.array([0.0, 0.0, 100.0])).astype(np.uint8)
+        if tcp is not None:  # the masked gripper, outlined
+            import cv2
+
+            assert self.gripper_mask is not None and self.gripper_mask.center_uv is not None
+            u, v = self.gripper_mask.center_uv
+            radius = int(round(self.gripper_mask.radius_px))
+            rgb = cv2.circle(rgb.copy(), (int(round(u)), int(round(v))), radius, (0, 0, 255), 1, cv2.LINE_AA)
         image = annotate_frame(
             rgb,
             meas.nodes_uv,
@@ -701,6 +756,7 @@ def _run(args: argparse.Namespace) -> int:
         ):
             raise ValueError(f"--anchor {args.anchor} is outside the {source.width}x{source.height} image")
         pipeline = _PointTracker(cfg, calib)
+        pipeline.fps = source.fps
         destinations = [cfg.out] + ([cfg.annotated] if cfg.annotated is not None else [])
         outputs = _AtomicOutputs(destinations)
         with outputs as temps:
@@ -737,6 +793,10 @@ def _run(args: argparse.Namespace) -> int:
             outputs.commit()
     share = 100.0 * pipeline.n_measured / pipeline.n_frames
     zone_frames = pipeline.shape_filter.frames_with_zone
+    shape_rule = (
+        "" if cfg.max_width_ratio is None
+        else f", or than {cfg.max_width_ratio:g} times the cable's width (--max-width-ratio)"
+    )
     if zone_frames:
         hint = (
             "; if the background is static, try --background median" if pipeline.background == "frame" else ""
@@ -744,8 +804,16 @@ def _run(args: argparse.Namespace) -> int:
         print(
             f"note: in {zone_frames} of {pipeline.n_frames} frames the segmentation ({pipeline.background}) "
             f"found regions too thick to be cable (wider than {100 * _MAX_CABLE_WIDTH_SHARE:g}% of the "
-            f"image's shorter side), which were ignored; the point was not measured in "
+            f"image's shorter side{shape_rule}), which were ignored; the point was not measured in "
             f"{pipeline.n_cut_by_zone} frames where the cable ran into them{hint}",
+            file=sys.stderr,
+        )
+    if cfg.tcp_log is not None:
+        print(
+            f"note: --tcp-log: the gripper was masked and taken as the held end in "
+            f"{pipeline.n_frames - pipeline.n_without_tcp} of {pipeline.n_frames} frames"
+            + (f"; {pipeline.n_without_tcp} frames lie outside the log's time span" if pipeline.n_without_tcp
+               else ""),
             file=sys.stderr,
         )
     if cfg.cable_length_m is not None:

@@ -29,6 +29,7 @@ from dyndlo_vision.tracking import (
     Plane,
     PointFilter,
 )
+from dyndlo_vision.tracking.masks import GripperMaskedSegmenter
 
 #: Planar tip control moves in the x-z plane through the origin.
 MOTION_PLANE = Plane(np.array([0.0, 1.0, 0.0]), 0.0)
@@ -42,28 +43,6 @@ LOOP_SEGMENTERS = ("background", "learned")
 #: Longest simulated camera latency (s): beyond a quarter second the loop re-plans on a past the cable has
 #: long left.
 MAX_LATENCY_S = 0.25
-
-
-class GripperMaskedSegmenter:
-    """A segmenter that clears a disk around the robot's gripper, whose pose the robot reports."""
-
-    def __init__(self, base: Any, radius_px: float) -> None:
-        self.base = base
-        self.radius_px = float(radius_px)
-        self.center_uv: NDArray[np.float64] | None = None
-
-    def __call__(self, rgb: NDArray[np.uint8]) -> NDArray[np.bool_]:
-        mask = self.base(rgb)
-        if self.center_uv is not None and np.all(np.isfinite(self.center_uv)):
-            h, w = mask.shape
-            u, v = self.center_uv
-            r = self.radius_px
-            u0, u1 = int(max(0, np.floor(u - r))), int(min(w, np.ceil(u + r) + 1))
-            v0, v1 = int(max(0, np.floor(v - r))), int(min(h, np.ceil(v + r) + 1))
-            if u0 < u1 and v0 < v1:
-                vv, uu = np.mgrid[v0:v1, u0:u1]
-                mask[v0:v1, u0:u1] &= (uu - u) ** 2 + (vv - v) ** 2 > r * r
-        return mask
 
 
 def render_without_cable(camera: MujocoCamera) -> NDArray[np.uint8]:

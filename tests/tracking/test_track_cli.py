@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 
 from dyndlo_vision.cli import main
-from dyndlo_vision.commands.track import CableShapedMask, parse_point, point_on_nodes, sample_evenly
+from dyndlo_vision.commands.track import parse_point, point_on_nodes, sample_evenly
 from dyndlo_vision.tracking.annotate import annotate_frame, covariance_ellipse, project_point_covariance
 from dyndlo_vision.tracking.camera_model import PinholeCamera
 from dyndlo_vision.tracking.centerline import extract_centerline
+from dyndlo_vision.tracking.masks import CableShapedMask
 from dyndlo_vision.tracking.synthetic import render_cable
 
 from .helpers import look_at_camera
@@ -485,15 +486,19 @@ def test_with_the_cable_length_a_stub_at_the_gripper_is_not_the_tip(
 
 
 @pytest.mark.slow
-def test_defaults_on_the_demo_video_follow_the_cable(tmp_path: Path) -> None:
-    """The user's case: ``track`` with defaults on the annotated video ``demo`` writes.
+def test_on_the_demo_video_the_tip_is_never_confidently_wrong(tmp_path: Path) -> None:
+    """The user's case: ``track`` on the annotated video ``demo`` writes.
 
-    The demo draws its tracked polyline over the cable and markers at the tip, so what is tracked is partly
-    the drawing. Measured with the chain and its policy: 18 of 18 frames, at most 13.1 px from the true tip
-    away from the target; 27-35 px in the last 2 frames, where the cable runs behind the translucent target
-    sphere and the drawings around it (the polyline's end is still reported as measured: `track` does not know
-    the cable's length).
-    Before, the skeleton of the floor: 157-308 px away in every frame.
+    The demo draws its tracked polyline over the cable and filled markers on the tip, so what is tracked is
+    partly the drawing. The markers are blobs thicker than the drawn cable: by default the cable runs into
+    them, and its end there is not taken for the tip (not measured: no confident answer). With the shape test
+    off (``--max-width-ratio 0``) the end at the marker's rim is reported. Measured with the chain and its
+    policy: defaults 4, 5 and 7 of 18 frames measured in three runs (the demo's frames vary a little from
+    run to run: its overlay shows the controller's timing), at most 11.6 px from the true tip away from the
+    target;
+    ``--max-width-ratio 0`` 18 of 18, at most 13.1 px away from the target and 27-35 px in the last 2 frames,
+    where the cable runs behind the translucent target sphere and the drawings around it.
+    Before the floor was removed as too thick: the skeleton of the floor, 157-308 px away in every frame.
     """
     import gymnasium as gym
 
@@ -507,35 +512,121 @@ def test_defaults_on_the_demo_video_follow_the_cable(tmp_path: Path) -> None:
     frames: list[np.ndarray] = []
     record = film_episode(env, model, 100000, "tracked", "tracking", frames)
     env.close()
-    video, calib, out = tmp_path / "demo.mp4", tmp_path / "camera.json", tmp_path / "demo.csv"
+    video, calib = tmp_path / "demo.mp4", tmp_path / "camera.json"
     write_video_atomic(video, frames, rgb=False)  # as the demo writes it
     assert main(["calib", "--out", str(calib)]) == 0
     plane = ",".join(f"{c:g}" for c in (*MOTION_PLANE.normal, MOTION_PLANE.d))
-    assert (
-        main(["track", str(video), "--calib", str(calib), "--plane", plane, "--out", str(out), "--quiet"])
-        == 0
-    )
-    tip_uv = PinholeCamera.from_json(calib).project(np.array(record["trace"]["truth"]).reshape(-1, 3))
-    _, rows = _read_csv(out)
-    assert len(rows) == len(tip_uv) == len(frames)
-    visible = np.array([int(r["visible"]) for r in rows], dtype=bool)
-    err = np.linalg.norm(_column(rows, "u,v") - tip_uv, axis=1)
-    print(f"demo video: measured {visible.mean():.2f}, error px {np.round(err, 1).tolist()}")
-    assert visible.mean() >= 0.8
+    camera = PinholeCamera.from_json(calib)
+    tip_uv = camera.project(np.array(record["trace"]["truth"]).reshape(-1, 3))
     # Near the target the cable runs behind the sphere, and the demo's own drawings crowd around it (the
     # yellow ring, 14 px, and the estimate's marker, placed on the tip behind the sphere): there a measured
     # point may sit on a drawing or on the sphere's rim (16-35 px from the tip, measured). Away from the
     # target (true tip more than three ring radii from its centre) every measured point is within 20 px, and
     # none is anywhere as far as the floor was.
-    camera = PinholeCamera.from_json(calib)
     centre_uv = camera.project(np.asarray(record["trace"]["goal"], dtype=float)[None])[0]
     near_target = np.linalg.norm(tip_uv - centre_uv, axis=1) < 3 * 14
-    assert (visible & ~near_target).sum() >= 10
-    assert np.all(err[visible & ~near_target] < 20.0), (err, near_target)
-    assert np.all(err[visible] < SIM_FAR_PX), err
+    for extra, least_measured in (([], 1), (["--max-width-ratio", "0"], int(0.8 * len(frames)))):
+        out = tmp_path / "demo.csv"
+        argv = ["track", str(video), "--calib", str(calib), "--plane", plane, "--out", str(out), "--quiet"]
+        assert main([*argv, *extra]) == 0
+        _, rows = _read_csv(out)
+        assert len(rows) == len(tip_uv) == len(frames)
+        visible = np.array([int(r["visible"]) for r in rows], dtype=bool)
+        err = np.linalg.norm(_column(rows, "u,v") - tip_uv, axis=1)
+        print(f"demo video {extra}: measured {visible.sum()}, error px {np.round(err, 1).tolist()}")
+        assert visible.sum() >= least_measured
+        assert np.all(err[visible & ~near_target] < 20.0), (err, near_target)
+        assert np.all(err[visible] < SIM_FAR_PX), err
 
 
-# ------------------------------------------------------------------------------------------------ bad input
+# ------------------------------------------------------------------------------------------ the gripper
+
+
+GRIPPER_RADIUS_PX = 14
+
+
+@pytest.fixture(scope="module")
+def gripper_clip(tmp_path_factory: pytest.TempPathFactory) -> tuple[Clip, Path]:
+    """Issue 14's failing case: a dark cable 5 px across held by a dark gripper disk 28 px across, on a light
+    wall; and a TCP log (``time_s,x,y,z``) of the held end."""
+    root = tmp_path_factory.mktemp("gripper")
+    camera = look_at_camera(eye=(0.05, -1.0, 0.35), target=(0.0, 0.0, 0.3))
+    frames = []
+    curves = [cable_world(k / FPS) for k in range(N_FRAMES)]
+    for k, cw in enumerate(curves):
+        rgb, _ = render_cable(camera.project(cw), (camera.height, camera.width), thickness=3,
+                              color=(30, 30, 30), background=(200, 200, 200), seed=k)
+        u, v = camera.project(cw[:1])[0]
+        cv2.circle(rgb, (int(round(u)), int(round(v))), GRIPPER_RADIUS_PX, (30, 30, 30), -1, cv2.LINE_AA)
+        frames.append(rgb)
+    video = _write_mp4(root / "gripper.mp4", frames)
+    calib = root / "camera.json"
+    camera.to_json(calib)
+    log = root / "tcp.csv"
+    log.write_text("time_s,x,y,z,note\n" + "".join(
+        f"{k / FPS:.4f},{c[0, 0]:.6f},{c[0, 1]:.6f},{c[0, 2]:.6f},ignored\n" for k, c in enumerate(curves)))
+    tips, held = np.array([c[-1] for c in curves]), np.array([c[0] for c in curves])
+    return Clip(video, root, calib, camera, tips, held), log
+
+
+def _tip_and_gripper_px(clip: Clip, csv_path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    _, rows = _read_csv(csv_path)
+    uv = _column(rows, "u,v")
+    visible = np.array([r["visible"] == "1" for r in rows])
+    return (visible, np.linalg.norm(uv - clip.camera.project(clip.tip_world), axis=1),
+            np.linalg.norm(uv - clip.camera.project(clip.held_world), axis=1))
+
+
+def test_a_gripper_blob_is_never_the_tip(gripper_clip: tuple[Clip, Path], tmp_path: Path) -> None:
+    """Without the shape test the centreline runs from the anchor into the gripper disk and the disk is the
+    "tip" in every frame (measured: 36 of 36, 272 px from the tip); with it the disk is removed and every tip
+    lies on the cable's end (measured: at most 2.8 px)."""
+    clip, _ = gripper_clip
+    base = ["track", str(clip.video), "--calib", str(clip.calib), "--plane", "0,1,0,0", "--quiet",
+            "--anchor", _anchor(clip)]
+    old, new = tmp_path / "old.csv", tmp_path / "new.csv"
+    assert main([*base, "--max-width-ratio", "0", "--out", str(old)]) == 0
+    assert main([*base, "--out", str(new)]) == 0
+    visible, err, to_gripper = _tip_and_gripper_px(clip, old)
+    assert np.sum(visible & (to_gripper < 2 * GRIPPER_RADIUS_PX)) >= N_FRAMES // 2  # the failure is real
+    visible, err, to_gripper = _tip_and_gripper_px(clip, new)
+    assert visible.all()
+    assert np.all(err < TIP_TOL_PX), err
+    assert np.all(to_gripper > 100), to_gripper
+
+
+def test_a_tcp_log_masks_the_gripper_and_gives_the_held_end(
+    gripper_clip: tuple[Clip, Path], tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """No anchor and no shape test: the logged gripper pose alone keeps the tracker off the disk and gives
+    the held end."""
+    clip, log = gripper_clip
+    out, annotated = tmp_path / "log.csv", tmp_path / "log.mp4"
+    assert main(["track", str(clip.video), "--calib", str(clip.calib), "--plane", "0,1,0,0", "--quiet",
+                 "--max-width-ratio", "0", "--tcp-log", str(log), "--gripper-radius", "0.04",
+                 "--out", str(out), "--annotated", str(annotated)]) == 0
+    err_text = capsys.readouterr().err
+    assert f"taken as the held end in {N_FRAMES} of {N_FRAMES} frames" in err_text
+    assert "no --anchor" not in err_text
+    visible, err, to_gripper = _tip_and_gripper_px(clip, out)
+    assert visible.all()
+    assert np.all(err < TIP_TOL_PX), err
+    assert _video_frame_count(annotated)[0] == N_FRAMES
+
+
+def test_a_tcp_log_that_ends_early_leaves_later_frames_unmasked(
+    gripper_clip: tuple[Clip, Path], tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    clip, log = gripper_clip
+    short = tmp_path / "short.csv"
+    short.write_text("".join(log.read_text().splitlines(keepends=True)[:11]))  # header + frames 0-9
+    out = tmp_path / "short_out.csv"
+    assert main(["track", str(clip.video), "--calib", str(clip.calib), "--plane", "0,1,0,0", "--quiet",
+                 "--tcp-log", str(short), "--out", str(out)]) == 0
+    assert f"{N_FRAMES - 10} frames lie outside the log's time span" in capsys.readouterr().err
+    visible, err, _ = _tip_and_gripper_px(clip, out)
+    # The shape test still removes the disk where the log says nothing.
+    assert visible.all() and np.all(err < TIP_TOL_PX), err
 
 
 def _parallel_plane(camera: PinholeCamera) -> str:
@@ -544,6 +635,7 @@ def _parallel_plane(camera: PinholeCamera) -> str:
     return ",".join(f"{c:.12g}" for c in (*normal, -float(normal @ camera.center)))
 
 
+_WORLD = ["{video}", "--calib", "{calib}", "--plane", "0,1,0,0"]
 BAD_INPUTS = {
     "missing video": (["{tmp}/none.mp4", "--out", "{out}"], "none.mp4"),
     "cable length without a plane": (
@@ -633,6 +725,42 @@ BAD_INPUTS = {
     "annotated not mp4": (["{video}", "--out", "{out}", "--annotated", "{tmp}/a.avi"], "must be an .mp4"),
     "output folder missing": (["{video}", "--out", "{tmp}/no/such/t.csv"], "does not exist"),
     "truncated video": (["{truncated}", "--out", "{out}"], "ended after"),
+    "tcp log without a calibration": (
+        ["{video}", "--tcp-log", "{tcp_ok}", "--out", "{out}"], "--tcp-log needs"
+    ),
+    "tcp log with an anchor": (
+        [*_WORLD, "--tcp-log", "{tcp_ok}", "--anchor", "1,1",
+         "--out", "{out}"],
+        "drop --anchor",
+    ),
+    "tcp log missing": (
+        [*_WORLD, "--tcp-log", "{tmp}/no.csv", "--out", "{out}"],
+        "no.csv",
+    ),
+    "tcp log without z": (
+        [*_WORLD, "--tcp-log", "{tcp_no_z}", "--out", "{out}"],
+        "missing column\\(s\\) z",
+    ),
+    "tcp log not numbers": (
+        [*_WORLD, "--tcp-log", "{tcp_text}", "--out", "{out}"],
+        "line 3: expected finite numbers",
+    ),
+    "tcp log time going back": (
+        [*_WORLD, "--tcp-log", "{tcp_back}", "--out", "{out}"],
+        "time_s must increase",
+    ),
+    "tcp log behind the camera": (
+        [*_WORLD, "--tcp-log", "{tcp_behind}", "--out", "{out}"],
+        "behind the camera",
+    ),
+    "gripper radius not positive": (
+        [*_WORLD, "--tcp-log", "{tcp_ok}", "--gripper-radius",
+         "0", "--out", "{out}"],
+        "--gripper-radius must be a positive",
+    ),
+    "width ratio at most 1": (
+        ["{video}", "--max-width-ratio", "1", "--out", "{out}"], "--max-width-ratio must"
+    ),
 }
 
 
@@ -666,6 +794,17 @@ def test_bad_input_exits_2_and_writes_nothing(
         "parallel": _parallel_plane(clip.camera),
         "truncated": str(truncated),
     }
+    held = clip.held_world
+    logs = {
+        "tcp_ok": "time_s,x,y,z\n" + "".join(f"{k / FPS},{p[0]},{p[1]},{p[2]}\n" for k, p in enumerate(held)),
+        "tcp_no_z": "time_s,x,y\n0,0,0\n",
+        "tcp_text": "time_s,x,y,z\n0,0,0,0.5\n0.04,a,0,0.5\n",
+        "tcp_back": "time_s,x,y,z\n0,0,0,0.5\n0.04,0,0,0.5\n0.02,0,0,0.5\n",
+        "tcp_behind": "time_s,x,y,z\n0,0,-3,0.5\n10,0,-3,0.5\n",  # the camera is at y = -1
+    }
+    for name, text in logs.items():
+        (inputs / f"{name}.csv").write_text(text)
+        values[name] = str(inputs / f"{name}.csv")
     template, message = BAD_INPUTS[case]
     argv = [a.format(**values) for a in template]
     if "--annotated" not in argv:

@@ -1,0 +1,189 @@
+"""Segmentation masks made safe to follow: the robot's gripper cleared, and regions not shaped like a cable.
+
+Both wrap a segmenter (``rgb -> bool mask``) and are segmenters themselves, so they stack in front of
+:class:`~dyndlo_vision.tracking.tracker.CableTracker`:
+
+* :class:`GripperMaskedSegmenter` clears a disk around the gripper where the robot's pose says it is (the
+  loop knows it every frame; ``track --tcp-log`` reads it from a log). A gripper segmented as cable is the
+  worst confident wrong answer: the centreline ends on it and the tip is reported at the hand.
+* :class:`CableShapedMask` removes regions too thick to be cable: thicker than an absolute share of the image
+  (a whole floor the background model does not describe), or than a few times the cable's own width, which
+  it measures in the mask (a gripper, a box). It remembers where it cut, so that a centreline that runs into
+  such a region is not taken to end at the tip there.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+#: A region is not cable where it is thicker than this many times the cable's measured width ...
+MAX_WIDTH_RATIO = 3.0
+#: ... but never below this half-width (px): a 1-2 px cable's width is measured to a pixel at best, and
+#: crossings and motion blur widen a cable locally.
+MIN_CUT_RADIUS_PX = 4.0
+
+
+class GripperMaskedSegmenter:
+    """A segmenter that clears a disk around the robot's gripper, whose pose the robot reports.
+
+    Set :attr:`center_uv` (and, for a gripper whose distance to the camera changes, :attr:`radius_px`) before
+    each frame; a centre of None or NaN clears nothing.
+
+    Args:
+        base: The frame -> mask function.
+        radius_px: Radius of the cleared disk.
+    """
+
+    def __init__(self, base: Any, radius_px: float) -> None:
+        self.base = base
+        self.radius_px = float(radius_px)
+        self.center_uv: NDArray[np.float64] | None = None
+
+    def __call__(self, rgb: NDArray[np.uint8]) -> NDArray[np.bool_]:
+        mask = np.asarray(self.base(rgb), dtype=bool)
+        if self.center_uv is not None and np.all(np.isfinite(self.center_uv)) and self.radius_px > 0:
+            h, w = mask.shape
+            u, v = self.center_uv
+            r = self.radius_px
+            u0, u1 = int(max(0, np.floor(u - r))), int(min(w, np.ceil(u + r) + 1))
+            v0, v1 = int(max(0, np.floor(v - r))), int(min(h, np.ceil(v + r) + 1))
+            if u0 < u1 and v0 < v1:
+                vv, uu = np.mgrid[v0:v1, u0:u1]
+                mask[v0:v1, u0:u1] &= (uu - u) ** 2 + (vv - v) ** 2 > r * r
+        return mask
+
+
+def cable_half_width_px(depth: NDArray[np.float32], mask: NDArray[np.bool_]) -> float:
+    """The cable's half-width in pixels: the median distance transform on the mask's ridges.
+
+    Ridge pixels (local maxima of ``depth`` in their 3x3 neighbourhood) lie on the medial axis of each region.
+    A long thin cable contributes ridge pixels all along its length at its half-width; a compact blob (a
+    gripper) contributes a few at its centre, so the median is the cable's. NaN for an empty mask.
+    """
+    import cv2
+
+    if not mask.any():
+        return float("nan")
+    ridge = mask & (depth >= cv2.dilate(depth, np.ones((3, 3), np.uint8)))
+    return float(np.median(depth[ridge]))
+
+
+class CableShapedMask:
+    """Removes mask regions too thick to be a cable, and remembers where they were.
+
+    Two limits, the tighter of which applies:
+
+    * absolute: regions thicker than ``max_width_share`` of the image's shorter side. A background model that
+      does not fit the scene (one colour per frame in front of a floor and a dark backdrop, a lighting change
+      under a median background) segments whole surfaces; the skeleton of such a region is a line as long as
+      the region, which the tracker would follow as the cable;
+    * relative (``max_width_ratio``): regions thicker than that many times the cable's own width, measured in
+      each frame's mask (:func:`cable_half_width_px`), but at least ``2 * min_cut_radius_px``: a gripper, a
+      box, a hand. Off with ``max_width_ratio=None``.
+
+    Pixels of the too-thick regions (a morphological opening with a disk of the limit's diameter, by distance
+    transforms), and a band of half that width around them, are removed from the mask; :meth:`ends_in_zone`
+    tells whether a centreline ran into that zone, where the cable may continue unseen, so that the end is not
+    its tip.
+
+    Args:
+        segment: The frame -> mask function.
+        max_width_share: Widest cable as a share of the image's shorter side.
+        max_width_ratio: Widest cable as a multiple of the measured cable width (None: no relative limit).
+        min_cut_radius_px: Smallest half-width the relative limit cuts at.
+    """
+
+    def __init__(
+        self,
+        segment: Callable[[NDArray[np.uint8]], NDArray[np.bool_]],
+        max_width_share: float,
+        max_width_ratio: float | None = MAX_WIDTH_RATIO,
+        min_cut_radius_px: float = MIN_CUT_RADIUS_PX,
+    ) -> None:
+        if not 0 < max_width_share <= 1:
+            raise ValueError(f"max_width_share must be in (0, 1], got {max_width_share!r}")
+        if max_width_ratio is not None and not max_width_ratio > 1:
+            raise ValueError(f"max_width_ratio must be above 1 (or None), got {max_width_ratio!r}")
+        self.segment = segment
+        self.max_width_share = float(max_width_share)
+        self.max_width_ratio = None if max_width_ratio is None else float(max_width_ratio)
+        self.min_cut_radius_px = float(min_cut_radius_px)
+        #: The last frame's excluded zone (regions too thick plus the band), None where there was none.
+        self.zone: NDArray[np.bool_] | None = None
+        #: The last frame's cut radius (px): half the widest region kept.
+        self.cut_radius_px = float("nan")
+        #: Frames in which a zone was found.
+        self.frames_with_zone = 0
+
+    def cut_radius(self, depth: NDArray[np.float32], mask: NDArray[np.bool_]) -> float:
+        """Half the widest region that is kept, in pixels, for a mask and its distance transform."""
+        radius = 0.5 * self.max_width_share * min(mask.shape)
+        if self.max_width_ratio is not None:
+            half_width = cable_half_width_px(depth, mask)
+            if np.isfinite(half_width):
+                radius = min(radius, max(self.max_width_ratio * half_width, self.min_cut_radius_px))
+        return radius
+
+    def __call__(self, rgb: NDArray[np.uint8]) -> NDArray[np.bool_]:
+        import cv2
+
+        mask = np.asarray(self.segment(rgb), dtype=bool)
+        # Distance of each mask pixel to the nearest non-mask pixel (OpenCV counts the image's outside as
+        # mask, so a floor cut by the image border stays thick up to the border).
+        depth = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5)
+        radius = self.cut_radius(depth, mask)
+        self.cut_radius_px = radius
+        core = depth > radius
+        if not core.any():
+            self.zone = None
+            return mask
+        # Disks of the radius around the core pixels are the opening; the band beyond them swallows the
+        # slivers an opening leaves at the region's corners.
+        to_core = cv2.distanceTransform((~core).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5)
+        self.zone = to_core <= 1.5 * radius
+        self.frames_with_zone += 1
+        return mask & ~self.zone
+
+    def ends_in_zone(
+        self, path_uv: NDArray[np.float64], width_px: float, mask: NDArray[np.bool_]
+    ) -> tuple[bool, bool]:
+        """Whether the start and the end of a centreline path run into the last frame's zone.
+
+        The mask components the path lies on are looked up; their pixels next to the zone are where the cable
+        was cut, and each is assigned to the nearest point of the path: near its start or its end, that end is
+        cut (a skeleton stops short of its mask's end, so the end point itself may lie a little away from the
+        zone; cuts between bridged gaps in the middle of the path do not count).
+        """
+        import cv2
+
+        if self.zone is None or path_uv.shape[0] < 2:
+            return False, False
+        h, w = mask.shape
+        m8 = mask.astype(np.uint8)
+        _, labels = cv2.connectedComponents(m8, connectivity=8)
+        px = np.rint(path_uv).astype(np.int64)
+        px[:, 0] = np.clip(px[:, 0], 0, w - 1)
+        px[:, 1] = np.clip(px[:, 1], 0, h - 1)
+        on_path = np.unique(labels[px[:, 1], px[:, 0]])
+        on_path = on_path[on_path > 0]
+        if on_path.size == 0:
+            return False, False
+        beside_zone = cv2.dilate(self.zone.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        rows, cols = np.nonzero(beside_zone & np.isin(labels, on_path))
+        if rows.size == 0:
+            return False, False
+        seg = np.hypot(*np.diff(path_uv, axis=0).T)
+        s = np.concatenate(([0.0], np.cumsum(seg)))
+        contact = np.column_stack((cols, rows)).astype(np.float64)
+        nearest = np.empty(contact.shape[0], dtype=np.int64)
+        for i0 in range(0, contact.shape[0], 256):  # bounded memory for long contacts
+            chunk = contact[i0 : i0 + 256]
+            d2 = np.sum((chunk[:, None, :] - path_uv[None, :, :]) ** 2, axis=2)
+            nearest[i0 : i0 + 256] = np.argmin(d2, axis=1)
+        s_contact = s[nearest]
+        tol = 2.0 * width_px + 2.0
+        return bool(np.any(s_contact <= tol)), bool(np.any(s_contact >= s[-1] - tol))
