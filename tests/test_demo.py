@@ -372,3 +372,60 @@ def test_the_status_line_tells_measured_continued_predicted_and_lost_apart() -> 
     assert estimate_state(cycle(False)) == "predicted"
     assert estimate_state(cycle(False, lost=True)) == "lost"
     assert estimate_state(cycle(True, lost=True)) == "lost"  # a lost source's reading is not an estimate
+
+
+# ---------------------------------------------------------------- issue 16: randomised cables, frozen P_DLO
+
+
+def test_frozen_observation_gives_the_policy_p_dlo_as_at_reset() -> None:
+    """``frozen`` hands the policy the reset P_DLO in every cycle while the cable moves; ``true`` does not."""
+    import gymnasium as gym
+
+    from dyndlo_vision.control.episode import run_loop_episode
+    from dyndlo_vision.tasks.baselines import RandomActions
+
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    seen: dict[str, list[np.ndarray]] = {"frozen": [], "true": []}
+    for observation, observations in seen.items():
+        actions = RandomActions(env, seed=3)
+
+        def act(obs: np.ndarray, observations: list[np.ndarray] = observations,
+                actions: RandomActions = actions) -> np.ndarray:
+            observations.append(obs[6:9].copy())  # table II: TCP position, velocity, then P_DLO
+            return actions(obs)
+
+        record = run_loop_episode(env, act, 100000, observation)
+        assert record["cycles"] == len(observations) > 3
+    env.reset(seed=100000)
+    at_reset = env.unwrapped.p_dlo().astype(np.float32)
+    np.testing.assert_array_equal(np.array(seen["frozen"]), np.tile(at_reset, (len(seen["frozen"]), 1)))
+    true = np.array(seen["true"])
+    np.testing.assert_array_equal(true[0], at_reset)
+    assert np.linalg.norm(true - at_reset, axis=1).max() > 0.05  # the cable moved, and true state shows it
+
+
+@pytest.mark.slow
+def test_demo_randomize_cable_draws_each_episode_cable_from_its_seed(tmp_path: Path) -> None:
+    """Episode k's cable is the one ``CableRandomization`` draws for seed S + k (as ``evaluate
+    --randomize-cable``), recorded in metrics.json, and the same command draws the same cables."""
+    from dataclasses import asdict
+
+    from dyndlo_vision.tasks import make_env
+
+    argv = ["demo", "--observation", "true", "--randomize-cable", "--episodes", "2", "--seed", "500",
+            "--quiet"]
+    rows = []
+    for run in ("a", "b"):
+        assert main([*argv, "--out", str(tmp_path / run)]) == 0
+        metrics = json.loads((tmp_path / run / "metrics.json").read_text())
+        assert metrics["randomize_cable"] is True
+        rows.append([r["cable"] for r in metrics["episodes"]])
+    assert rows[0] == rows[1]
+    env = make_env("tip-control", multi_step=True, randomize_cable_every=1)
+    nominal = asdict(env.unwrapped.task.cable)
+    for k, cable in enumerate(rows[0]):
+        _, info = env.reset(seed=500 + k)
+        drawn = asdict(info["cable"])
+        assert cable == pytest.approx({name: drawn[name] for name in cable})
+        assert cable != pytest.approx({name: nominal[name] for name in cable})
+    assert rows[0][0] != rows[0][1]

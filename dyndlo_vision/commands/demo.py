@@ -64,10 +64,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--observation",
-        choices=["tracked", "true", "noisy"],
+        choices=["tracked", "true", "noisy", "frozen"],
         default="tracked",
-        help="where P_DLO comes from: camera + tracker + filter (default), the simulator, or the "
-        "simulator through the fitted noise model",
+        help="where P_DLO comes from: camera + tracker + filter (default), the simulator, the simulator "
+        "through the fitted noise model, or the simulator's P_DLO frozen at reset (the ablation: what the "
+        "policy does without feedback)",
+    )
+    p.add_argument(
+        "--randomize-cable",
+        action="store_true",
+        help="a new cable every episode, drawn from the episode's seed (length, mass, Young's modulus, "
+        "damping: the training ranges of `train --randomize-cable`); metrics.json records each cable",
     )
     p.add_argument(
         "--episodes",
@@ -135,7 +142,8 @@ def run(args: argparse.Namespace) -> int:
     if meta.get("task", "tip-control") != "tip-control":
         raise ValueError(f"the demo runs tip control; policy {name} is for {meta.get('task')}")
     multi_step = bool(meta.get("multi_step", False))
-    env = make_env("tip-control", multi_step=multi_step)
+    env = make_env("tip-control", multi_step=multi_step,
+                   randomize_cable_every=1 if args.randomize_cable else None)
     check_camera(env, args.camera)
     model = policies.load(name, env=env)
 
@@ -171,6 +179,7 @@ def run(args: argparse.Namespace) -> int:
         "policy": str(name),
         "multi_step": multi_step,
         "observation": args.observation,
+        "randomize_cable": bool(args.randomize_cable),
         "latency_ms": args.latency_ms,
         "segmenter": args.segmenter,
         **summarize(episodes),

@@ -18,12 +18,14 @@ from numpy.typing import NDArray
 from dyndlo_vision.control.loop import ControlLoop, CycleRecord
 from dyndlo_vision.control.sim_env import as_sim_env
 from dyndlo_vision.control.sim_robot import SimRobot
-from dyndlo_vision.control.state_sources import NoisyState, TrueState
+from dyndlo_vision.control.state_sources import FrozenState, NoisyState, TrueState
 from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
 
-#: Where the loop's P_DLO comes from: the simulator, the simulator through the fitted noise model, or the
-#: task's camera through the tracker and filter.
-OBSERVATIONS = ("true", "noisy", "tracked")
+#: Where the loop's P_DLO comes from: the simulator, the simulator through the fitted noise model, the
+#: task's camera through the tracker and filter, or the simulator's P_DLO frozen at reset (the ablation).
+OBSERVATIONS = ("true", "noisy", "tracked", "frozen")
+#: The cable parameters an episode's record lists (those cable randomisation draws).
+CABLE_FIELDS = ("length_m", "mass_kg", "young_pa", "damping_s")
 #: How long a single-step loop episode may run at most (s of simulated time); its plan ends well before.
 SINGLE_STEP_MAX_S = 10.0
 
@@ -104,6 +106,8 @@ def run_loop_episode(
                                        segmenter=segmenter)
     elif observation == "noisy":
         source = NoisyState(env, seed=seed)
+    elif observation == "frozen":
+        source = FrozenState(env)
     else:
         source = TrueState(env)
     if open_camera and camera is None:
@@ -185,8 +189,10 @@ def run_loop_episode(
         "success": bool(success),
         "min_distance_m": float(info["min_distance_m"]),
     }
+    cable = base.scene.config.cable
     return {
         "seed": seed,
+        "cable": {name: float(getattr(cable, name)) for name in CABLE_FIELDS},
         "success": bool(success),
         # The last point of the trace (and the last moment watched) is this state.
         "final_distance_m": float(np.linalg.norm(truth[-1] - goal)),

@@ -69,6 +69,27 @@ class TrueState:
         return PDloReading(self.env.p_dlo(), t_now, measured=True)
 
 
+class FrozenState:
+    """P_DLO as it was at the episode's start, whatever the cable does: the ablation of the feedback.
+
+    A policy that does as well on this as on :class:`TrueState` does not use the cable's state it is given
+    (issue 16's row (4)). The value is taken when the source is built (after ``env.reset``) and again at
+    :meth:`reset`.
+    """
+
+    def __init__(self, env: Any) -> None:
+        self.env: SimEnv = as_sim_env(env)
+        self.position = np.array(self.env.p_dlo(), dtype=float)
+
+    def reset(self) -> None:
+        """Take P_DLO now as the frozen value."""
+        self.position = np.array(self.env.p_dlo(), dtype=float)
+
+    def read(self, t_now: float, tcp: TcpState) -> PDloReading:
+        """The frozen P_DLO, reported as a measurement (the policy cannot tell it apart)."""
+        return PDloReading(self.position.copy(), t_now, measured=True)
+
+
 class NoisyState:
     """The simulator's P_DLO corrupted by a fitted observation-noise model, as in noisy-observation training.
 
