@@ -8,6 +8,7 @@ COMMANDS: dict[str, str] = {
     "demo": "demo",
     "track": "track",
     "calib": "calib",
+    "calibrate": "calibrate",
     "evaluate": "evaluate",
     "plot": "plot",
     "train": "train",

@@ -119,3 +119,54 @@ def draw_occluder(
         color = tuple(int(c) for c in np.median(rgb.reshape(-1, 3), axis=0))
     cv2.rectangle(out, top_left, bottom_right, color, thickness=-1)
     return out
+
+
+def render_checkerboard(
+    camera_K: ArrayLike,
+    camera_R: ArrayLike,
+    camera_t: ArrayLike,
+    size: tuple[int, int],
+    cols: int,
+    rows: int,
+    square_m: float,
+    board_rotation: ArrayLike,
+    board_origin_m: ArrayLike,
+    background: int = 110,
+    supersample: int = 4,
+    px_per_square: int = 40,
+) -> NDArray[np.uint8]:
+    """A grey image of a checkerboard (``cols`` x ``rows`` inner corners) seen by a pinhole camera.
+
+    The board frame is :class:`~dyndlo_vision.tracking.calibration.Checkerboard`'s: origin at the first inner
+    corner, x along a row of corners, y along a column; ``x_world = board_rotation @ x_board +
+    board_origin_m`` and ``x_cam = camera_R @ x_world + camera_t``. The squares, with a white margin of one
+    square around them, are warped into the image through their homography at ``supersample`` times the
+    resolution and averaged down (anti-aliased edges), on a uniform ``background``.
+    """
+    w, h = size
+    k = np.asarray(camera_K, dtype=np.float64)
+    r_cb = np.asarray(camera_R, dtype=np.float64) @ np.asarray(board_rotation, dtype=np.float64)
+    t_cb = np.asarray(camera_R, dtype=np.float64) @ np.asarray(board_origin_m, dtype=np.float64) + np.asarray(
+        camera_t, dtype=np.float64
+    )
+    p = px_per_square
+    n_x, n_y = cols + 3, rows + 3  # squares: cols + 1 across, plus a white margin square on each side
+    texture = np.full((n_y * p, n_x * p), 255, np.uint8)
+    for j in range(1, n_y - 1):
+        for i in range(1, n_x - 1):
+            if (i + j) % 2 == 0:
+                texture[j * p : (j + 1) * p, i * p : (i + 1) * p] = 0
+    # Texture pixel (u, v) -> board (x, y): inner corner (0, 0) lies between texture pixels 2p - 1 and 2p.
+    a = np.array([[square_m / p, 0.0, (0.5 / p - 2.0) * square_m],
+                  [0.0, square_m / p, (0.5 / p - 2.0) * square_m],
+                  [0.0, 0.0, 1.0]])
+    s = float(supersample)
+    # Image pixel centres at integers: a supersampled pixel (x, y) is image point ((x + 0.5) / s - 0.5, ...).
+    up = np.array([[s, 0.0, 0.5 * s - 0.5], [0.0, s, 0.5 * s - 0.5], [0.0, 0.0, 1.0]])
+    homography = up @ k @ np.column_stack([r_cb[:, 0], r_cb[:, 1], t_cb]) @ a
+    big = cv2.warpPerspective(texture, homography, (w * supersample, h * supersample), flags=cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_CONSTANT, borderValue=256)
+    mask = cv2.warpPerspective(np.ones_like(texture), homography, (w * supersample, h * supersample),
+                               flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    big = np.where(mask > 0, big, background).astype(np.uint8)
+    return cv2.resize(big, (w, h), interpolation=cv2.INTER_AREA)

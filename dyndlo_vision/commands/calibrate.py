@@ -1,0 +1,256 @@
+"""``dyndlo-vision calibrate``: a real camera's calibration JSON from checkerboard photos (``track --calib``).
+
+Intrinsics and lens distortion come from several photos of a checkerboard held at different tilts
+(:func:`~dyndlo_vision.tracking.calibration.calibrate_intrinsics`, OpenCV's ``calibrateCamera``). The pose in
+the robot's base frame comes from one more photo (``--extrinsic``) of the board lying at a known pose there
+(``--board-pose``), with a pixel near the board's origin corner (``--board-origin``), since a checkerboard's
+corners can be numbered from either end. Without ``--extrinsic`` the camera's own frame is the world
+(``R = I``, ``t = 0``): fine for tracking in pixels, not for the loop.
+
+The file has the fields ``track --calib`` reads (``width``, ``height``, ``K``, ``dist``, ``R``, ``t``,
+``fps``); it is written atomically, and nothing is written after any error. (``dyndlo-vision calib`` writes
+the same file for a *simulated* camera, from the scene.)
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+HELP = "calibrate a real camera from checkerboard photos: intrinsics, distortion, pose in the robot's frame"
+
+_IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``calibrate``."""
+    from dyndlo_vision.tracking.calibration import DISTORTION_MODELS, MIN_VIEWS
+
+    p.add_argument(
+        "images",
+        nargs="+",
+        metavar="IMAGE",
+        help=f"photos of the checkerboard at different tilts (files or folders of them; at least {MIN_VIEWS} "
+        "with the board found)",
+    )
+    p.add_argument(
+        "--board",
+        required=True,
+        metavar="COLSxROWS",
+        help="inner corners per row and per column, e.g. 9x6 for a board of 10x7 squares",
+    )
+    p.add_argument("--square", required=True, type=float, metavar="M", help="square side in metres")
+    p.add_argument(
+        "--distortion",
+        choices=DISTORTION_MODELS,
+        default="radial",
+        help="distortion coefficients to fit: none, radial (k1, k2) or full (k1, k2, p1, p2, k3)",
+    )
+    p.add_argument(
+        "--extrinsic",
+        metavar="IMAGE",
+        help="a photo of the board lying at --board-pose in the robot's base frame (may be one of IMAGES)",
+    )
+    p.add_argument(
+        "--board-pose",
+        metavar="X,Y,Z,ROLL,PITCH,YAW",
+        help="with --extrinsic: the board's origin corner in the robot's base frame (m) and its orientation "
+        "(degrees, R = Rz(yaw) Ry(pitch) Rx(roll)); the board's x runs along a row of corners from the "
+        "origin, y along a column",
+    )
+    p.add_argument(
+        "--board-origin",
+        metavar="U,V",
+        help="with --extrinsic: a pixel near the board's origin corner in that photo",
+    )
+    p.add_argument("--fps", type=float, help="frame rate to write to the file (optional)")
+    p.add_argument(
+        "--out", required=True, metavar="CAMERA.json", help="file to write (its folder must exist)"
+    )
+
+
+@dataclass(frozen=True)
+class _Settings:
+    images: list[Path]
+    cols: int
+    rows: int
+    square_m: float
+    distortion: str
+    extrinsic: Path | None
+    board_pose: NDArray[np.float64] | None
+    board_origin: NDArray[np.float64] | None
+    fps: float | None
+    out: Path
+
+
+def _numbers(text: str, count: int, option: str) -> NDArray[np.float64]:
+    parts = str(text).split(",")
+    try:
+        values = np.array([float(v) for v in parts])
+    except ValueError:
+        values = np.zeros(0)
+    if values.size != count or not np.all(np.isfinite(values)):
+        raise ValueError(f"{option} must be {count} comma-separated finite numbers, got {text!r}")
+    return values
+
+
+def _image_files(inputs: list[str]) -> list[Path]:
+    files: list[Path] = []
+    for text in inputs:
+        path = Path(text)
+        if path.is_dir():
+            found = sorted(f for f in path.iterdir() if f.suffix.lower() in _IMAGE_SUFFIXES)
+            if not found:
+                raise ValueError(f"folder {path} has no images ({', '.join(_IMAGE_SUFFIXES)})")
+            files.extend(found)
+        elif path.is_file():
+            files.append(path)
+        else:
+            raise FileNotFoundError(f"{path} does not exist")
+    return files
+
+
+def _settings(args: argparse.Namespace) -> _Settings:
+    """Validates every argument (raises ValueError naming the bad one)."""
+    board = str(args.board).lower().split("x")
+    if len(board) != 2 or not all(b.strip().isdigit() for b in board):
+        raise ValueError(f"--board must be COLSxROWS inner corners, e.g. 9x6, got {args.board!r}")
+    cols, rows = (int(b) for b in board)
+    if not (math.isfinite(args.square) and args.square > 0):
+        raise ValueError(f"--square must be a positive length in metres, got {args.square!r}")
+    if args.square > 0.5:
+        raise ValueError(f"--square {args.square:g} m is not a checkerboard square; give the side in metres")
+    extrinsic_given = [args.extrinsic is not None, args.board_pose is not None, args.board_origin is not None]
+    if any(extrinsic_given) and not all(extrinsic_given):
+        raise ValueError("--extrinsic, --board-pose and --board-origin go together: give all three or none")
+    if args.fps is not None and not (math.isfinite(args.fps) and args.fps > 0):
+        raise ValueError(f"--fps must be a positive number, got {args.fps!r}")
+    out = Path(args.out)
+    if out.is_dir():
+        raise ValueError(f"--out {out} is a folder; expected a file name such as {out / 'camera.json'}")
+    if not out.parent.is_dir():
+        raise ValueError(f"--out {out}: folder {out.parent} does not exist")
+    extrinsic = None if args.extrinsic is None else Path(args.extrinsic)
+    if extrinsic is not None and not extrinsic.is_file():
+        raise FileNotFoundError(f"--extrinsic {extrinsic} does not exist")
+    return _Settings(
+        images=_image_files(args.images),
+        cols=cols,
+        rows=rows,
+        square_m=float(args.square),
+        distortion=str(args.distortion),
+        extrinsic=extrinsic,
+        board_pose=None if args.board_pose is None else _numbers(args.board_pose, 6, "--board-pose"),
+        board_origin=None if args.board_origin is None else _numbers(args.board_origin, 2, "--board-origin"),
+        fps=None if args.fps is None else float(args.fps),
+        out=out,
+    )
+
+
+def _read_gray(path: Path) -> NDArray[np.uint8]:
+    import cv2
+
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise ValueError(f"{path} is not an image OpenCV can read")
+    return image
+
+
+def run(args: argparse.Namespace) -> int:
+    """Detect the board, calibrate, and write the JSON."""
+    from dyndlo_vision.tracking.calibration import (
+        Checkerboard,
+        calibrate_intrinsics,
+        find_board,
+        pose_from_board,
+        rotation_rpy,
+    )
+    from dyndlo_vision.tracking.camera_model import PinholeCamera
+
+    cfg = _settings(args)
+    board = Checkerboard(cfg.cols, cfg.rows, cfg.square_m)
+    size: tuple[int, int] | None = None
+    views, missed = [], []
+    for path in cfg.images:
+        gray = _read_gray(path)
+        shape = (gray.shape[1], gray.shape[0])
+        if size is None:
+            size = shape
+        elif shape != size:
+            raise ValueError(
+                f"{path} is {shape[0]}x{shape[1]}, but {cfg.images[0]} is {size[0]}x{size[1]}: one camera, "
+                "one image size"
+            )
+        corners = find_board(gray, board)
+        (views if corners is not None else missed).append((path, corners))
+    assert size is not None
+    if missed:
+        names = ", ".join(str(p) for p, _ in missed[:5]) + (" ..." if len(missed) > 5 else "")
+        print(
+            f"note: no {cfg.cols}x{cfg.rows} board found in {len(missed)} of {len(cfg.images)} images "
+            f"({names}); they are not used",
+            file=sys.stderr,
+        )
+    intrinsics = calibrate_intrinsics([c for _, c in views], board, size, cfg.distortion)
+    R, t, extrinsic_rms = np.eye(3), np.zeros(3), None
+    if cfg.extrinsic is not None:
+        assert cfg.board_pose is not None and cfg.board_origin is not None
+        gray = _read_gray(cfg.extrinsic)
+        if (gray.shape[1], gray.shape[0]) != size:
+            raise ValueError(
+                f"--extrinsic {cfg.extrinsic} is {gray.shape[1]}x{gray.shape[0]}, the other images "
+                f"{size[0]}x{size[1]}"
+            )
+        corners = find_board(gray, board)
+        if corners is None:
+            raise ValueError(f"--extrinsic {cfg.extrinsic}: no {cfg.cols}x{cfg.rows} board found")
+        w, h = size
+        if not (0 <= cfg.board_origin[0] < w and 0 <= cfg.board_origin[1] < h):
+            raise ValueError(f"--board-origin {args.board_origin} is outside the {w}x{h} image")
+        R, t, extrinsic_rms = pose_from_board(
+            corners,
+            board,
+            intrinsics.K,
+            intrinsics.dist,
+            rotation_rpy(*cfg.board_pose[3:]),
+            cfg.board_pose[:3],
+            cfg.board_origin,
+        )
+    camera = PinholeCamera(
+        width=size[0], height=size[1], K=intrinsics.K, dist=intrinsics.dist, R=R, t=t, fps=cfg.fps
+    )
+    camera.to_json(cfg.out)
+    k = intrinsics.K
+    print(
+        f"{len(views)} views, reprojection RMS {intrinsics.rms_px:.3f} px (worst view "
+        f"{intrinsics.per_view_rms_px.max():.3f} px), tilt directions spanning "
+        f"{intrinsics.tilt_spread_deg:.0f} deg"
+    )
+    print(
+        f"fx {k[0, 0]:.2f} px, fy {k[1, 1]:.2f} px, principal point ({k[0, 2]:.1f}, {k[1, 2]:.1f}), "
+        f"distortion {np.round(intrinsics.dist, 5).tolist()}"
+    )
+    if extrinsic_rms is not None:
+        centre = ", ".join(f"{c:.4f}" for c in camera.center)
+        print(
+            f"pose from {cfg.extrinsic}: reprojection RMS {extrinsic_rms:.3f} px, camera centre ({centre}) m "
+            "in the robot's frame"
+        )
+    else:
+        print(
+            "note: no --extrinsic: the camera's own frame is the world frame (R = I, t = 0)", file=sys.stderr
+        )
+    if intrinsics.rms_px > 1.0:
+        print(
+            f"note: a reprojection RMS of {intrinsics.rms_px:.2f} px is high; check --board and --square, "
+            "and that the board is flat and the photos sharp",
+            file=sys.stderr,
+        )
+    print(f"wrote {cfg.out}")
+    return 0
