@@ -429,3 +429,28 @@ def test_demo_randomize_cable_draws_each_episode_cable_from_its_seed(tmp_path: P
         assert cable == pytest.approx({name: drawn[name] for name in cable})
         assert cable != pytest.approx({name: nominal[name] for name in cable})
     assert rows[0][0] != rows[0][1]
+
+
+def test_demo_cable_ranges_beyond_training_draw_from_the_wider_ranges(tmp_path: Path) -> None:
+    from dataclasses import asdict
+
+    from dyndlo_vision.tasks import make_env
+    from dyndlo_vision.tasks.wrappers import BEYOND_TRAINING_CABLE_RANGES, DEFAULT_CABLE_RANGES
+
+    for name, (lo, hi) in BEYOND_TRAINING_CABLE_RANGES.items():  # wider than training on every side
+        assert lo < DEFAULT_CABLE_RANGES[name][0] and hi > DEFAULT_CABLE_RANGES[name][1]
+    out = tmp_path / "beyond"
+    argv = ["demo", "--observation", "true", "--randomize-cable", "--cable-ranges", "beyond", "--seed", "9"]
+    assert main([*argv, "--quiet", "--out", str(out)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["cable_ranges"] == "beyond"
+    env = make_env("tip-control", multi_step=True, randomize_cable_every=1,
+                   cable_ranges=BEYOND_TRAINING_CABLE_RANGES)
+    _, info = env.reset(seed=9)
+    drawn = asdict(info["cable"])
+    cable = metrics["episodes"][0]["cable"]
+    assert cable == pytest.approx({k: drawn[k] for k in cable})
+    with pytest.raises(SystemExit) as exc:
+        main(["demo", "--cable-ranges", "beyond", "--out", str(tmp_path / "no")])
+    assert exc.value.code == 2
+    assert not (tmp_path / "no").exists()

@@ -74,7 +74,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--randomize-cable",
         action="store_true",
         help="a new cable every episode, drawn from the episode's seed (length, mass, Young's modulus, "
-        "damping: the training ranges of `train --randomize-cable`); metrics.json records each cable",
+        "damping; --cable-ranges); metrics.json records each cable",
+    )
+    p.add_argument(
+        "--cable-ranges",
+        choices=["training", "beyond"],
+        default="training",
+        help="with --randomize-cable: 'training' (default), the ranges of `train --randomize-cable` (length "
+        "0.9-1.1x, mass 0.7-1.3x, Young's modulus and damping 0.5-2x), or 'beyond' them (length 0.8-1.2x, "
+        "mass 0.5-2x, Young's modulus and damping 0.25-4x)",
     )
     p.add_argument(
         "--episodes",
@@ -126,6 +134,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--latency-ms must be in [0, {1000.0 * MAX_LATENCY_S:g}] ms, got {args.latency_ms}")
     if args.latency_ms and args.observation != "tracked":
         raise ValueError(f"--latency-ms applies to the tracked observation, not to {args.observation!r}")
+    if args.cable_ranges != "training" and not args.randomize_cable:
+        raise ValueError(f"--cable-ranges {args.cable_ranges} applies with --randomize-cable")
     if args.segmenter != "background" and args.observation != "tracked":
         raise ValueError(f"--segmenter applies to the tracked observation, not to {args.observation!r}")
     out = Path(args.out)
@@ -142,8 +152,11 @@ def run(args: argparse.Namespace) -> int:
     if meta.get("task", "tip-control") != "tip-control":
         raise ValueError(f"the demo runs tip control; policy {name} is for {meta.get('task')}")
     multi_step = bool(meta.get("multi_step", False))
+    from dyndlo_vision.tasks.wrappers import CABLE_RANGES
+
     env = make_env("tip-control", multi_step=multi_step,
-                   randomize_cable_every=1 if args.randomize_cable else None)
+                   randomize_cable_every=1 if args.randomize_cable else None,
+                   cable_ranges=CABLE_RANGES[args.cable_ranges])
     check_camera(env, args.camera)
     model = policies.load(name, env=env)
 
@@ -180,6 +193,7 @@ def run(args: argparse.Namespace) -> int:
         "multi_step": multi_step,
         "observation": args.observation,
         "randomize_cable": bool(args.randomize_cable),
+        "cable_ranges": args.cable_ranges if args.randomize_cable else None,
         "latency_ms": args.latency_ms,
         "segmenter": args.segmenter,
         **summarize(episodes),

@@ -161,6 +161,7 @@ def make_env(
     render_mode: str | None = None,
     render_camera: str = "front",
     randomize_cable_every: int | None = None,
+    cable_ranges: dict[str, tuple[float, float]] | None = None,
     obs_noise: str | Path | Any | None = None,
     **options: Any,
 ) -> gym.Env[Any, Any]:
@@ -177,6 +178,7 @@ def make_env(
         render_mode: None or ``"rgb_array"``.
         render_camera: The scene camera :meth:`render` draws.
         randomize_cable_every: Draw a new cable every this many episodes (None: the nominal cable).
+        cable_ranges: The randomisation's ranges (default: ``wrappers.DEFAULT_CABLE_RANGES``).
         obs_noise: Observation-noise model (None: true P_DLO).
         **options: Task options (``multi_step``, ``cable``, ``target``, ...).
 
@@ -190,7 +192,7 @@ def make_env(
     if randomize_cable_every is not None:
         from dyndlo_vision.tasks.wrappers import CableRandomization
 
-        env = CableRandomization(env, every_episodes=randomize_cable_every)
+        env = CableRandomization(env, ranges=cable_ranges, every_episodes=randomize_cable_every)
     if obs_noise is not None:
         from dyndlo_vision.tasks.noise import ObservationNoiseModel, packaged_noise_model_path
         from dyndlo_vision.tasks.wrappers import NoisyObservation
