@@ -69,6 +69,9 @@ def main() -> None:
     parser.add_argument("--random", type=int, default=0, help="uniform random actions tried first")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--cable-seed", type=int, default=700000)
+    parser.add_argument("--start", metavar="A1,...,An",
+                        help="normalised action to start from (default: FlickVault's)")
+    parser.add_argument("--std", type=float, default=0.3, help="initial std of the search distribution")
     parser.add_argument("--objective", choices=("reward", "shaped"), default="reward",
                         help="shaped: reward plus vault_progress() of failed episodes (a slope to climb)")
     args = parser.parse_args()
@@ -94,6 +97,12 @@ def main() -> None:
         return float(np.mean(rewards)), successes
 
     start = np.asarray(FlickVault(env)(obs), dtype=float)
+    if args.start is not None:
+        start = np.array([float(v) for v in args.start.split(",")])
+        if start.shape != env.action_space.shape or np.any(np.abs(start) > 1):
+            raise SystemExit(
+                f"--start: expected {env.action_space.shape[0]} numbers in [-1, 1], got {args.start}"
+            )
     rng = np.random.default_rng(args.seed)
     if args.random:
         # The nominal cable alone: the cheap filter. Ties (most random actions score the same) go to the
@@ -113,9 +122,10 @@ def main() -> None:
               f"best reward {best_random_reward:.2f}", flush=True)
         if score(best_random)[0] > score(start)[0]:
             start = best_random
-    mean, std = start.copy(), np.full(start.size, 0.3)
+    mean, std = start.copy(), np.full(start.size, args.std)
     best, (best_score, best_successes) = start, score(start)
-    print(f"start (FlickVault): mean reward {best_score:.2f}, {best_successes}/{len(cables)} vaults",
+    origin = "--start" if args.start else "FlickVault"
+    print(f"start ({origin}): mean reward {best_score:.2f}, {best_successes}/{len(cables)} vaults",
           flush=True)
     t0 = time.perf_counter()
     for it in range(args.iterations):

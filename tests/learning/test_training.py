@@ -141,8 +141,7 @@ def test_evaluate_random_actions_and_the_scripted_vault_by_name(tmp_path: Path) 
     with pytest.raises(SystemExit) as exc:
         main(["evaluate", "random", "--episodes", "1"])  # no task to draw actions for
     assert exc.value.code == 2
-    # The scripted vault by name: its task is known, and it vaults on the nominal cable of the model its shape
-    # was searched on (the rod; it does not vault the chain).
+    # The scripted vault by name: its task is known, and it vaults the nominal cable (here the rod's shape).
     rod = ["--env-option", "cable=rod"]
     assert main(["evaluate", "flick-vault", "--episodes", "1", *rod, "--out", str(report)]) == 0
     flick = json.loads(report.read_text())
@@ -302,10 +301,20 @@ def test_vaulting_demonstrations_are_scripted_vaults(tmp_path: Path) -> None:
         with pytest.raises(ValueError, match="demonstrations are available for single-step"):
             RunConfig(task=task, multi_step=False, algo="sac", timesteps=2, demonstrations=2)
 
-    env = gym.make("DynDLO/Vaulting-v0", cable="rod")  # the model its shape was searched on
+    # One shape per cable model, each searched on its nominal cable. The rod's flick keeps the TCP below M
+    # (reward 10); the chain's carry lifts it above M and pays lambda_4 (reward 8). Neither shape vaults the
+    # other model (the flick leaves the chain's middle at x = 0.53 m).
+    for model, expected in (("rod", 10.0), ("chain", 8.0)):
+        env = gym.make("DynDLO/Vaulting-v0", cable=model)
+        obs, _ = env.reset(seed=0)
+        _, reward, _, _, info = env.step(FlickVault(env)(obs))
+        assert info["is_success"] and reward == pytest.approx(expected), model
+    env = gym.make("DynDLO/Vaulting-v0")  # the chain, with the rod's flick
     obs, _ = env.reset(seed=0)
-    _, reward, _, _, info = env.step(FlickVault(env)(obs))
-    assert info["is_success"] and reward == pytest.approx(10.0)  # a vault, TCP below M, no avoid condition
+    flick = FlickVault(env)
+    flick.SHAPES = {"chain": FlickVault.SHAPES["rod"]}
+    _, _, _, _, info = env.step(flick(obs))
+    assert not info["is_success"]
     with pytest.raises(ValueError, match="Vaulting"):
         FlickVault(gym.make("DynDLO/Hooking-v0"))
     with pytest.raises(ValueError, match="single-step"):
