@@ -5,12 +5,14 @@ confidently wrong, and what the gripper mask (``--tcp-log``) and the cable-shape
 The videos are the ``whip`` part of ``segmentation_generalisation.py`` (640x480, 25 fps, 75 frames, a 2.5 px
 cable held by a dark 3 cm sphere; styles ``plain``, ``textured-blur``, ``occluded``), written to MP4 with the
 calibration JSON and a TCP log (``time_s,x,y,z`` at the frame times) beside them. Each variant is one run of
-the command, as a user would type it, with ``--plane 0,1,0,0``; without ``--tcp-log`` the held end comes from
-``--anchor`` at the TCP's pixel in the first frame (what a user clicks). Scored per frame against the true
-tip: the share measured (``visible=1``), and of the measured pixel ``u,v``: the median distance to the true
-tip's pixel, the share *wrong* (farther than 50 mm at the TCP's image scale, about 20 px) and *on the
-gripper* (within 40 mm, 16 px, of the TCP's pixel); also the RMSE of ``x,y,z`` (the filter's estimate on the
-plane) against the true tip, which includes the cable's motion out of the plane (:func:`score`).
+the command in a subprocess, as a user would type it, with ``--plane 0,1,0,0``; without ``--tcp-log`` the
+held end comes from ``--anchor`` at the TCP's pixel in the first frame (what a user clicks).
+
+Scored per frame against the true tip: the share measured (``visible=1``); of the measured pixel ``u,v``, the
+median distance to the true tip's pixel, the share *wrong* (farther than 50 mm at the TCP's image scale, about
+20 px) and *on the gripper* (within 40 mm, 16 px, of the TCP's pixel); also the RMSE of ``x,y,z`` (the
+filter's estimate on the plane) against the true tip, which includes the cable's motion out of the plane
+(:func:`score`).
 
     python benchmarks/track_whip.py --out /tmp/track_whip.json [--seed 0] [--styles plain,occluded]
 """
@@ -18,24 +20,19 @@ plane) against the true tip, which includes the cable's motion out of the plane 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import csv
 import importlib.util
-import io
 import json
 import math
 import platform
+import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from dyndlo_vision._atomic import write_video_atomic  # noqa: E402
-from dyndlo_vision.cli import main as cli  # noqa: E402
 
 VARIANTS = {
     "no shape test (--max-width-ratio 0)": ["--max-width-ratio", "0"],
@@ -100,7 +97,10 @@ def main() -> int:
             frames, _, tips, tcps, calib, length_m = whip_video(style, args.seed)
             video, calib_path, tcp_path = (folder / f"{style}.mp4", folder / f"{style}_calib.json",
                                            folder / f"{style}_tcp.csv")
-            write_video_atomic(video, frames)
+            writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (640, 480))
+            for rgb in frames:
+                writer.write(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+            writer.release()
             calib.to_json(calib_path)
             with open(tcp_path, "w", newline="") as f:
                 w = csv.writer(f)
@@ -112,15 +112,14 @@ def main() -> int:
             chosen = VARIANTS if args.variants is None else {k: VARIANTS[k] for k in args.variants.split(",")}
             for name, extra in chosen.items():
                 out = folder / f"{style}.csv"
-                argv = ["track", str(video), "--calib", str(calib_path), "--plane", "0,1,0,0",
-                        "--out", str(out), "--quiet"]
+                argv = [sys.executable, "-m", "dyndlo_vision", "track", str(video),
+                        "--calib", str(calib_path), "--plane", "0,1,0,0", "--out", str(out), "--quiet"]
                 argv += [a.format(tcp=tcp_path, length=length_m) for a in extra] + args.extra.split()
                 if "--tcp-log" not in extra:
                     argv += ["--anchor", f"{anchor[0]:.1f},{anchor[1]:.1f}"]
                 t0 = time.perf_counter()
-                with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-                    status = cli(argv)
-                wall = time.perf_counter() - t0
+                status = subprocess.run(argv, capture_output=True, text=True).returncode
+                wall = time.perf_counter() - t0  # includes the command's start-up (imports)
                 with open(out, newline="") as f:
                     rows = list(csv.DictReader(f))
                 entry = score(rows, tips, tcps, calib) | {"status": status, "wall_s": round(wall, 2)}
