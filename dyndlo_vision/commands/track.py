@@ -155,7 +155,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--gripper-radius",
         type=float,
-        default=_GRIPPER_RADIUS_M,
+        default=None,
         metavar="R",
         help=f"with --tcp-log: radius in m of the sphere around the TCP that is masked (default "
         f"{_GRIPPER_RADIUS_M:g})",
@@ -391,6 +391,8 @@ def _settings(args: argparse.Namespace) -> _Settings:
     if tcp_log is not None and args.anchor is not None:
         raise ValueError("--tcp-log gives the held end in every frame (the projected gripper); drop --anchor")
     gripper_radius = _positive(args.gripper_radius, "--gripper-radius")
+    if gripper_radius is not None and tcp_log is None:
+        raise ValueError("--gripper-radius is masked around the logged gripper; it needs --tcp-log")
     if not (math.isfinite(args.max_width_ratio) and (args.max_width_ratio == 0 or args.max_width_ratio > 1)):
         raise ValueError(
             f"--max-width-ratio must be 0 (off) or a number above 1, got {args.max_width_ratio!r}"

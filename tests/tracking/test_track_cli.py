@@ -758,6 +758,9 @@ BAD_INPUTS = {
          "0", "--out", "{out}"],
         "--gripper-radius must be a positive",
     ),
+    "gripper radius without a log": (
+        ["{video}", "--gripper-radius", "0.05", "--out", "{out}"], "it needs --tcp-log"
+    ),
     "width ratio at most 1": (
         ["{video}", "--max-width-ratio", "1", "--out", "{out}"], "--max-width-ratio must"
     ),
