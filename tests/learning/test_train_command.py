@@ -233,6 +233,11 @@ def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "dyndlo_vision", "train", "--quiet", *args]
 
 
+def _default_sigint() -> None:
+    """In the child before exec: SIGINT's default action, whatever the test runner inherited."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _env() -> dict[str, str]:
     """This process's environment, importing the same dyndlo_vision as this test in the subprocess."""
     root = str(Path(dyndlo_vision.__file__).resolve().parents[1])
@@ -243,18 +248,20 @@ def _env() -> dict[str, str]:
 def test_ctrl_c_with_subprocess_workers_exits_130_and_the_run_resumes(tmp_path: Path) -> None:
     out = tmp_path / "run"
     log = tmp_path / "train.log"
-    # The first checkpoint comes at step 2; the steps after it must leave time to interrupt the run before it
-    # completes. With 40 steps (a whole run of 6.4 s on the 50 cm chain) the run once finished first in a
-    # loaded fresh-clone CI run (session 10); 200 steps make that window five times longer.
-    budget = 200
+    # The first checkpoint comes at step 2; the 38 steps after it (episodes of ~0.1 s of compute each,
+    # slower under load) leave ample time to interrupt the run before it completes.
+    budget = 40
     command = _cli("--task", "tip-control", "--algo", "sac", "--timesteps", str(budget), "--vec-env",
                    "subproc", "--n-envs", "2", "--checkpoint-freq", "2", "--eval-freq", "1000",
                    "--eval-episodes", "1", "--out", str(out))
     state = out / "checkpoint" / "state.json"
     with log.open("w") as sink:
-        # Its own process group, which a terminal's Ctrl-C signals as a whole: trainer and workers alike.
+        # Its own process group, which a terminal's Ctrl-C signals as a whole: trainer and workers alike. With
+        # SIGINT's default action, as in a terminal: a test runner started in the background by a
+        # non-interactive shell (`nohup .ci/run &`) ignores SIGINT; its children inherit that, and Python
+        # keeps an inherited SIG_IGN, so the trainer never saw the Ctrl-C (it ran to completion, session 10).
         proc = subprocess.Popen(command, stdout=sink, stderr=subprocess.STDOUT, start_new_session=True,
-                                env=_env())
+                                env=_env(), preexec_fn=_default_sigint)
         try:
             deadline = time.monotonic() + 600  # a hang guard only: start-up takes ~20 s on a loaded machine
             while not state.is_file():
