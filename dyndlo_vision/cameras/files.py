@@ -25,6 +25,29 @@ DEFAULT_FOLDER_FPS = 25.0
 _MAX_SANE_FPS = 10_000.0
 
 
+def image_files(inputs: list[str]) -> list[Path]:
+    """The image files named by ``inputs``: files as given, folders as their images (suffix in
+    :data:`IMAGE_SUFFIXES`, sorted by name), in order.
+
+    Raises:
+        FileNotFoundError: An input that does not exist.
+        ValueError: A folder that holds no images.
+    """
+    files: list[Path] = []
+    for text in inputs:
+        p = Path(text)
+        if p.is_dir():
+            found = sorted(f for f in p.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES)
+            if not found:
+                raise ValueError(f"folder {p} holds no images (looked for {', '.join(IMAGE_SUFFIXES)})")
+            files.extend(found)
+        elif p.is_file():
+            files.append(p)
+        else:
+            raise FileNotFoundError(f"input {p} does not exist")
+    return files
+
+
 class TruncatedVideoError(ValueError):
     """A video file ended before the number of frames its header promises (a cut or damaged file)."""
 

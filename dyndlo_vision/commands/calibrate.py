@@ -25,8 +25,6 @@ from numpy.typing import NDArray
 
 HELP = "calibrate a real camera from checkerboard photos: intrinsics, distortion, pose in the robot's frame"
 
-_IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
-
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``calibrate``."""
@@ -100,22 +98,6 @@ def _numbers(text: str, count: int, option: str) -> NDArray[np.float64]:
     return values
 
 
-def _image_files(inputs: list[str]) -> list[Path]:
-    files: list[Path] = []
-    for text in inputs:
-        path = Path(text)
-        if path.is_dir():
-            found = sorted(f for f in path.iterdir() if f.suffix.lower() in _IMAGE_SUFFIXES)
-            if not found:
-                raise ValueError(f"folder {path} has no images ({', '.join(_IMAGE_SUFFIXES)})")
-            files.extend(found)
-        elif path.is_file():
-            files.append(path)
-        else:
-            raise FileNotFoundError(f"{path} does not exist")
-    return files
-
-
 def _settings(args: argparse.Namespace) -> _Settings:
     """Validates every argument (raises ValueError naming the bad one)."""
     board = str(args.board).lower().split("x")
@@ -136,11 +118,13 @@ def _settings(args: argparse.Namespace) -> _Settings:
         raise ValueError(f"--out {out} is a folder; expected a file name such as {out / 'camera.json'}")
     if not out.parent.is_dir():
         raise ValueError(f"--out {out}: folder {out.parent} does not exist")
+    from dyndlo_vision.cameras.files import image_files
+
     extrinsic = None if args.extrinsic is None else Path(args.extrinsic)
     if extrinsic is not None and not extrinsic.is_file():
         raise FileNotFoundError(f"--extrinsic {extrinsic} does not exist")
     return _Settings(
-        images=_image_files(args.images),
+        images=image_files(args.images),
         cols=cols,
         rows=rows,
         square_m=float(args.square),

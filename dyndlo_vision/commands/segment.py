@@ -47,24 +47,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
-def _collect(inputs: list[str]) -> list[Path]:
-    from dyndlo_vision.cameras.files import IMAGE_SUFFIXES
-
-    files: list[Path] = []
-    for text in inputs:
-        p = Path(text)
-        if p.is_dir():
-            found = sorted(f for f in p.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES)
-            if not found:
-                raise ValueError(f"folder {p} holds no images (looked for {', '.join(IMAGE_SUFFIXES)})")
-            files.extend(found)
-        elif p.is_file():
-            files.append(p)
-        else:
-            raise FileNotFoundError(f"input {p} does not exist")
-    return files
-
-
 def _hsv(text: str, name: str) -> tuple[int, int, int]:
     try:
         vals = tuple(int(v) for v in text.split(","))
@@ -107,7 +89,9 @@ def run(args: argparse.Namespace) -> int:
 
     if args.max_cables < 1:
         raise ValueError(f"--max-cables must be >= 1, got {args.max_cables}")
-    files = _collect(args.inputs)
+    from dyndlo_vision.cameras.files import image_files
+
+    files = image_files(args.inputs)
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise NotADirectoryError(f"--out {out} exists and is not a folder")

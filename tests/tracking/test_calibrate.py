@@ -159,7 +159,7 @@ def test_bad_boards_are_refused(cols: int, rows: int, square: float) -> None:
 BAD_INPUTS = {
     "missing image": (["{tmp}/none.png"], "none.png does not exist"),
     "not an image": (["{text}", "{views}"], "is not an image OpenCV can read"),
-    "empty folder": (["{empty}"], "has no images"),
+    "empty folder": (["{empty}"], "holds no images"),
     "too few views": (["{three}"], "found in 3 image\\(s\\); calibration needs at least 4"),
     "mixed sizes": (["{views}", "{small}"], "one camera, one image size"),
     "flat views": (["{flat}"], "degenerate views"),
