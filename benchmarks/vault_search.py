@@ -23,7 +23,7 @@ import numpy as np
 
 from dyndlo_vision.tasks import make_env
 from dyndlo_vision.tasks.baselines import FlickVault
-from dyndlo_vision.tasks.vaulting import OBSTACLE_CENTRE_M, OBSTACLE_SIZE_M
+from dyndlo_vision.tasks.vaulting import OBSTACLE_CENTRE_M, OBSTACLE_SIZE_M, crossing_heights
 from dyndlo_vision.tasks.wrappers import DEFAULT_CABLE_RANGES, draw_cable
 
 
@@ -48,13 +48,7 @@ def vault_progress(nodes: np.ndarray, middle: int) -> float:
     far_face = OBSTACLE_CENTRE_M[0] + OBSTACLE_SIZE_M[0] / 2
     top = OBSTACLE_CENTRE_M[2] + OBSTACLE_SIZE_M[2] / 2
     reach = float(np.clip((nodes[middle, 0] - 0.5) / (far_face - 0.5), 0.0, 1.0))
-    x_mid = OBSTACLE_CENTRE_M[0]
-    side = np.sign(nodes[:, 0] - x_mid)
-    heights = []
-    for i in np.flatnonzero(side[:-1] * side[1:] <= 0):
-        a, b = nodes[i], nodes[i + 1]
-        w = 0.0 if b[0] == a[0] else (x_mid - a[0]) / (b[0] - a[0])
-        heights.append(a[2] + w * (b[2] - a[2]))
+    heights = crossing_heights(nodes)
     over = float(np.clip(min(heights) / top, 0.0, 1.0)) if heights else 0.0
     return 0.5 * reach + 0.5 * over * 0.999
 

@@ -51,19 +51,22 @@ def crosses_over_obstacle(nodes: NDArray[np.float64], tolerance_m: float = 0.01)
     rests on it or on the floor beyond; one dragged along the floor past the box's side face crosses it at
     floor height, which is not a vault. A cable that never crosses has not gone over.
     """
-    x_mid = OBSTACLE_CENTRE_M[0]
     top = OBSTACLE_CENTRE_M[2] + OBSTACLE_SIZE_M[2] / 2
+    heights = crossing_heights(nodes)
+    return bool(heights) and min(heights) >= top - tolerance_m
+
+
+def crossing_heights(nodes: NDArray[np.float64]) -> list[float]:
+    """Heights at which the node polyline crosses the obstacle's mid-plane (x = its centre), in order."""
+    x_mid = OBSTACLE_CENTRE_M[0]
     p = np.asarray(nodes, dtype=float)
     side = np.sign(p[:, 0] - x_mid)
-    crossings = np.flatnonzero(side[:-1] * side[1:] <= 0)
-    if crossings.size == 0:
-        return False
-    for i in crossings:
+    heights = []
+    for i in np.flatnonzero(side[:-1] * side[1:] <= 0):
         a, b = p[i], p[i + 1]
         w = 0.0 if b[0] == a[0] else (x_mid - a[0]) / (b[0] - a[0])
-        if a[2] + w * (b[2] - a[2]) < top - tolerance_m:
-            return False
-    return True
+        heights.append(float(a[2] + w * (b[2] - a[2])))
+    return heights
 
 
 def middle_landed_beyond(middle: NDArray[np.float64]) -> bool:
