@@ -68,6 +68,20 @@ def write_atomic(path: Path, write: Callable[[str], Any]) -> None:
         raise
 
 
+def check_output_file(path: Path, option: str = "--out", example: str = "out.json") -> Path:
+    """Check that ``path`` can name an output file before any work is done; returns it as a Path.
+
+    Raises:
+        ValueError: ``path`` is an existing folder, or the folder that would hold it does not exist.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{option} {path} is a folder; expected a file name such as {path / example}")
+    if not path.parent.is_dir():
+        raise ValueError(f"{option} {path}: folder {path.parent} does not exist")
+    return path
+
+
 def check_output_folder(folder: Path, option: str = "--out") -> None:
     """Check that ``folder`` can be an output folder (existing or new) before any work is done.
 

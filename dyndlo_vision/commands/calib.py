@@ -68,11 +68,9 @@ def _settings(args: argparse.Namespace) -> _Settings:
             raise ValueError(f"{option} must be a positive number of pixels, got {value!r}")
     if not (isinstance(args.fps, int | float) and math.isfinite(args.fps) and args.fps > 0):
         raise ValueError(f"--fps must be a positive finite number, got {args.fps!r}")
-    out = Path(args.out)
-    if out.is_dir():
-        raise ValueError(f"--out {out} is a folder; expected a file name such as {out / 'camera.json'}")
-    if not out.parent.is_dir():
-        raise ValueError(f"--out {out}: folder {out.parent} does not exist")
+    from dyndlo_vision._atomic import check_output_file
+
+    out = check_output_file(Path(args.out), "--out", "camera.json")
     return _Settings(str(args.camera), str(args.task), args.width, args.height, float(args.fps), out)
 
 

@@ -113,11 +113,9 @@ def _settings(args: argparse.Namespace) -> _Settings:
         raise ValueError("--extrinsic, --board-pose and --board-origin go together: give all three or none")
     if args.fps is not None and not (math.isfinite(args.fps) and args.fps > 0):
         raise ValueError(f"--fps must be a positive number, got {args.fps!r}")
-    out = Path(args.out)
-    if out.is_dir():
-        raise ValueError(f"--out {out} is a folder; expected a file name such as {out / 'camera.json'}")
-    if not out.parent.is_dir():
-        raise ValueError(f"--out {out}: folder {out.parent} does not exist")
+    from dyndlo_vision._atomic import check_output_file
+
+    out = check_output_file(Path(args.out), "--out", "camera.json")
     from dyndlo_vision.cameras.files import image_files
 
     extrinsic = None if args.extrinsic is None else Path(args.extrinsic)
