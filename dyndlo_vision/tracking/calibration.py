@@ -120,7 +120,8 @@ def foreshortening(corners: NDArray[np.float64], board: Checkerboard) -> tuple[f
     uv_h = np.column_stack([ends, np.ones(4)]) @ h.T
     uv = uv_h[:, :2] / uv_h[:, 2:]
     strength = float((w.max() - w.min()) / abs(w.mean()))
-    # w as a linear function of the pixel: its gradient is the tilt's direction in the image.
+    # w fitted as a linear function of the pixel (1/w is the exact affine one; the direction is the same up
+    # to sign, and only the axis counts): its gradient is the tilt's direction in the image.
     (a, b, _c), *_ = np.linalg.lstsq(np.column_stack([uv, np.ones(4)]), w / w.mean(), rcond=None)
     return strength, float(np.degrees(np.arctan2(b, a)))
 
@@ -144,7 +145,7 @@ def calibrate_intrinsics(
     image_size: tuple[int, int],
     distortion: str = "radial",
 ) -> Intrinsics:
-    """``K`` and distortion from several views of the board (square pixels: ``fx = fy`` not imposed).
+    """``K`` and distortion from several views of the board (``fx`` and ``fy`` fitted separately).
 
     Args:
         views: Each view's detected corners (:func:`find_board`).
