@@ -29,6 +29,7 @@ def scripted_policies() -> dict[str, str | None]:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``evaluate``."""
+    from dyndlo_vision.robots.feasibility import ROBOT_ARMS
     from dyndlo_vision.tasks.registry import TASKS
 
     p.add_argument(
@@ -64,6 +65,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="a new cable (length, mass, E, damping; training's --randomize-cable ranges) every episode, "
         "drawn from the episode's seed: success under cable variation, also for tasks with a fixed start",
     )
+    p.add_argument(
+        "--robot",
+        choices=sorted(ROBOT_ARMS),
+        default=None,
+        help="also judge every plan on this arm's joint limits (IK with the tool down; positions, speeds, "
+        "accelerations, as its driver checks): the report's 'joints' block gives the joint-feasible fraction "
+        "and successes with feasible plans (default: the policy's own robot, if it was trained with one)",
+    )
     p.add_argument("--out", default=None, help="JSON report path (default: print only)")
     p.add_argument("--video", default=None, help="MP4 (.mp4) of the first --video-episodes episodes")
     p.add_argument(
@@ -93,7 +102,8 @@ def run(args: argparse.Namespace) -> int:
     task = policy_task(args.policy, args.task, meta)
     multi_step = policy_mode(args.policy, args.multi_step, meta)
     options = {**meta.get("env_options", {}), **options}
-    env = _make_env(task, multi_step, options, args.randomize_cable)
+    robot = args.robot or meta.get("robot")
+    env = _make_env(task, multi_step, options, args.randomize_cable, robot=robot)
     entry = task_entry(task)
     policy: Any
     if args.policy == RANDOM:
@@ -113,6 +123,7 @@ def run(args: argparse.Namespace) -> int:
             "multi_step": multi_step,
             "env_options": options,
             "randomize_cable": bool(args.randomize_cable),
+            "robot": robot,
         }
     )
     print(json.dumps({k: v for k, v in report.items() if k != "episodes_detail"}, indent=2))
@@ -240,12 +251,14 @@ def _make_env(
     options: dict[str, Any],
     randomize_cable: bool,
     render_mode: str | None = None,
+    robot: str | None = None,
 ) -> Any:
-    """The evaluated environment; with ``randomize_cable`` a new cable every episode, drawn from its seed."""
+    """The evaluated environment; with ``randomize_cable`` a new cable every episode, drawn from its seed;
+    with ``robot`` every plan judged on that arm's joint limits."""
     from dyndlo_vision.tasks.registry import make_env
 
     return make_env(task, multi_step=multi_step, render_mode=render_mode,
-                    randomize_cable_every=1 if randomize_cable else None, **options)
+                    randomize_cable_every=1 if randomize_cable else None, robot=robot, **options)
 
 
 def _write_video(

@@ -34,6 +34,7 @@ def parse_assignments(items: list[str] | None, flag: str) -> dict[str, Any]:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``train``."""
     from dyndlo_vision.policies import ALGORITHMS
+    from dyndlo_vision.robots.feasibility import ROBOT_ARMS
     from dyndlo_vision.tasks.registry import TASKS
 
     p.add_argument("--task", choices=sorted(TASKS), default="tip-control", help="the task to learn")
@@ -77,6 +78,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
              "the task's scripted baseline (geometric lift; scripted vault) before learning (default 0, as "
              "in the paper)",
     )
+    p.add_argument("--robot", choices=sorted(ROBOT_ARMS), default=None,
+                   help="single-TCP tasks: a plan this arm cannot follow (IK with the tool down, joint "
+                        "position, speed and acceleration limits, as its driver checks) sets the avoid "
+                        "condition 'joints'")
     p.add_argument("--eval-freq", type=int, default=2000, help="evaluate every N steps (default 2000)")
     p.add_argument("--eval-episodes", type=int, default=20,
                    help="episodes per evaluation (seeds seed + 10000 on)")
@@ -139,6 +144,7 @@ def _new_config(args: argparse.Namespace, algo: str) -> RunConfig:
         eval_episodes=args.eval_episodes,
         checkpoint_freq=args.checkpoint_freq,
         demonstrations=args.demonstrations,
+        robot=args.robot,
     )
 
 

@@ -69,6 +69,8 @@ class RunConfig:
         checkpoint_freq: Save a resumable checkpoint every this many environment steps.
         demonstrations: Episodes of the task's scripted baseline (perturbed) put into SAC's replay buffer
             before learning (``dyndlo_vision.learning.demonstrations``); 0: none, as in the paper.
+        robot: Judge every plan on this arm's joint limits, an avoid condition (``"gofa"``, ``"ur5e"``;
+            ``DynDLOEnv.set_robot``); None: the paper's TCP-only conditions.
     """
 
     task: str
@@ -87,9 +89,14 @@ class RunConfig:
     eval_episodes: int = 20
     checkpoint_freq: int = 2000
     demonstrations: int = 0
+    robot: str | None = None
 
     def __post_init__(self) -> None:
         task_entry(self.task)
+        if self.robot is not None:
+            from dyndlo_vision.robots.feasibility import robot_arm
+
+            robot_arm(self.robot)
         if self.algo not in ALGORITHMS:
             raise ValueError(f"algo={self.algo!r}; expected one of {list(ALGORITHMS)}")
         for name in ("timesteps", "n_envs", "eval_freq", "eval_episodes", "checkpoint_freq"):

@@ -39,9 +39,11 @@ def make_training_env(
         render_mode=render_mode,
         randomize_cable_every=RANDOMIZE_CABLE_EVERY if randomize else None,
         obs_noise=Path(config.obs_noise) if config.obs_noise else None,
+        robot=config.robot,
         **config.env_options,
     )
-    return Monitor(env, str(monitor_file) if monitor_file else None, info_keywords=MONITOR_KEYWORDS,
+    keywords = MONITOR_KEYWORDS + (("joint_feasible",) if config.robot else ())
+    return Monitor(env, str(monitor_file) if monitor_file else None, info_keywords=keywords,
                    override_existing=not append_monitor)
 
 

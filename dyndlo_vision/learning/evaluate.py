@@ -41,6 +41,11 @@ class EpisodeRecord:
     avoid: dict[str, bool] = field(default_factory=dict)
     extras: dict[str, float] = field(default_factory=dict)
     cable: dict[str, float] = field(default_factory=dict)
+    #: With a robot (``DynDLOEnv.set_robot``): whether the arm could follow every plan, how close the plan
+    #: came to its limits, and why it could not (the first refusal).
+    joint_feasible: bool | None = None
+    joint_usage: dict[str, float] = field(default_factory=dict)
+    joint_limit_reason: str | None = None
 
 
 def as_action_fn(policy: Any) -> Callable[[np.ndarray], np.ndarray]:
@@ -84,6 +89,9 @@ def evaluate_episode(
         avoid=dict(info.get("avoid", {})),
         extras=extras,
         cable=_cable_summary(reset_info.get("cable")),
+        joint_feasible=info.get("joint_feasible"),
+        joint_usage=dict(info.get("joint_usage", {})),
+        joint_limit_reason=info.get("joint_limit_reason"),
     )
 
 
@@ -116,11 +124,48 @@ def summarize(records: list[EpisodeRecord]) -> dict[str, Any]:
         },
         "length_mean": float(np.mean([r.length for r in records])),
     }
+    judged = [r for r in records if r.joint_feasible is not None]
+    if judged:
+        report["joints"] = joint_summary(judged)
     for key in sorted({key for r in records for key in r.extras}):
         values = np.array([r.extras[key] for r in records if key in r.extras])
         report[f"{key}_mean"] = float(values.mean())
         report[f"{key}_median"] = float(np.median(values))
     return report
+
+
+def joint_summary(records: list[EpisodeRecord]) -> dict[str, Any]:
+    """Joint feasibility over episodes judged on an arm: rates with Wilson intervals, limit usage, reasons.
+
+    ``success_and_feasible`` counts the episodes that succeed with plans the arm can follow: what a real arm
+    would achieve if the simulated cable were the real one. Usage: medians over episodes of the largest
+    joint speed and acceleration as fractions of their limits, and the smallest position margin seen.
+    """
+    n = len(records)
+    feasible = sum(bool(r.joint_feasible) for r in records)
+    both = sum(bool(r.joint_feasible) and r.success for r in records)
+    reasons: dict[str, int] = {}
+    for r in records:
+        if r.joint_limit_reason:
+            words = r.joint_limit_reason.split()
+            kind = "IK" if words[0] == "IK:" else f"{words[2]} {words[1]}"  # e.g. "acceleration axis_2"
+            reasons[kind] = reasons.get(kind, 0) + 1
+    usage = [r.joint_usage for r in records if r.joint_usage]
+    out: dict[str, Any] = {
+        "episodes": n,
+        "feasible": feasible,
+        "feasible_rate": feasible / n,
+        "feasible_ci95": list(wilson_interval(feasible, n)),
+        "success_and_feasible": both,
+        "success_and_feasible_rate": both / n,
+        "success_and_feasible_ci95": list(wilson_interval(both, n)),
+        "refusals": dict(sorted(reasons.items(), key=lambda kv: -kv[1])),
+    }
+    if usage:
+        out["velocity_fraction_median"] = float(np.median([u["velocity_fraction"] for u in usage]))
+        out["acceleration_fraction_median"] = float(np.median([u["acceleration_fraction"] for u in usage]))
+        out["position_margin_deg_min"] = float(np.min([u["position_margin_deg"] for u in usage]))
+    return out
 
 
 def evaluate(

@@ -31,6 +31,7 @@ from typing import ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
+from dyndlo_vision.robots.feasibility import braking_tail, join_plan
 from dyndlo_vision.robots.kinematics import ArmKinematics, JointLimitError, check_joint_limits
 from dyndlo_vision.robots.protocol import Setpoints, TcpState
 
@@ -86,28 +87,6 @@ def resample_setpoints(setpoints: Setpoints, period_s: float) -> tuple[FloatArra
     return grid, out
 
 
-def braking_tail(
-    t_end: float, q_end: FloatArray, qd_end: FloatArray, max_acceleration: FloatArray, period_s: float
-) -> tuple[FloatArray, FloatArray]:
-    """Samples after ``t_end`` that bring the joints from velocity ``qd_end`` to rest.
-
-    All joints decelerate uniformly over the same time (the joint-space direction of motion is kept), the
-    slowest joint at ``max_acceleration``; the stop time is rounded up to whole periods, so every
-    finite-difference acceleration is at most the limit.
-
-    Returns:
-        Times (n,) and joint positions (n, 6); empty when ``qd_end`` is zero.
-    """
-    t_stop = float(np.max(np.abs(qd_end) / max_acceleration))
-    if t_stop <= 0.0:
-        return np.empty(0), np.empty((0, 6))
-    n = max(1, math.ceil(t_stop / period_s - 1e-9))
-    t_stop = n * period_s
-    s = period_s * np.arange(1, n + 1)
-    q = q_end + np.outer(s - s * s / (2.0 * t_stop), qd_end)
-    return np.asarray(t_end + s, dtype=np.float64), np.asarray(q, dtype=np.float64)
-
-
 class JointStreamingDriver:
     """Base of the EGM and RTDE drivers: a :class:`~dyndlo_vision.robots.protocol.Robot` for one TCP.
 
@@ -150,6 +129,7 @@ class JointStreamingDriver:
         self.answer_timeout_s = float(answer_timeout_s)
         self.connect_timeout_s = float(connect_timeout_s)
         self.lookahead_s = self.period_s if lookahead_s is None else float(lookahead_s)
+        self._braking_fraction = float(braking_fraction)
         self._braking_acc = braking_fraction * np.array(kinematics.arm.max_acceleration_rad_s2)
         self._lock = threading.Lock()
         self._cycle = threading.Condition(self._lock)
@@ -272,18 +252,12 @@ class JointStreamingDriver:
             self._require_ready()
             hist_t = np.array([h[0] for h in self._history])
             hist_q = np.array([h[1] for h in self._history])
-            keep = traj.t > hist_t[-1] + 1e-9
-            if not np.any(keep):
-                raise ValueError(
-                    f"{self.protocol_name}: setpoints end at t={t_grid[-1]:.4f} s, before the target already "
-                    f"sent for t={hist_t[-1]:.4f} s (robot clock)"
-                )
-            t_all = np.concatenate([hist_t, traj.t[keep]])
-            q_all = np.concatenate([hist_q, traj.q[keep]])
-            qd_end = (q_all[-1] - q_all[-2]) / (t_all[-1] - t_all[-2])
-            tail_t, tail_q = braking_tail(t_all[-1], q_all[-1], qd_end, self._braking_acc, self.period_s)
-            t_all, q_all = np.concatenate([t_all, tail_t]), np.concatenate([q_all, tail_q])
-            report = check_joint_limits(self.kinematics.arm, t_all, q_all)
+            try:
+                plan = join_plan(self.kinematics.arm, traj.t, traj.q, hist_t, hist_q, self.period_s,
+                                 self._braking_fraction)
+            except ValueError as exc:
+                raise ValueError(f"{self.protocol_name}: setpoints: {exc} (robot clock)") from exc
+            t_all, q_all, report = plan.t, plan.q, plan.report
             if not report.ok:
                 hint = ""
                 if check_joint_limits(self.kinematics.arm, t_all[hist_t.size :], q_all[hist_t.size :]).ok:

@@ -15,7 +15,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import mujoco
@@ -25,6 +25,9 @@ from numpy.typing import NDArray
 from dyndlo_vision.sim.scene import Scene, SceneConfig
 from dyndlo_vision.tasks.rewards import AvoidLimits, RewardCoefficients, avoid_flags
 from dyndlo_vision.trajectory import ActionSpec, BSplineTrajectory, Replanner
+
+if TYPE_CHECKING:
+    from dyndlo_vision.robots.feasibility import PlanFeasibility
 
 CONTROL_PERIOD_S = 0.04  # section IV-B: re-plan every 0.04 s
 MONITOR_PERIOD_S = 0.002  # how often constraints and the goal are checked while simulating
@@ -166,6 +169,30 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         #: monitor and task hooks see the recorded states afterwards; False steps in Python (the reference,
         #: for tests and benchmarks).
         self.batch_monitor = True
+        #: Judges every plan on a real arm's joint limits (``set_robot``); None: no arm.
+        self.arm_check: PlanFeasibility | None = None
+
+    def set_robot(self, robot: str | None) -> None:
+        """Judge every plan as a real arm's driver would (``"gofa"``, ``"ur5e"``; None: no arm).
+
+        A plan the arm cannot follow (no IK with the tool down, or a joint position, velocity or acceleration
+        limit broken, the plan joined to the arm's motion so far and ended by the driver's braking tail; see
+        :mod:`dyndlo_vision.robots.feasibility`) sets the avoid condition ``joints``. The episode goes on as
+        planned, so the simulated outcome is still reported; ``info["joint_feasible"]`` says whether every
+        plan of the episode so far passed, ``info["joint_usage"]`` how close the last one came to the limits.
+
+        Raises:
+            ValueError: An unknown arm, or a task with two grippers (the arms drive one TCP).
+        """
+        if robot is None:
+            self.arm_check = None
+            return
+        from dyndlo_vision.robots.feasibility import PlanFeasibility
+
+        if self.scene.num_grippers != 1:
+            raise ValueError(f"robot={robot!r}: the arm drives one TCP; {type(self.task).__name__} has "
+                             f"{self.scene.num_grippers} grippers")
+        self.arm_check = PlanFeasibility(robot)
 
     def _build_scene(self) -> None:
         """Compile the task's scene and all that depends on it (at construction, and for a new cable)."""
@@ -246,6 +273,10 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self._replanner.reset(self.task.final_point(self._goal))
         self._monitor = EpisodeMonitor()
         self._decisions = 0
+        self._arm_verdict: Any = None
+        if self.arm_check is not None:
+            self._monitor.avoid["joints"] = False
+            self.arm_check.start(self.scene.time, self.scene.tcp_positions()[0])
         self._sample_monitor()
         return self.observation(), {"goal": self._goal.copy()}
 
@@ -254,6 +285,8 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     ) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
         """Plan from the action, simulate, observe and reward."""
         self._plan(action)
+        if self.arm_check is not None:
+            self._check_arm()
         if self.multi_step:
             self._simulate(self._steps_per_control)
             self._decisions += 1
@@ -275,6 +308,7 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
                                 "avoid": dict(self._monitor.avoid), "sim_time_s": self.scene.time}
         if diverged:
             info["diverged"] = True
+        self._arm_info(info)
         return self.observation(), reward, bool(final or diverged), False, info
 
     def render(self) -> NDArray[np.uint8] | None:
@@ -299,10 +333,12 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
 
     def __getstate__(self) -> dict[str, Any]:
         # MuJoCo objects pickle, but renderers and the settled state are cheaper to rebuild.
-        return {"task": self.task, "render_mode": self.render_mode, "render_camera": self.render_camera}
+        return {"task": self.task, "render_mode": self.render_mode, "render_camera": self.render_camera,
+                "robot": None if self.arm_check is None else self.arm_check.arm.name}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__init__(state["task"], state["render_mode"], state["render_camera"])  # type: ignore[misc]
+        self.set_robot(state.get("robot"))
 
     # ------------------------------------------------------------------ internals
     def _swap_cable(self, cable: Any) -> None:
@@ -328,6 +364,30 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         if not self.multi_step and self._replanner.trajectory is not None:
             raise RuntimeError("single-step episode already ended: call reset()")
         self._replanner.replan(a.astype(np.float64), self.scene.time)
+
+    def _check_arm(self) -> None:
+        """Judge the plan just made, from now to its end, on the arm's cycle (see :meth:`set_robot`)."""
+        assert self.arm_check is not None and self._replanner.trajectory is not None
+        period = self.arm_check.period_s
+        t0 = self.scene.time
+        t_end = max(self._replanner.trajectory.t_end, t0 + period)
+        times = t0 + period * np.arange(int(np.ceil((t_end - t0) / period - 1e-9)) + 1)
+        positions, _ = self._replanner.references(times)
+        verdict = self.arm_check.check(times, positions[:, 0])
+        if not verdict.ok:
+            self._monitor.avoid["joints"] = True
+            if self._arm_verdict is None or self._arm_verdict.ok:
+                self._arm_verdict = verdict  # the first refusal is the one reported
+        elif self._arm_verdict is None or self._arm_verdict.ok:
+            self._arm_verdict = verdict
+
+    def _arm_info(self, info: dict[str, Any]) -> None:
+        if self.arm_check is None or self._arm_verdict is None:
+            return
+        info["joint_feasible"] = self._arm_verdict.ok
+        info["joint_usage"] = dict(self._arm_verdict.usage)
+        if not self._arm_verdict.ok:
+            info["joint_limit_reason"] = self._arm_verdict.reason
 
     def _simulate(self, nsteps: int) -> None:
         """Follow the trajectory for ``nsteps`` physics steps, checking constraints as we go.
@@ -454,6 +514,7 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
                 "sim_time_s": self.scene.time}
         if self._monitor.diverged:
             info["diverged"] = True
+        self._arm_info(info)
         return float(sum(terms.values())), bool(success), info
 
     def is_done_early(self) -> bool:

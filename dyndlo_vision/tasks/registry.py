@@ -163,6 +163,7 @@ def make_env(
     randomize_cable_every: int | None = None,
     cable_ranges: dict[str, tuple[float, float]] | None = None,
     obs_noise: str | Path | Any | None = None,
+    robot: str | None = None,
     **options: Any,
 ) -> gym.Env[Any, Any]:
     """The environment of ``task`` as training, evaluation, distillation and the demo use it.
@@ -180,15 +181,19 @@ def make_env(
         randomize_cable_every: Draw a new cable every this many episodes (None: the nominal cable).
         cable_ranges: The randomisation's ranges (default: ``wrappers.DEFAULT_CABLE_RANGES``).
         obs_noise: Observation-noise model (None: true P_DLO).
+        robot: Judge every plan on this arm's joint limits (``"gofa"``, ``"ur5e"``; the avoid condition
+            ``joints``, see :meth:`~dyndlo_vision.tasks.base.DynDLOEnv.set_robot`). None: no arm.
         **options: Task options (``multi_step``, ``cable``, ``target``, ...).
 
     Raises:
-        ValueError: For an unknown task or option.
+        ValueError: For an unknown task, option or robot.
     """
     register_envs()
     entry = task_entry(task)
     env: gym.Env[Any, Any] = gym.make(entry.env_id, render_mode=render_mode, render_camera=render_camera,
                                       **options)
+    if robot is not None:
+        env.unwrapped.set_robot(robot)  # type: ignore[attr-defined]
     if randomize_cable_every is not None:
         from dyndlo_vision.tasks.wrappers import CableRandomization
 
