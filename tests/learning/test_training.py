@@ -366,3 +366,51 @@ def test_demonstrations_are_refused_where_they_cannot_apply(changes: dict, messa
             "demonstrations": 5}
     with pytest.raises(ValueError, match=message):
         RunConfig(**{**base, **changes})
+
+
+def test_evaluate_with_a_robot_reports_joint_feasibility(tmp_path: Path) -> None:
+    """``--robot``: the report's 'joints' block counts the episodes whose plan the arm can follow, and those
+    that succeed with one. The shipped tip-control policy whips faster than the GoFa's joints allow."""
+    from dyndlo_vision.learning.evaluate import EpisodeRecord, joint_summary
+
+    report = tmp_path / "report.json"
+    args = ["evaluate", "tip-control-single-step", "--episodes", "2", "--robot", "gofa", "--out", str(report)]
+    assert main(args) == 0
+    data = json.loads(report.read_text())
+    assert data["robot"] == "gofa" and data["successes"] == 2
+    joints = data["joints"]
+    assert joints["episodes"] == 2 and joints["feasible"] == 0 and joints["success_and_feasible"] == 0
+    assert joints["acceleration_fraction_median"] > 1.0 and sum(joints["refusals"].values()) == 2
+    assert data["avoid_rate"]["joints"] == 1.0
+    details = data["episodes_detail"]
+    assert all(d["joint_feasible"] is False for d in details)
+    assert all("breaks the limit" in d["joint_limit_reason"] for d in details)
+    # Without --robot: no judgement, no block.
+    assert main(["evaluate", "tip-control-single-step", "--episodes", "1", "--out", str(report)]) == 0
+    assert "joints" not in json.loads(report.read_text())
+    # The summary's rule: success and feasible counts only episodes that are both.
+    records = [EpisodeRecord(0, 1.0, True, 1, joint_feasible=False), EpisodeRecord(1, 1.0, True, 1,
+               joint_feasible=True), EpisodeRecord(2, 1.0, False, 1, joint_feasible=True)]
+    summary = joint_summary(records)
+    assert (summary["feasible"], summary["success_and_feasible"]) == (2, 1)
+
+
+def test_train_with_a_robot_judges_every_training_plan(tmp_path: Path) -> None:
+    from dyndlo_vision.learning.envs import make_training_env
+
+    with pytest.raises(ValueError, match="unknown robot 'kuka'"):
+        _config("sac", 32, robot="kuka")
+    config = _config("sac", 32, robot="gofa")
+    assert RunConfig(**json.loads(config.to_json())).robot == "gofa"  # stored in config.json for --resume
+    monitor = tmp_path / "env0"
+    env = make_training_env(config, monitor)
+    assert env.unwrapped.arm_check is not None and env.unwrapped.arm_check.arm.name == "gofa"
+    env.reset(seed=1)
+    env.step(env.action_space.sample())
+    env.close()
+    header = (tmp_path / "env0.monitor.csv").read_text().splitlines()[1]
+    assert header.split(",")[-1] == "joint_feasible"
+    with pytest.raises(ValueError, match="one TCP"):
+        train(RunConfig(task="hooking", multi_step=False, algo="sac", timesteps=8, robot="gofa"),
+              tmp_path / "hooking")
+    assert not (tmp_path / "hooking").exists()  # refused before anything was written

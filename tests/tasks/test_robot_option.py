@@ -1,0 +1,95 @@
+"""``make_env(robot=...)``: plans a real arm cannot follow set the avoid condition ``joints``."""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+
+from dyndlo_vision.tasks.registry import make_env
+from dyndlo_vision.tasks.rewards import TABLE_V
+
+
+def slow_action(env) -> np.ndarray:
+    """A plan the GoFa can follow: 3 x (5 cm forward), 0.5 s each."""
+    spec = env.unwrapped.spec_actions
+    p0 = np.asarray(env.unwrapped.scene.tcp_positions()[0])
+    points = p0 + np.array([[0, 0, 0], [0.05, 0, 0], [0.10, 0, 0], [0.15, 0, 0]])
+    return spec.encode(points, np.array([0.0, 0.5, 1.0, 1.5])).astype(np.float32)
+
+
+def fast_action(env) -> np.ndarray:
+    """A flick the GoFa cannot follow, within the paper's TCP limits: 10 cm forward, up, back, 0.15 s each."""
+    spec = env.unwrapped.spec_actions
+    p0 = np.asarray(env.unwrapped.scene.tcp_positions()[0])
+    points = p0 + np.array([[0, 0, 0], [0.1, 0, 0], [0.1, 0, 0.1], [0.0, 0, 0.1]])
+    return spec.encode(points, np.array([0.0, 0.15, 0.3, 0.45])).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def env():
+    e = make_env("tip-control", robot="gofa")
+    yield e
+    e.close()
+
+
+def test_a_plan_the_arm_can_follow_is_not_an_avoid_condition(env):
+    env.reset(seed=1)
+    _, reward, _, _, info = env.step(slow_action(env))
+    assert info["joint_feasible"] is True and info["avoid"]["joints"] is False
+    assert "joint_limit_reason" not in info
+    assert 0 < info["joint_usage"]["acceleration_fraction"] < 1
+    assert info["r_avoid"] == 0.0
+
+
+def test_a_plan_the_arm_cannot_follow_costs_the_avoid_penalty(env):
+    env.reset(seed=1)
+    _, reward, _, _, info = env.step(fast_action(env))
+    assert info["joint_feasible"] is False and info["avoid"]["joints"] is True
+    assert "breaks the limit" in info["joint_limit_reason"] or info["joint_limit_reason"].startswith("IK:")
+    assert info["r_avoid"] == TABLE_V["tip_control"].avoid
+    # The TCP-only conditions of the paper do not see it: the same plan without an arm is not an avoid.
+    plain = make_env("tip-control")
+    plain.reset(seed=1)
+    _, _, _, _, info_plain = plain.step(fast_action(plain))
+    assert "joints" not in info_plain["avoid"] and not any(info_plain["avoid"].values())
+    plain.close()
+
+
+def test_the_next_episode_starts_feasible_again(env):
+    env.reset(seed=1)
+    env.step(fast_action(env))
+    env.reset(seed=2)
+    _, _, _, _, info = env.step(slow_action(env))
+    assert info["joint_feasible"] is True and info["avoid"]["joints"] is False
+
+
+def test_multi_step_judges_every_replan():
+    env = make_env("tip-control", robot="gofa", multi_step=True)
+    env.reset(seed=3)
+    slow = slow_action(env)
+    infos = []
+    for _ in range(3):
+        infos.append(env.step(slow)[4])
+    assert all(i["joint_feasible"] for i in infos)
+    _, _, _, _, info = env.step(fast_action(env))
+    assert info["joint_feasible"] is False and info["avoid"]["joints"] is True
+    env.close()
+
+
+def test_the_robot_survives_pickling(env):
+    """SubprocVecEnv workers get the environment by pickle: the arm must come along."""
+    copy = pickle.loads(pickle.dumps(env.unwrapped))
+    assert copy.arm_check is not None and copy.arm_check.arm.name == "gofa"
+    copy.close()
+
+
+def test_a_two_gripper_task_refuses_an_arm():
+    with pytest.raises(ValueError, match="one TCP.*2 grippers"):
+        make_env("hooking", robot="gofa")
+
+
+def test_an_unknown_robot_is_refused():
+    with pytest.raises(ValueError, match="unknown robot 'ur10'"):
+        make_env("tip-control", robot="ur10")
