@@ -177,9 +177,11 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
 
         A plan the arm cannot follow (no IK with the tool down, or a joint position, velocity or acceleration
         limit broken, the plan joined to the arm's motion so far and ended by the driver's braking tail; see
-        :mod:`dyndlo_vision.robots.feasibility`) sets the avoid condition ``joints``. The episode goes on as
-        planned, so the simulated outcome is still reported; ``info["joint_feasible"]`` says whether every
-        plan of the episode so far passed, ``info["joint_usage"]`` how close the last one came to the limits.
+        :mod:`dyndlo_vision.robots.feasibility`) is refused, as the driver refuses it: nothing of it runs,
+        the episode ends there with the avoid condition ``joints``, scored on the state reached (a
+        single-step episode: the cable never moved, so no success). ``info["joint_feasible"]`` says whether
+        every plan passed, ``info["joint_usage"]`` how close the last judged one came to the limits, and
+        ``info["joint_limit_reason"]`` why a plan was refused.
 
         Raises:
             ValueError: An unknown arm, or a task with two grippers (the arms drive one TCP).
@@ -285,8 +287,8 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     ) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
         """Plan from the action, simulate, observe and reward."""
         self._plan(action)
-        if self.arm_check is not None:
-            self._check_arm()
+        if self.arm_check is not None and not self._check_arm():
+            return self._refused()
         if self.multi_step:
             self._simulate(self._steps_per_control)
             self._decisions += 1
@@ -365,7 +367,7 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
             raise RuntimeError("single-step episode already ended: call reset()")
         self._replanner.replan(a.astype(np.float64), self.scene.time)
 
-    def _check_arm(self) -> None:
+    def _check_arm(self) -> bool:
         """Judge the plan just made, from now to its end, on the arm's cycle (see :meth:`set_robot`)."""
         assert self.arm_check is not None and self._replanner.trajectory is not None
         period = self.arm_check.period_s
@@ -373,13 +375,17 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         t_end = max(self._replanner.trajectory.t_end, t0 + period)
         times = t0 + period * np.arange(int(np.ceil((t_end - t0) / period - 1e-9)) + 1)
         positions, _ = self._replanner.references(times)
-        verdict = self.arm_check.check(times, positions[:, 0])
-        if not verdict.ok:
-            self._monitor.avoid["joints"] = True
-            if self._arm_verdict is None or self._arm_verdict.ok:
-                self._arm_verdict = verdict  # the first refusal is the one reported
-        elif self._arm_verdict is None or self._arm_verdict.ok:
-            self._arm_verdict = verdict
+        self._arm_verdict = self.arm_check.check(times, positions[:, 0])
+        return bool(self._arm_verdict.ok)
+
+    def _refused(self) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
+        """End the episode at a plan the arm refuses: nothing more is simulated; scored on the state now."""
+        self._monitor.avoid["joints"] = True
+        terms, success, extra = self.task.evaluate(self.scene, self._goal, self._monitor, True)
+        info: dict[str, Any] = {**terms, **extra, "is_success": bool(success),
+                                "avoid": dict(self._monitor.avoid), "sim_time_s": self.scene.time}
+        self._arm_info(info)
+        return self.observation(), float(sum(terms.values())), True, False, info
 
     def _arm_info(self, info: dict[str, Any]) -> None:
         if self.arm_check is None or self._arm_verdict is None:

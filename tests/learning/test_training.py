@@ -370,14 +370,15 @@ def test_demonstrations_are_refused_where_they_cannot_apply(changes: dict, messa
 
 def test_evaluate_with_a_robot_reports_joint_feasibility(tmp_path: Path) -> None:
     """``--robot``: the report's 'joints' block counts the episodes whose plan the arm can follow, and those
-    that succeed with one. The shipped tip-control policy whips faster than the GoFa's joints allow."""
+    that succeed with one. The shipped tip-control policy whips faster than the GoFa's joints allow: its plans
+    are refused, so no episode succeeds on the arm."""
     from dyndlo_vision.learning.evaluate import EpisodeRecord, joint_summary
 
     report = tmp_path / "report.json"
     args = ["evaluate", "tip-control-single-step", "--episodes", "2", "--robot", "gofa", "--out", str(report)]
     assert main(args) == 0
     data = json.loads(report.read_text())
-    assert data["robot"] == "gofa" and data["successes"] == 2
+    assert data["robot"] == "gofa" and data["successes"] == 0
     joints = data["joints"]
     assert joints["episodes"] == 2 and joints["feasible"] == 0 and joints["success_and_feasible"] == 0
     assert joints["acceleration_fraction_median"] > 1.0 and sum(joints["refusals"].values()) == 2

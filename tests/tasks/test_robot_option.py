@@ -1,4 +1,5 @@
-"""``make_env(robot=...)``: plans a real arm cannot follow set the avoid condition ``joints``."""
+"""``make_env(robot=...)``: a plan a real arm cannot follow is refused, as its driver refuses it: the episode
+ends there with the avoid condition ``joints``."""
 
 from __future__ import annotations
 
@@ -43,12 +44,16 @@ def test_a_plan_the_arm_can_follow_is_not_an_avoid_condition(env):
     assert info["r_avoid"] == 0.0
 
 
-def test_a_plan_the_arm_cannot_follow_costs_the_avoid_penalty(env):
+def test_a_plan_the_arm_cannot_follow_is_refused_and_costs_the_avoid_penalty(env):
     env.reset(seed=1)
-    _, reward, _, _, info = env.step(fast_action(env))
+    _, reward, terminated, _, info = env.step(fast_action(env))
     assert info["joint_feasible"] is False and info["avoid"]["joints"] is True
     assert "breaks the limit" in info["joint_limit_reason"] or info["joint_limit_reason"].startswith("IK:")
-    assert info["r_avoid"] == TABLE_V["tip_control"].avoid
+    coeffs = TABLE_V["tip_control"]
+    assert info["r_avoid"] == coeffs.avoid and reward == coeffs.avoid + coeffs.distance
+    # Nothing of it ran: the TCP is still at home, no time passed, no success.
+    assert terminated and info["sim_time_s"] == 0.0 and info["is_success"] is False
+    assert env.unwrapped.monitor.max_tcp_speed_m_s < 1e-6
     # The TCP-only conditions of the paper do not see it: the same plan without an arm is not an avoid.
     plain = make_env("tip-control")
     plain.reset(seed=1)
@@ -73,8 +78,10 @@ def test_multi_step_judges_every_replan():
     for _ in range(3):
         infos.append(env.step(slow)[4])
     assert all(i["joint_feasible"] for i in infos)
-    _, _, _, _, info = env.step(fast_action(env))
+    t_before = env.unwrapped.scene.time
+    _, _, terminated, _, info = env.step(fast_action(env))
     assert info["joint_feasible"] is False and info["avoid"]["joints"] is True
+    assert terminated and info["sim_time_s"] == t_before  # the arm stops; the episode ends there
     env.close()
 
 
