@@ -3,7 +3,8 @@
 Intrinsics and lens distortion come from several photos of a checkerboard held at different tilts
 (:func:`~dyndlo_vision.tracking.calibration.calibrate_intrinsics`, OpenCV's ``calibrateCamera``). The pose in
 the robot's base frame comes from one more photo (``--extrinsic``) of the board lying at a known pose there
-(``--board-pose``), with a pixel near the board's origin corner (``--board-origin``), since a checkerboard's
+(``--board-pose``), or at a pose found by touching 3 or more of its corners with the robot's TCP
+(``--touch``), with a pixel near the board's origin corner (``--board-origin``), since a checkerboard's
 corners can be numbered from either end. Without ``--extrinsic`` the camera's own frame is the world
 (``R = I``, ``t = 0``): fine for tracking in pixels, not for the loop.
 
@@ -63,6 +64,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "origin, y along a column",
     )
     p.add_argument(
+        "--touch",
+        metavar="CSV",
+        help="with --extrinsic, instead of --board-pose: corners of the board, lying as in that photo, "
+        "touched with the robot's TCP; a CSV with the header col,row,x,y,z (corner column and row from the "
+        "origin corner; TCP position in m in the robot's base frame), at least 3 corners not on one line",
+    )
+    p.add_argument(
         "--board-origin",
         metavar="U,V",
         help="with --extrinsic: a pixel near the board's origin corner in that photo",
@@ -82,6 +90,7 @@ class _Settings:
     distortion: str
     extrinsic: Path | None
     board_pose: NDArray[np.float64] | None
+    touch: Path | None
     board_origin: NDArray[np.float64] | None
     fps: float | None
     out: Path
@@ -108,9 +117,17 @@ def _settings(args: argparse.Namespace) -> _Settings:
         raise ValueError(f"--square must be a positive length in metres, got {args.square!r}")
     if args.square > 0.5:
         raise ValueError(f"--square {args.square:g} m is not a checkerboard square; give the side in metres")
-    extrinsic_given = [args.extrinsic is not None, args.board_pose is not None, args.board_origin is not None]
+    touch = getattr(args, "touch", None)
+    if args.board_pose is not None and touch is not None:
+        raise ValueError("--board-pose and --touch both give the board's pose: give one")
+    extrinsic_given = [args.extrinsic is not None, args.board_pose is not None or touch is not None,
+                       args.board_origin is not None]
     if any(extrinsic_given) and not all(extrinsic_given):
-        raise ValueError("--extrinsic, --board-pose and --board-origin go together: give all three or none")
+        raise ValueError(
+            "--extrinsic, --board-pose (or --touch) and --board-origin go together: give all three or none"
+        )
+    if touch is not None and not Path(touch).is_file():
+        raise FileNotFoundError(f"--touch {touch} does not exist")
     if args.fps is not None and not (math.isfinite(args.fps) and args.fps > 0):
         raise ValueError(f"--fps must be a positive number, got {args.fps!r}")
     from dyndlo_vision._atomic import check_output_file
@@ -129,10 +146,44 @@ def _settings(args: argparse.Namespace) -> _Settings:
         distortion=str(args.distortion),
         extrinsic=extrinsic,
         board_pose=None if args.board_pose is None else _numbers(args.board_pose, 6, "--board-pose"),
+        touch=None if touch is None else Path(touch),
         board_origin=None if args.board_origin is None else _numbers(args.board_origin, 2, "--board-origin"),
         fps=None if args.fps is None else float(args.fps),
         out=out,
     )
+
+
+def read_touches(path: Path) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """A touch file: CSV, header ``col,row,x,y,z`` (corner indices; TCP position in m), one corner a row.
+
+    Raises:
+        CalibrationInputError: A missing column, a non-number, or no rows (naming the file and line).
+    """
+    import csv
+
+    from dyndlo_vision.tracking.calibration import CalibrationInputError
+
+    with open(path, newline="") as f:
+        reader = csv.DictReader(f)
+        need = ["col", "row", "x", "y", "z"]
+        if reader.fieldnames is None or any(c not in reader.fieldnames for c in need):
+            raise CalibrationInputError(f"{path}: expected a CSV header with columns {','.join(need)}, got "
+                                        f"{reader.fieldnames}")
+        ij, xyz = [], []
+        for line, row in enumerate(reader, start=2):
+            try:
+                values = [float(row[c]) for c in need]
+            except (TypeError, ValueError):
+                raise CalibrationInputError(
+                    f"{path} line {line}: expected numbers in {need}, got {row}"
+                ) from None
+            if not np.all(np.isfinite(values)):
+                raise CalibrationInputError(f"{path} line {line}: non-finite value in {row}")
+            ij.append(values[:2])
+            xyz.append(values[2:])
+    if not ij:
+        raise CalibrationInputError(f"{path}: no touched corners")
+    return np.array(ij), np.array(xyz)
 
 
 def _read_gray(path: Path) -> NDArray[np.uint8]:
@@ -148,6 +199,7 @@ def run(args: argparse.Namespace) -> int:
     """Detect the board, calibrate, and write the JSON."""
     from dyndlo_vision.tracking.calibration import (
         Checkerboard,
+        board_pose_from_touches,
         calibrate_intrinsics,
         find_board,
         pose_from_board,
@@ -157,6 +209,11 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = _settings(args)
     board = Checkerboard(cfg.cols, cfg.rows, cfg.square_m)
+    touch_rms = None
+    if cfg.touch is not None:  # checked before the (slower) corner detection
+        board_rotation, board_origin_m, touch_rms = board_pose_from_touches(board, *read_touches(cfg.touch))
+    elif cfg.board_pose is not None:
+        board_rotation, board_origin_m = rotation_rpy(*cfg.board_pose[3:]), cfg.board_pose[:3]
     size: tuple[int, int] | None = None
     views, missed = [], []
     for path in cfg.images:
@@ -182,7 +239,7 @@ def run(args: argparse.Namespace) -> int:
     intrinsics = calibrate_intrinsics([c for _, c in views], board, size, cfg.distortion)
     R, t, extrinsic_rms = np.eye(3), np.zeros(3), None
     if cfg.extrinsic is not None:
-        assert cfg.board_pose is not None and cfg.board_origin is not None
+        assert cfg.board_origin is not None
         gray = _read_gray(cfg.extrinsic)
         if (gray.shape[1], gray.shape[0]) != size:
             raise ValueError(
@@ -200,8 +257,8 @@ def run(args: argparse.Namespace) -> int:
             board,
             intrinsics.K,
             intrinsics.dist,
-            rotation_rpy(*cfg.board_pose[3:]),
-            cfg.board_pose[:3],
+            board_rotation,
+            board_origin_m,
             cfg.board_origin,
         )
     camera = PinholeCamera(
@@ -218,6 +275,8 @@ def run(args: argparse.Namespace) -> int:
         f"fx {k[0, 0]:.2f} px, fy {k[1, 1]:.2f} px, principal point ({k[0, 2]:.1f}, {k[1, 2]:.1f}), "
         f"distortion {np.round(intrinsics.dist, 5).tolist()}"
     )
+    if touch_rms is not None:
+        print(f"board pose from {cfg.touch}: touched corners fit the board to {touch_rms * 1e3:.2f} mm RMS")
     if extrinsic_rms is not None:
         centre = ", ".join(f"{c:.4f}" for c in camera.center)
         print(

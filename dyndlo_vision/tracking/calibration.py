@@ -252,3 +252,67 @@ def pose_from_board(
     R = r_cb @ r_wb.T
     t = tvec.reshape(3) - R @ np.asarray(board_origin_m, dtype=np.float64)
     return R, t, rms
+
+
+#: Touched corners must fit the board to this RMS (m): more means a wrong index, square size or touch.
+MAX_TOUCH_RMS_M = 0.005
+
+
+def board_pose_from_touches(
+    board: Checkerboard, corners_ij: NDArray[np.float64], points_world: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+    """The board's pose in the world from corners touched with the robot's TCP.
+
+    The rigid transform that best maps the touched corners' board positions onto the TCP positions
+    (least squares, Kabsch's SVD solution with the reflection excluded).
+
+    Args:
+        board: The board.
+        corners_ij: (N, 2) the touched corners' indices: column (along the board's x) and row (along y),
+            from 0 at the origin corner.
+        points_world: (N, 3) the TCP positions touching them, in the robot's base frame (m).
+
+    Returns:
+        ``(R_wb, origin_m, rms_m)``: ``x_world = R_wb @ x_board + origin_m``, and the fit's RMS residual.
+
+    Raises:
+        CalibrationInputError: Fewer than 3 corners, corners on one line, an index outside the board, or
+            a residual above :data:`MAX_TOUCH_RMS_M`.
+    """
+    ij = np.asarray(corners_ij, dtype=np.float64)
+    world = np.asarray(points_world, dtype=np.float64)
+    if ij.ndim != 2 or ij.shape[1] != 2 or world.shape != (len(ij), 3):
+        raise CalibrationInputError(f"need (N, 2) corner indices and (N, 3) points, got {ij.shape} and "
+                                    f"{world.shape}")
+    if len(ij) < 3:
+        raise CalibrationInputError(f"touch at least 3 corners not on one line, got {len(ij)}")
+    bad = np.flatnonzero((ij[:, 0] < 0) | (ij[:, 0] > board.cols - 1) | (ij[:, 1] < 0)
+                         | (ij[:, 1] > board.rows - 1) | (ij != np.round(ij)).any(axis=1))
+    if bad.size:
+        raise CalibrationInputError(
+            f"touched corner {ij[bad[0]].tolist()} is not an inner corner of a "
+            f"{board.cols}x{board.rows} board (columns 0-{board.cols - 1}, rows 0-{board.rows - 1})"
+        )
+    local = np.column_stack([ij * board.square_m, np.zeros(len(ij))])
+    spread = np.linalg.svd(local[:, :2] - local[:, :2].mean(axis=0), compute_uv=False)
+    if spread[-1] < 0.5 * board.square_m:
+        raise CalibrationInputError(
+            "the touched corners lie on one line (or nearly): they do not fix the board's rotation about it; "
+            "touch corners spread over both directions of the board"
+        )
+    a, b = local - local.mean(axis=0), world - world.mean(axis=0)
+    u, _, vt = np.linalg.svd(b.T @ a)
+    d = np.sign(np.linalg.det(u @ vt))
+    r_wb = u @ np.diag([1.0, 1.0, d]) @ vt
+    origin = world.mean(axis=0) - r_wb @ local.mean(axis=0)
+    residual = world - (local @ r_wb.T + origin)
+    rms = float(np.sqrt(np.mean(np.sum(residual**2, axis=1))))
+    if rms > MAX_TOUCH_RMS_M:
+        worst = int(np.argmax(np.linalg.norm(residual, axis=1)))
+        raise CalibrationInputError(
+            f"the touched points do not fit the board: RMS {rms * 1e3:.1f} mm (at most "
+            f"{MAX_TOUCH_RMS_M * 1e3:.0f} mm), worst at corner {ij[worst].astype(int).tolist()} "
+            f"({np.linalg.norm(residual[worst]) * 1e3:.1f} mm); check the indices, --square and the touches"
+        )
+    return r_wb, origin, rms
+
