@@ -29,7 +29,7 @@ HELP = "calibrate a real camera from checkerboard photos: intrinsics, distortion
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``calibrate``."""
-    from dyndlo_vision.tracking.calibration import DISTORTION_MODELS, MIN_VIEWS
+    from dyndlo_vision.tracking.calibration import CHARUCO_DICTIONARIES, DISTORTION_MODELS, MIN_VIEWS
 
     p.add_argument(
         "images",
@@ -38,12 +38,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help=f"photos of the checkerboard at different tilts (files or folders of them; at least {MIN_VIEWS} "
         "with the board found)",
     )
-    p.add_argument(
+    target = p.add_mutually_exclusive_group(required=True)
+    target.add_argument(
         "--board",
-        required=True,
         metavar="COLSxROWS",
-        help="inner corners per row and per column, e.g. 9x6 for a board of 10x7 squares",
+        help="a checkerboard: inner corners per row and per column, e.g. 9x6 for a board of 10x7 squares",
     )
+    target.add_argument(
+        "--charuco",
+        metavar="SQUARESxSQUARES",
+        help="a ChArUco board (OpenCV's): squares across and down, e.g. 7x5; the photos may show part of it, "
+        "and the extrinsic photo needs no --board-origin (needs --marker)",
+    )
+    p.add_argument("--marker", type=float, metavar="M",
+                   help="with --charuco: the ArUco markers' side in metres")
+    p.add_argument("--dictionary", choices=CHARUCO_DICTIONARIES, default="5X5_100",
+                   help="with --charuco: the markers' ArUco dictionary")
     p.add_argument("--square", required=True, type=float, metavar="M", help="square side in metres")
     p.add_argument(
         "--distortion",
@@ -73,7 +83,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--board-origin",
         metavar="U,V",
-        help="with --extrinsic: a pixel near the board's origin corner in that photo",
+        help="with --extrinsic and --board: a pixel near the board's origin corner in that photo",
     )
     p.add_argument("--fps", type=float, help="frame rate to write to the file (optional)")
     p.add_argument(
@@ -84,9 +94,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 @dataclass(frozen=True)
 class _Settings:
     images: list[Path]
-    cols: int
+    charuco: bool
+    cols: int  # checkerboard: inner corners; ChArUco: squares
     rows: int
     square_m: float
+    marker_m: float | None
+    dictionary: str
     distortion: str
     extrinsic: Path | None
     board_pose: NDArray[np.float64] | None
@@ -109,10 +122,21 @@ def _numbers(text: str, count: int, option: str) -> NDArray[np.float64]:
 
 def _settings(args: argparse.Namespace) -> _Settings:
     """Validates every argument (raises ValueError naming the bad one)."""
-    board = str(args.board).lower().split("x")
+    charuco = args.charuco is not None
+    option, text = ("--charuco", args.charuco) if charuco else ("--board", args.board)
+    board = str(text).lower().split("x")
     if len(board) != 2 or not all(b.strip().isdigit() for b in board):
-        raise ValueError(f"--board must be COLSxROWS inner corners, e.g. 9x6, got {args.board!r}")
+        what = "SQUARESxSQUARES, e.g. 7x5" if charuco else "COLSxROWS inner corners, e.g. 9x6"
+        raise ValueError(f"{option} must be {what}, got {text!r}")
     cols, rows = (int(b) for b in board)
+    if charuco and args.marker is None:
+        raise ValueError("--charuco needs --marker, the markers' side in metres")
+    if not charuco and args.marker is not None:
+        raise ValueError("--marker goes with --charuco; a checkerboard has no markers")
+    if charuco and args.board_origin is not None:
+        raise ValueError(
+            "--board-origin is for a checkerboard; a ChArUco board's corners are known by their ids"
+        )
     if not (math.isfinite(args.square) and args.square > 0):
         raise ValueError(f"--square must be a positive length in metres, got {args.square!r}")
     if args.square > 0.5:
@@ -120,11 +144,13 @@ def _settings(args: argparse.Namespace) -> _Settings:
     touch = getattr(args, "touch", None)
     if args.board_pose is not None and touch is not None:
         raise ValueError("--board-pose and --touch both give the board's pose: give one")
-    extrinsic_given = [args.extrinsic is not None, args.board_pose is not None or touch is not None,
-                       args.board_origin is not None]
+    extrinsic_given = [args.extrinsic is not None, args.board_pose is not None or touch is not None]
+    if not charuco:
+        extrinsic_given.append(args.board_origin is not None)
     if any(extrinsic_given) and not all(extrinsic_given):
         raise ValueError(
             "--extrinsic, --board-pose (or --touch) and --board-origin go together: give all three or none"
+            if not charuco else "--extrinsic and --board-pose (or --touch) go together: give both or neither"
         )
     if touch is not None and not Path(touch).is_file():
         raise FileNotFoundError(f"--touch {touch} does not exist")
@@ -140,9 +166,12 @@ def _settings(args: argparse.Namespace) -> _Settings:
         raise FileNotFoundError(f"--extrinsic {extrinsic} does not exist")
     return _Settings(
         images=image_files(args.images),
+        charuco=charuco,
         cols=cols,
         rows=rows,
         square_m=float(args.square),
+        marker_m=None if args.marker is None else float(args.marker),
+        dictionary=str(args.dictionary),
         distortion=str(args.distortion),
         extrinsic=extrinsic,
         board_pose=None if args.board_pose is None else _numbers(args.board_pose, 6, "--board-pose"),
@@ -198,17 +227,35 @@ def _read_gray(path: Path) -> NDArray[np.uint8]:
 def run(args: argparse.Namespace) -> int:
     """Detect the board, calibrate, and write the JSON."""
     from dyndlo_vision.tracking.calibration import (
+        BoardView,
+        CharucoBoard,
         Checkerboard,
         board_pose_from_touches,
         calibrate_intrinsics,
         find_board,
+        find_charuco,
         pose_from_board,
+        pose_from_points,
         rotation_rpy,
     )
     from dyndlo_vision.tracking.camera_model import PinholeCamera
 
     cfg = _settings(args)
-    board = Checkerboard(cfg.cols, cfg.rows, cfg.square_m)
+    board: Checkerboard | CharucoBoard
+    if cfg.charuco:
+        assert cfg.marker_m is not None
+        board = CharucoBoard(cfg.cols, cfg.rows, cfg.square_m, cfg.marker_m, cfg.dictionary)
+        name = f"{cfg.cols}x{cfg.rows} ChArUco"
+    else:
+        board = Checkerboard(cfg.cols, cfg.rows, cfg.square_m)
+        name = f"{cfg.cols}x{cfg.rows}"
+
+    def detect(gray: NDArray[np.uint8]) -> BoardView | None:
+        if isinstance(board, CharucoBoard):
+            return find_charuco(gray, board)
+        corners = find_board(gray, board)
+        return None if corners is None else BoardView(board.points, corners)
+
     touch_rms = None
     if cfg.touch is not None:  # checked before the (slower) corner detection
         board_rotation, board_origin_m, touch_rms = board_pose_from_touches(board, *read_touches(cfg.touch))
@@ -226,41 +273,38 @@ def run(args: argparse.Namespace) -> int:
                 f"{path} is {shape[0]}x{shape[1]}, but {cfg.images[0]} is {size[0]}x{size[1]}: one camera, "
                 "one image size"
             )
-        corners = find_board(gray, board)
-        (views if corners is not None else missed).append((path, corners))
+        found = detect(gray)
+        (views if found is not None else missed).append((path, found))
     assert size is not None
     if missed:
         names = ", ".join(str(p) for p, _ in missed[:5]) + (" ..." if len(missed) > 5 else "")
         print(
-            f"note: no {cfg.cols}x{cfg.rows} board found in {len(missed)} of {len(cfg.images)} images "
+            f"note: no {name} board found in {len(missed)} of {len(cfg.images)} images "
             f"({names}); they are not used",
             file=sys.stderr,
         )
     intrinsics = calibrate_intrinsics([c for _, c in views], board, size, cfg.distortion)
     R, t, extrinsic_rms = np.eye(3), np.zeros(3), None
     if cfg.extrinsic is not None:
-        assert cfg.board_origin is not None
         gray = _read_gray(cfg.extrinsic)
         if (gray.shape[1], gray.shape[0]) != size:
             raise ValueError(
                 f"--extrinsic {cfg.extrinsic} is {gray.shape[1]}x{gray.shape[0]}, the other images "
                 f"{size[0]}x{size[1]}"
             )
-        corners = find_board(gray, board)
-        if corners is None:
-            raise ValueError(f"--extrinsic {cfg.extrinsic}: no {cfg.cols}x{cfg.rows} board found")
-        w, h = size
-        if not (0 <= cfg.board_origin[0] < w and 0 <= cfg.board_origin[1] < h):
-            raise ValueError(f"--board-origin {args.board_origin} is outside the {w}x{h} image")
-        R, t, extrinsic_rms = pose_from_board(
-            corners,
-            board,
-            intrinsics.K,
-            intrinsics.dist,
-            board_rotation,
-            board_origin_m,
-            cfg.board_origin,
-        )
+        view = detect(gray)
+        if view is None:
+            raise ValueError(f"--extrinsic {cfg.extrinsic}: no {name} board found")
+        if isinstance(board, CharucoBoard):
+            R, t, extrinsic_rms = pose_from_points(view.object_points, view.image_points, intrinsics.K,
+                                                   intrinsics.dist, board_rotation, board_origin_m)
+        else:
+            assert cfg.board_origin is not None
+            w, h = size
+            if not (0 <= cfg.board_origin[0] < w and 0 <= cfg.board_origin[1] < h):
+                raise ValueError(f"--board-origin {args.board_origin} is outside the {w}x{h} image")
+            R, t, extrinsic_rms = pose_from_board(view.image_points, board, intrinsics.K, intrinsics.dist,
+                                                  board_rotation, board_origin_m, cfg.board_origin)
     camera = PinholeCamera(
         width=size[0], height=size[1], K=intrinsics.K, dist=intrinsics.dist, R=R, t=t, fps=cfg.fps
     )

@@ -2,11 +2,13 @@
 
 Pure computation on OpenCV's calibration functions (``dyndlo-vision calibrate`` is the command around it):
 
-* :func:`find_board` detects a checkerboard's inner corners to sub-pixel accuracy;
+* :func:`find_board` detects a checkerboard's inner corners to sub-pixel accuracy; :func:`find_charuco` the
+  corners a ChArUco board shows (any part of it, each corner known by its id);
 * :func:`calibrate_intrinsics` fits ``K`` and the distortion to several views of the board, and refuses too
   few views and views that cannot fix the focal length (all at nearly the same orientation);
-* :func:`pose_from_board` places the camera in the world (the robot's base frame) from one view of the board
-  lying at a known pose there.
+* :func:`pose_from_board` (checkerboard) and :func:`pose_from_points` (ChArUco) place the camera in the world
+  (the robot's base frame) from one view of the board lying at a known pose there;
+* :func:`board_pose_from_touches` finds that pose from board corners touched with the robot's TCP.
 
 The board frame: origin at the first inner corner, x along a row of corners (``cols`` of them, ``square_m``
 apart), y along a column (``rows`` corners), z = x cross y (into the board for a board seen from its printed
@@ -19,6 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -62,6 +65,9 @@ class Checkerboard:
                 f"the square size must be a positive length in m, got {self.square_m}"
             )
 
+    #: Board-frame position of inner corner (0, 0): the origin.
+    first_corner_m = (0.0, 0.0)
+
     @property
     def points(self) -> NDArray[np.float64]:
         """(cols * rows, 3) corner positions in the board frame, in OpenCV's detection order (row by row)."""
@@ -81,6 +87,97 @@ def find_board(gray: NDArray[np.uint8], board: Checkerboard) -> NDArray[np.float
     criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
     corners = cv2.cornerSubPix(gray, corners, (5, 5), (-1, -1), criteria)
     return corners.reshape(-1, 2).astype(np.float64)
+
+
+#: ArUco dictionaries ``--charuco`` accepts (OpenCV's predefined ones, by their suffix).
+CHARUCO_DICTIONARIES = ("4X4_50", "4X4_100", "5X5_50", "5X5_100", "6X6_50", "6X6_100", "6X6_250")
+#: Fewest ChArUco corners a view must show to be used (OpenCV's pose needs 4; more keep a view well-posed).
+MIN_CHARUCO_CORNERS = 6
+
+
+@dataclass(frozen=True)
+class CharucoBoard:
+    """A ChArUco board: ``squares_x`` x ``squares_y`` squares of ``square_m``, ArUco markers of ``marker_m``
+    in the white ones, from ``dictionary`` (one of :data:`CHARUCO_DICTIONARIES`), as OpenCV's ``CharucoBoard``
+    (its board frame: origin at the board's outer corner by the first marker, x along the first row).
+
+    Each inner corner has an id from the markers around it, so a view may show part of the board, and no
+    numbering is ambiguous (no ``--board-origin``).
+    """
+
+    squares_x: int
+    squares_y: int
+    square_m: float
+    marker_m: float
+    dictionary: str = "5X5_100"
+
+    def __post_init__(self) -> None:
+        if self.squares_x < 3 or self.squares_y < 3:
+            raise CalibrationInputError(
+                f"a ChArUco board needs at least 3 x 3 squares, got {self.squares_x} x {self.squares_y}"
+            )
+        if not (math.isfinite(self.square_m) and self.square_m > 0):
+            raise CalibrationInputError(
+                f"the square size must be a positive length in m, got {self.square_m}"
+            )
+        if not (math.isfinite(self.marker_m) and 0 < self.marker_m < self.square_m):
+            raise CalibrationInputError(
+                f"the marker size must be positive and smaller than the square ({self.square_m} m), got "
+                f"{self.marker_m}"
+            )
+        if self.dictionary not in CHARUCO_DICTIONARIES:
+            raise CalibrationInputError(
+                f"ArUco dictionary {self.dictionary!r}; expected one of {list(CHARUCO_DICTIONARIES)}"
+            )
+
+    def opencv_board(self) -> Any:
+        """OpenCV's ``cv2.aruco.CharucoBoard`` of this board."""
+        import cv2
+
+        aruco = cv2.aruco
+        dictionary = aruco.getPredefinedDictionary(getattr(aruco, f"DICT_{self.dictionary}"))
+        return aruco.CharucoBoard((self.squares_x, self.squares_y), self.square_m, self.marker_m, dictionary)
+
+    @property
+    def cols(self) -> int:
+        """Inner corners per row."""
+        return self.squares_x - 1
+
+    @property
+    def rows(self) -> int:
+        """Inner corners per column."""
+        return self.squares_y - 1
+
+    @property
+    def first_corner_m(self) -> tuple[float, float]:
+        """Board-frame position of inner corner (0, 0) (id 0): one square in from the outer corner."""
+        return (self.square_m, self.square_m)
+
+    @property
+    def points(self) -> NDArray[np.float64]:
+        """(n, 3) the inner corners in the board frame, indexed by their ChArUco id."""
+        return np.asarray(self.opencv_board().getChessboardCorners(), dtype=np.float64).reshape(-1, 3)
+
+
+@dataclass(frozen=True)
+class BoardView:
+    """The board corners one image shows: their board-frame positions and their pixels."""
+
+    object_points: NDArray[np.float64]  # (N, 3)
+    image_points: NDArray[np.float64]  # (N, 2)
+
+
+def find_charuco(gray: NDArray[np.uint8], board: CharucoBoard) -> BoardView | None:
+    """The ChArUco corners an image shows (at least :data:`MIN_CHARUCO_CORNERS`), or None."""
+    import cv2
+
+    cv_board = board.opencv_board()
+    corners, ids, _markers, _marker_ids = cv2.aruco.CharucoDetector(cv_board).detectBoard(gray)
+    if ids is None or len(ids) < MIN_CHARUCO_CORNERS:
+        return None
+    points = np.asarray(cv_board.getChessboardCorners(), dtype=np.float64).reshape(-1, 3)
+    pixels = np.asarray(corners, dtype=np.float64).reshape(-1, 2)
+    return BoardView(points[np.asarray(ids).reshape(-1)], pixels)
 
 
 @dataclass(frozen=True)
@@ -110,10 +207,14 @@ def foreshortening(corners: NDArray[np.float64], board: Checkerboard) -> tuple[f
     one. Returns ``(strength, direction_deg)``: the relative spread of ``w`` over the board's corners, and
     the direction in the image in which ``w`` grows (the tilt's direction).
     """
+    return _foreshortening(board.points[:, :2], corners)
+
+
+def _foreshortening(xy: NDArray[np.float64], corners: NDArray[np.float64]) -> tuple[float, float]:
+    """:func:`foreshortening` of any view: board-frame (N, 2) points and their (N, 2) pixels."""
     import cv2
 
-    xy = board.points[:, :2]
-    h, _ = cv2.findHomography(xy, np.asarray(corners, dtype=np.float64), 0)
+    h, _ = cv2.findHomography(np.asarray(xy, dtype=np.float64), np.asarray(corners, dtype=np.float64), 0)
     ends = np.array([[xy[:, 0].min(), xy[:, 1].min()], [xy[:, 0].max(), xy[:, 1].min()],
                      [xy[:, 0].min(), xy[:, 1].max()], [xy[:, 0].max(), xy[:, 1].max()]])
     w = np.column_stack([ends, np.ones(4)]) @ h[2]
@@ -140,15 +241,16 @@ def _distortion_flags(model: str) -> int:
 
 
 def calibrate_intrinsics(
-    views: list[NDArray[np.float64]],
-    board: Checkerboard,
+    views: list[NDArray[np.float64]] | list[BoardView],
+    board: Checkerboard | CharucoBoard,
     image_size: tuple[int, int],
     distortion: str = "radial",
 ) -> Intrinsics:
     """``K`` and distortion from several views of the board (``fx`` and ``fy`` fitted separately).
 
     Args:
-        views: Each view's detected corners (:func:`find_board`).
+        views: Each view's detected corners: (N, 2) arrays in the checkerboard's order (:func:`find_board`),
+            or :class:`BoardView` (:func:`find_charuco`, a part of the board each).
         board: The board.
         image_size: (width, height) of the images.
         distortion: ``"none"``, ``"radial"`` (k1, k2; default) or ``"full"`` (k1, k2, p1, p2, k3).
@@ -166,7 +268,9 @@ def calibrate_intrinsics(
             f"the board was found in {len(views)} image(s); calibration needs at least {MIN_VIEWS}, showing "
             f"the board tilted different ways"
         )
-    tilts = [foreshortening(v, board) for v in views]
+    pairs = [(v.object_points, v.image_points) if isinstance(v, BoardView) else (board.points, v)
+             for v in views]
+    tilts = [_foreshortening(obj[:, :2], img) for obj, img in pairs]
     directions = np.array([d for strength, d in tilts if strength >= MIN_FORESHORTENING])
     spread = 0.0
     if directions.size >= 2:
@@ -179,8 +283,8 @@ def calibrate_intrinsics(
             f"{MIN_TILT_DIRECTION_SPREAD_DEG:g} are needed to fix the focal length); tilt the board by 20-45 "
             f"degrees in different directions between photos"
         )
-    objects = [board.points.astype(np.float32)] * len(views)
-    images = [v.astype(np.float32).reshape(-1, 1, 2) for v in views]
+    objects = [obj.astype(np.float32) for obj, _ in pairs]
+    images = [np.asarray(img, dtype=np.float32).reshape(-1, 1, 2) for _, img in pairs]
     rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(objects, images, image_size, None, None, flags=flags)
     per_view = []
     for obj, img, r, t in zip(objects, images, rvecs, tvecs, strict=True):
@@ -238,10 +342,24 @@ def pose_from_board(
     Returns:
         ``(R, t, rms_px)``: ``x_cam = R @ x_world + t``, and the reprojection error of the view.
     """
+    uv = orient_corners(corners, board, origin_uv)
+    return pose_from_points(board.points, uv, K, dist, board_rotation, board_origin_m)
+
+
+def pose_from_points(
+    object_points: NDArray[np.float64],
+    image_points: NDArray[np.float64],
+    K: NDArray[np.float64],
+    dist: NDArray[np.float64],
+    board_rotation: NDArray[np.float64],
+    board_origin_m: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+    """:func:`pose_from_board` for corners already matched: (N, 3) board-frame points and their (N, 2) pixels
+    (a :class:`BoardView`)."""
     import cv2
 
-    uv = orient_corners(corners, board, origin_uv)
-    obj = board.points.astype(np.float64)
+    obj = np.asarray(object_points, dtype=np.float64)
+    uv = np.asarray(image_points, dtype=np.float64)
     ok, rvec, tvec = cv2.solvePnP(obj, uv, K, dist, flags=cv2.SOLVEPNP_ITERATIVE)
     if not ok:
         raise CalibrationInputError("the board's pose could not be solved from the extrinsic image")
@@ -259,7 +377,7 @@ MAX_TOUCH_RMS_M = 0.005
 
 
 def board_pose_from_touches(
-    board: Checkerboard, corners_ij: NDArray[np.float64], points_world: NDArray[np.float64]
+    board: Checkerboard | CharucoBoard, corners_ij: NDArray[np.float64], points_world: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
     """The board's pose in the world from corners touched with the robot's TCP.
 
@@ -268,8 +386,8 @@ def board_pose_from_touches(
 
     Args:
         board: The board.
-        corners_ij: (N, 2) the touched corners' indices: column (along the board's x) and row (along y),
-            from 0 at the origin corner.
+        corners_ij: (N, 2) the touched inner corners' indices: column (along the board's x) and row (along
+            y), from 0 at the first inner corner (a checkerboard's origin; a ChArUco board's corner id 0).
         points_world: (N, 3) the TCP positions touching them, in the robot's base frame (m).
 
     Returns:
@@ -293,7 +411,7 @@ def board_pose_from_touches(
             f"touched corner {ij[bad[0]].tolist()} is not an inner corner of a "
             f"{board.cols}x{board.rows} board (columns 0-{board.cols - 1}, rows 0-{board.rows - 1})"
         )
-    local = np.column_stack([ij * board.square_m, np.zeros(len(ij))])
+    local = np.column_stack([np.asarray(board.first_corner_m) + ij * board.square_m, np.zeros(len(ij))])
     spread = np.linalg.svd(local[:, :2] - local[:, :2].mean(axis=0), compute_uv=False)
     if spread[-1] < 0.5 * board.square_m:
         raise CalibrationInputError(

@@ -6,6 +6,8 @@ RGB uint8 drawn with anti-aliased ``cv2.polylines`` at sub-pixel precision.
 
 from __future__ import annotations
 
+from typing import Any
+
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -143,12 +145,6 @@ def render_checkerboard(
     square around them, are warped into the image through their homography at ``supersample`` times the
     resolution and averaged down (anti-aliased edges), on a uniform ``background``.
     """
-    w, h = size
-    k = np.asarray(camera_K, dtype=np.float64)
-    r_cb = np.asarray(camera_R, dtype=np.float64) @ np.asarray(board_rotation, dtype=np.float64)
-    t_cb = np.asarray(camera_R, dtype=np.float64) @ np.asarray(board_origin_m, dtype=np.float64) + np.asarray(
-        camera_t, dtype=np.float64
-    )
     p = px_per_square
     n_x, n_y = cols + 3, rows + 3  # squares: cols + 1 across, plus a white margin square on each side
     texture = np.full((n_y * p, n_x * p), 255, np.uint8)
@@ -160,10 +156,69 @@ def render_checkerboard(
     a = np.array([[square_m / p, 0.0, (0.5 / p - 2.0) * square_m],
                   [0.0, square_m / p, (0.5 / p - 2.0) * square_m],
                   [0.0, 0.0, 1.0]])
+    return render_planar_texture(camera_K, camera_R, camera_t, size, texture, a, board_rotation,
+                                 board_origin_m, background, supersample)
+
+
+def render_charuco(
+    camera_K: ArrayLike,
+    camera_R: ArrayLike,
+    camera_t: ArrayLike,
+    size: tuple[int, int],
+    board: Any,
+    board_rotation: ArrayLike,
+    board_origin_m: ArrayLike,
+    background: int = 110,
+    supersample: int = 4,
+    px_per_square: int = 120,
+) -> NDArray[np.uint8]:
+    """A grey image of a ChArUco board (:class:`~dyndlo_vision.tracking.calibration.CharucoBoard`) seen by a
+    pinhole camera, with a white margin of one square; frames and arguments as :func:`render_checkerboard`
+    (the board frame is OpenCV's: origin at the board's outer corner by the first marker).
+
+    The texture needs enough pixels per square that the markers' bits fall on whole texture pixels: at 60 the
+    detected corners were up to 0.32 px off their projections, at 120 (default) 0.00 px (frontal views).
+    """
+    p = px_per_square
+    inner = board.opencv_board().generateImage((board.squares_x * p, board.squares_y * p), marginSize=0)
+    texture = np.full(((board.squares_y + 2) * p, (board.squares_x + 2) * p), 255, np.uint8)
+    texture[p:-p, p:-p] = inner
+    # Texture pixel centre (u, v) -> board (x, y) = ((u + 0.5) / p - 1, (v + 0.5) / p - 1) squares.
+    sq = board.square_m
+    a = np.array([[sq / p, 0.0, (0.5 / p - 1.0) * sq], [0.0, sq / p, (0.5 / p - 1.0) * sq], [0.0, 0.0, 1.0]])
+    return render_planar_texture(camera_K, camera_R, camera_t, size, texture, a, board_rotation,
+                                 board_origin_m, background, supersample)
+
+
+def render_planar_texture(
+    camera_K: ArrayLike,
+    camera_R: ArrayLike,
+    camera_t: ArrayLike,
+    size: tuple[int, int],
+    texture: NDArray[np.uint8],
+    texture_to_board: NDArray[np.float64],
+    board_rotation: ArrayLike,
+    board_origin_m: ArrayLike,
+    background: int = 110,
+    supersample: int = 4,
+) -> NDArray[np.uint8]:
+    """A grey texture on a plane seen by a pinhole camera, anti-aliased, on a uniform ``background``.
+
+    ``texture_to_board`` (3x3) maps texture pixel centres (u, v, 1) to board-frame (x, y, 1) in metres; the
+    board frame sits at ``x_world = board_rotation @ x_board + board_origin_m``, the camera at ``x_cam =
+    camera_R @ x_world + camera_t``. The texture is warped through the homography at ``supersample`` times
+    the resolution and averaged down.
+    """
+    w, h = size
+    k = np.asarray(camera_K, dtype=np.float64)
+    r_cb = np.asarray(camera_R, dtype=np.float64) @ np.asarray(board_rotation, dtype=np.float64)
+    t_cb = np.asarray(camera_R, dtype=np.float64) @ np.asarray(board_origin_m, dtype=np.float64) + np.asarray(
+        camera_t, dtype=np.float64
+    )
     s = float(supersample)
     # Image pixel centres at integers: a supersampled pixel (x, y) is image point ((x + 0.5) / s - 0.5, ...).
     up = np.array([[s, 0.0, 0.5 * s - 0.5], [0.0, s, 0.5 * s - 0.5], [0.0, 0.0, 1.0]])
-    homography = up @ k @ np.column_stack([r_cb[:, 0], r_cb[:, 1], t_cb]) @ a
+    homography = up @ k @ np.column_stack([r_cb[:, 0], r_cb[:, 1], t_cb]) @ texture_to_board
     big = cv2.warpPerspective(texture, homography, (w * supersample, h * supersample), flags=cv2.INTER_LINEAR,
                               borderMode=cv2.BORDER_CONSTANT, borderValue=256)
     mask = cv2.warpPerspective(np.ones_like(texture), homography, (w * supersample, h * supersample),
