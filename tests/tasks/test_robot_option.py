@@ -8,6 +8,7 @@ import pickle
 import numpy as np
 import pytest
 
+from dyndlo_vision.tasks.base import JOINT_EXCESS_CAP
 from dyndlo_vision.tasks.registry import make_env
 from dyndlo_vision.tasks.rewards import TABLE_V
 
@@ -50,7 +51,11 @@ def test_a_plan_the_arm_cannot_follow_is_refused_and_costs_the_avoid_penalty(env
     assert info["joint_feasible"] is False and info["avoid"]["joints"] is True
     assert "breaks the limit" in info["joint_limit_reason"] or info["joint_limit_reason"].startswith("IK:")
     coeffs = TABLE_V["tip_control"]
-    assert info["r_avoid"] == coeffs.avoid and reward == coeffs.avoid + coeffs.distance
+    usage = info["joint_usage"]
+    excess = max(usage["velocity_fraction"], usage["acceleration_fraction"]) - 1.0
+    assert excess > 0
+    assert info["r_avoid"] == pytest.approx(coeffs.avoid * (1.0 + min(excess, JOINT_EXCESS_CAP)))
+    assert reward == pytest.approx(info["r_avoid"] + coeffs.distance)
     # Nothing of it ran: the TCP is still at home, no time passed, no success.
     assert terminated and info["sim_time_s"] == 0.0 and info["is_success"] is False
     assert env.unwrapped.monitor.max_tcp_speed_m_s < 1e-6
@@ -60,6 +65,24 @@ def test_a_plan_the_arm_cannot_follow_is_refused_and_costs_the_avoid_penalty(env
     _, _, _, _, info_plain = plain.step(fast_action(plain))
     assert "joints" not in info_plain["avoid"] and not any(info_plain["avoid"].values())
     plain.close()
+
+
+def test_the_refusal_penalty_grows_with_the_excess_and_is_capped(env):
+    """Faster versions of the same flick break the limits further and cost more, up to 4 lambda_1; a plan
+    just over the limits costs about lambda_1, never less."""
+    spec = env.unwrapped.spec_actions
+    penalties = []
+    for duration in (0.6, 0.45, 0.3, 0.1):
+        env.reset(seed=1)
+        p0 = np.asarray(env.unwrapped.scene.tcp_positions()[0])
+        points = p0 + np.array([[0, 0, 0], [0.1, 0, 0], [0.1, 0, 0.1], [0.0, 0, 0.1]])
+        times = np.array([0.0, 1.0, 2.0, 3.0]) * duration / 3
+        info = env.step(spec.encode(points, np.maximum(times, [0, 0.1, 0.2, 0.3])).astype(np.float32))[4]
+        penalties.append(info["r_avoid"])
+    avoid = TABLE_V["tip_control"].avoid
+    assert all(a >= b for a, b in zip(penalties, penalties[1:], strict=False)), penalties
+    assert penalties[-1] == pytest.approx(avoid * (1 + JOINT_EXCESS_CAP))
+    assert all(avoid * (1 + JOINT_EXCESS_CAP) <= p < 0 for p in penalties)
 
 
 def test_the_next_episode_starts_feasible_again(env):
