@@ -590,12 +590,10 @@ class ArmKinematics:
         q_prev = np.array(self.arm.seed_rad if seed is None else seed, dtype=float)
         self._joints(q_prev)
         n = ts.size
-        # Coarse samples: the first, the last, and one every coarse_step_s.
-        coarse = np.unique(
-            np.concatenate(
-                [[0, n - 1], np.searchsorted(ts, np.arange(ts[0], ts[-1], self.options.coarse_step_s))]
-            )
-        )
+        # Coarse samples: the first, the last, and one every coarse_step_s. (np.arange's last value can round
+        # past ts[-1], where searchsorted answers n: clipped to the last sample.)
+        steps = np.searchsorted(ts, np.arange(ts[0], ts[-1], self.options.coarse_step_s))
+        coarse = np.unique(np.concatenate([[0, n - 1], np.minimum(steps, n - 1)]))
         q_coarse = np.empty((coarse.size, 6))
         for k, i in enumerate(coarse):
             res = None

@@ -1,0 +1,174 @@
+"""The pieces of `dyndlo-vision run`: the config schema, the scripted plan, the simulated camera placed from a
+calibration, the plan splicing of HorizonRobot, and IK over spans whose coarse grid rounds past the end."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from dyndlo_vision.control.robot_run import HorizonRobot
+from dyndlo_vision.control.run_config import ConfigError, parse_run_config
+from dyndlo_vision.control.scripted import SlowReach
+from dyndlo_vision.robots.kinematics import ArmKinematics, abb_gofa_crb15000
+from dyndlo_vision.robots.protocol import Setpoints, TcpState
+from dyndlo_vision.robots.safety import WorkspaceBox
+from dyndlo_vision.tasks.tip_control import TCP_HOME_M, TipControl
+from dyndlo_vision.tracking.camera_model import PinholeCamera
+from dyndlo_vision.trajectory import Replanner
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+
+
+def minimal(**robot: Any) -> dict[str, Any]:
+    return {
+        "robot": {"driver": "egm", "arm": "gofa", **robot},
+        "camera": {"source": "simulated", "calibration": "tracking-camera.json"},
+        "target": [0.7, 0.0, 0.3],
+        "policy": "scripted:slow-reach",
+        "safety": {"workspace": {"min": [0, -1, 0], "max": [1, 1, 1]}, "max_tcp_speed": 1.0, "duration_s": 5},
+    }
+
+
+def test_config_defaults_and_paths() -> None:
+    cfg = parse_run_config(minimal(), EXAMPLES / "x.yaml")
+    assert cfg.robot.port == 6510 and cfg.robot.connect_timeout_s == 3.0 and cfg.robot.base_pose is None
+    assert cfg.robot.tool_offset == (0.0, 0.0, 0.0) and cfg.robot.plan_lead_s == 0.08
+    assert cfg.camera.calibration == EXAMPLES / "tracking-camera.json"
+    assert cfg.camera.segmenter == "background" and cfg.task == "tip-control"
+    assert cfg.safety.joint_margin == 0.9
+
+
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        ([1, 2], "the top level: expected a mapping of keys, got [1, 2]"),
+        ({**minimal(), "robot": "gofa"}, "robot: expected a mapping of keys, got 'gofa'"),
+        ({k: v for k, v in minimal().items() if k != "policy"}, "missing key policy"),
+        (minimal(port=True), "robot.port: got True; expected an integer in [1, 65535]"),
+        (minimal(base_pose=[0, 0, 0]), "robot.base_pose: got [0, 0, 0]; expected a list of 6 finite numbers"),
+        ({**minimal(), "camera": {"source": "video", "calibration": "tracking-camera.json",
+                                  "path": "missing.mp4"}}, "camera.path: file not found"),
+        ({**minimal(), "camera": {"source": "device", "calibration": "tracking-camera.json"}},
+         None),
+        ({**minimal(), "camera": {"source": "device", "segmenter": "background",
+                                  "calibration": "tracking-camera.json"}}, "missing key camera.background"),
+        ({**minimal(), "task": "vaulting"}, "task: got 'vaulting'; expected one of ['tip-control']"),
+    ],
+)
+def test_config_errors_name_the_key(data: Any, message: str | None) -> None:
+    if message is None:
+        parse_run_config(data, EXAMPLES / "x.yaml")  # a device camera defaults to the learned segmenter
+        return
+    with pytest.raises((ConfigError, FileNotFoundError)) as err:
+        parse_run_config(data, EXAMPLES / "x.yaml")
+    assert message in str(err.value)
+
+
+def test_slow_reach_plans_to_the_hanging_tip_at_the_target() -> None:
+    spec = TipControl(planar=True).action_spec()
+    home = np.array(TCP_HOME_M)
+    goal = np.array([0.62, 0.0, 0.2])
+    obs = np.concatenate([home, np.zeros(3), home - [0.0, 0.0, 0.5], goal])
+    action = SlowReach(spec)(obs)
+    assert action.shape == (spec.size,) and np.all(np.abs(action) <= 1.0)
+    points, times = spec.decode(action.astype(float), home, 0.0)
+    np.testing.assert_allclose(points[-1], goal + [0.0, 0.0, 0.5], atol=1e-6)
+    np.testing.assert_allclose(np.diff(times), 0.5)  # the slowest segments
+    # Out of reach: as far along the line as reachable, less the margin.
+    limit = 0.7
+
+    def reachable(p: np.ndarray) -> bool:
+        return bool(np.linalg.norm(p - [0.0, 0.0, 0.265]) <= limit)
+
+    dest = SlowReach(spec, reachable).destination(np.concatenate([home, np.zeros(3), home - [0, 0, 0.5],
+                                                                  [0.85, 0.0, 0.45]]))
+    assert reachable(dest)
+    assert np.linalg.norm(dest - [0.0, 0.0, 0.265]) == pytest.approx(limit - 0.03, abs=0.01)
+
+
+def test_scene_camera_placed_from_a_calibration() -> None:
+    from dyndlo_vision.cameras.simulated import MujocoCamera
+    from dyndlo_vision.control.dry_run import place_scene_camera
+    from dyndlo_vision.tasks.registry import make_env
+
+    env = make_env("tip-control")
+    env.reset(seed=0)
+    base = env.unwrapped
+    shipped = PinholeCamera.from_json(EXAMPLES / "tracking-camera.json")
+    # Another pose and focal length than the scene's camera: moved 20 cm, turned 10 degrees, zoomed.
+    from dyndlo_vision.robots.kinematics import rotation_x
+
+    R = shipped.R @ rotation_x(np.radians(10.0)).T
+    center = shipped.center + [0.2, 0.1, -0.05]
+    K = shipped.K.copy()
+    K[0, 0] = K[1, 1] = 500.0
+    calib = PinholeCamera(width=640, height=480, K=K, dist=np.zeros(0), R=R, t=-R @ center)
+    place_scene_camera(base.model, base.data, "tracking", calib)
+    cam = MujocoCamera(base.model, base.data, "tracking")
+    try:
+        points = np.array([[0.45, 0.0, 0.6], [0.8, 0.0, 0.4], [0.6, 0.2, 0.1]])
+        np.testing.assert_allclose(cam.calibration.project(points), calib.project(points), atol=1e-6)
+    finally:
+        cam.close()
+    distorted = PinholeCamera(width=640, height=480, K=K, dist=[0.1, 0, 0, 0], R=R, t=-R @ center)
+    with pytest.raises(ValueError, match="cannot reproduce this calibration: lens distortion"):
+        place_scene_camera(base.model, base.data, "tracking", distorted)
+
+
+class _Driver:
+    """Just what HorizonRobot uses of a driver."""
+
+    period_s = 0.004
+
+    def __init__(self) -> None:
+        self.t = 1.0
+        self.position = np.array([TCP_HOME_M])
+        self.sent: list[Setpoints] = []
+
+    def state(self) -> TcpState:
+        return TcpState(self.position, np.zeros((1, 3)), self.t)
+
+    commanded_state = state
+
+    def send(self, setpoints: Setpoints) -> None:
+        self.sent.append(setpoints)
+
+
+def test_horizon_robot_sends_the_old_plan_until_the_new_one_starts() -> None:
+    spec = TipControl(planar=True).action_spec()
+    replanner = Replanner(spec, np.array([TCP_HOME_M]))
+    driver = _Driver()
+    robot = HorizonRobot(driver, replanner, WorkspaceBox((-2, -2, -2), (2, 2, 2)), 10.0, lead_s=0.08,
+                         first_lead_s=0.25)
+    assert robot.state().t == pytest.approx(1.25)  # the first plan: the long lead
+    first = replanner.replan(np.full(spec.size, 0.3), robot.state().t)
+    robot.send(Setpoints(np.array([0.0]), np.zeros((1, 1, 3)), np.zeros((1, 1, 3))))
+    sent = driver.sent[-1]
+    assert sent.t[0] == pytest.approx(1.004) and sent.t[-1] >= first.t_end - 1e-9
+    np.testing.assert_allclose(np.diff(sent.t), 0.004)
+    held = sent.t <= 1.25
+    np.testing.assert_allclose(sent.position[held, 0], np.tile(TCP_HOME_M, (held.sum(), 1)))
+    driver.t, driver.position = 1.5, first.position(np.array([1.5]))
+    assert robot.state().t == pytest.approx(1.58)  # re-plans: the short lead
+    second = replanner.replan(np.full(spec.size, -0.3), robot.state().t)
+    robot.send(Setpoints(np.array([0.0]), np.zeros((1, 1, 3)), np.zeros((1, 1, 3))))
+    sent = driver.sent[-1]
+    before = sent.t < second.t_start
+    np.testing.assert_allclose(sent.position[before, 0], first.position(sent.t[before]))
+    np.testing.assert_allclose(sent.position[~before, 0], second.position(sent.t[~before]))
+    assert robot.max_late_s == pytest.approx(1.5 - 1.58)
+
+
+def test_joint_trajectory_when_the_coarse_grid_rounds_past_the_end() -> None:
+    """np.arange(t0, t1, 0.02) can end a rounding error past t1; the IK used to index past its samples."""
+    kin = ArmKinematics(abb_gofa_crb15000())
+    q0 = kin.ik(np.array(TCP_HOME_M)).q
+    starts = np.arange(0.5, 0.7, 0.004)
+    for t0 in starts:
+        ts = np.linspace(t0, t0 + 1.32, 331)
+        traj = kin.joint_trajectory(ts, np.tile(TCP_HOME_M, (ts.size, 1)), q0)
+        np.testing.assert_allclose(traj.q, np.tile(q0, (ts.size, 1)), atol=1e-6)
+    assert any(np.arange(t0, t0 + 1.32, 0.02)[-1] > np.linspace(t0, t0 + 1.32, 331)[-1] for t0 in starts)
