@@ -16,4 +16,5 @@ COMMANDS: dict[str, str] = {
     "seg-data": "seg_data",
     "seg-train": "seg_train",
     "segment": "segment",
+    "run": "run",
 }

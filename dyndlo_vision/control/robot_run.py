@@ -1,0 +1,727 @@
+"""The real-robot loop of ``dyndlo-vision run``: checks, connection, the first plan's joint check, the 25 Hz
+loop, braking, and what the report needs.
+
+Order (:func:`run_session`): the policy is resolved and loaded, the arm placed (``robot.base_pose``,
+``robot.tool_offset``; joint velocity and acceleration limits scaled by ``safety.joint_margin``), the driver
+connects (failing after ``robot.connect_timeout_s``), the TCP must be at the task's home, the camera's first
+frame must show the cable's tip, and the first plan (from that first observation) is checked *whole* on the
+arm's joint limits exactly as the driver checks it (IK with the tool down, joined to the joints the arm is
+at, the driver's braking tail; after the workspace and speed clamps). Any of these failing raises
+:class:`RunRefused` (a ``ValueError``): nothing has moved. Then :class:`~dyndlo_vision.control.loop.
+ControlLoop` runs at 25 Hz: the driver behind :class:`~dyndlo_vision.robots.safety.ClampedRobot`, the policy's
+first action being the one checked.
+
+Sending a streaming driver one 40 ms window per cycle, as the simulated robot is sent, would make it brake at
+the end of every window whenever a cycle runs late; :class:`HorizonRobot` sends the rest of the current plan
+instead (from the last joint target sent on), so a late cycle changes nothing and a lost one leaves the robot
+finishing a plan that ends at rest.
+
+Ends: the plan's end plus the task's settle time, ``safety.duration_s``, a lost estimate (multi-step), a
+silent or faulted robot (``driver.fault``), a plan the driver refuses, any exception, Ctrl-C. Each brakes
+(``stop``), closes the driver and returns what was recorded so far, with the reason.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dyndlo_vision.control.dry_run import JointRecorder
+from dyndlo_vision.control.loop import ControlLoop, CycleRecord
+from dyndlo_vision.control.run_config import SCRIPTED_PREFIX, RunConfig
+from dyndlo_vision.robots.egm import EgmRobot
+from dyndlo_vision.robots.protocol import Setpoints, TcpState
+from dyndlo_vision.robots.rtde import RtdeRobot
+from dyndlo_vision.robots.safety import ClampedRobot, WorkspaceBox, clamp_setpoints
+from dyndlo_vision.tasks.base import CONTROL_PERIOD_S, observation_vector
+
+__all__ = ["HorizonRobot", "RunRefused", "RunResult", "run_session"]
+
+log = logging.getLogger(__name__)
+
+FloatArray = NDArray[np.float64]
+#: Exit statuses of a run that started moving and ended early.
+EXIT_STOPPED, EXIT_INTERRUPTED = 1, 130
+#: How long a dry run's driver waits for the fake controller before it faults (the fake shares this
+#: process's CPU; a real robot gets the driver's default of 0.5 s).
+DRY_RUN_ANSWER_TIMEOUT_S = 2.0
+#: Plans start this far ahead of the robot's measured time (two control periods): longer than a cycle takes
+#: from reading the robot to the driver accepting the plan (see :class:`HorizonRobot`).
+PLAN_LEAD_S = 2 * CONTROL_PERIOD_S
+#: The first plan starts this far ahead: its cycle also simulates or waits for the first frames and the driver
+#: solves IK for the whole plan; the arm is at rest until then, so a long lead costs nothing.
+FIRST_PLAN_LEAD_S = 0.25
+
+
+class RunRefused(ValueError):
+    """The run cannot start (nothing has moved): the message says why."""
+
+
+class RecordingEgmRobot(JointRecorder, EgmRobot):
+    """:class:`EgmRobot` that records what it received and answered."""
+
+
+class RecordingRtdeRobot(JointRecorder, RtdeRobot):
+    """:class:`RtdeRobot` that records what it received and answered."""
+
+
+class _CommandedView:
+    """The driver seen from its last joint target: the clamps start from where the robot was *told* to be."""
+
+    def __init__(self, driver: Any) -> None:
+        self.driver = driver
+        #: The commanded state the setpoints being sent were made from (None: the driver's latest).
+        self.snapshot: TcpState | None = None
+
+    def connect(self) -> None:
+        self.driver.connect()
+
+    def state(self) -> TcpState:
+        return self.snapshot if self.snapshot is not None else self.driver.commanded_state()
+
+    def send(self, setpoints: Setpoints) -> None:
+        self.driver.send(setpoints)
+
+    def stop(self) -> None:
+        self.driver.stop()
+
+    def close(self) -> None:
+        self.driver.close()
+
+
+class HorizonRobot:
+    """The loop's robot: a state ``lead_s`` ahead for the controller, the rest of the plan for the driver.
+
+    Latency: a cycle reads the robot's state, then grabs and tracks a frame, asks the policy, plans, and the
+    driver solves IK for the plan before it takes over; all that takes tens of milliseconds, during which the
+    robot goes on following the previous plan. So :meth:`state` reports the measured TCP at the time
+    ``measured t + lead_s``: the loop plans from there (P_DLO predicted to it, the new plan starting there),
+    and until then the previous plan is sent. The new plan joins the old one where the old one is at that
+    time, as the environment's plans join (and as ``PlanFeasibility`` judges them in training); a plan
+    accepted after its start would join mid-way, and :attr:`max_late_s` records by how much.
+
+    ``send`` ignores the loop's one-period window except as a signal: it sends, from the driver's last target
+    on, the previous plan up to the new plan's start and the new plan to its end (at least two control
+    periods, holding the end), on the driver's cycle, through the workspace and speed clamps.
+
+    Args:
+        driver: The connected streaming driver.
+        replanner: The loop's replanner (its current trajectory is the new plan).
+        box: Workspace box of the TCP.
+        max_speed_m_s: TCP speed limit.
+        lead_s: How far ahead of the measured time plans start.
+        first_lead_s: The same for the first plan (the arm at rest); at least ``lead_s``.
+    """
+
+    def __init__(self, driver: Any, replanner: Any, box: WorkspaceBox, max_speed_m_s: float,
+                 lead_s: float = PLAN_LEAD_S, first_lead_s: float = FIRST_PLAN_LEAD_S) -> None:
+        if not lead_s >= 0.0:
+            raise ValueError(f"lead_s must be >= 0, got {lead_s}")
+        self.first_lead_s = max(float(first_lead_s), float(lead_s))
+        self.driver = driver
+        self.replanner = replanner
+        self._view = _CommandedView(driver)
+        self.clamped = ClampedRobot(self._view, box, max_speed_m_s)
+        self.period_s = float(driver.period_s)
+        self.lead_s = float(lead_s)
+        self.sends = 0
+        self.clamped_sends = 0
+        #: Largest (time the driver had sent targets up to when it accepted a new plan) - (the plan's start).
+        self.max_late_s = -math.inf
+        self._current: Any = None
+        self._previous: Any = None
+
+    def connect(self) -> None:
+        """The driver is connected before the loop starts."""
+
+    def state(self) -> TcpState:
+        """The measured TCP, stamped ``lead_s`` ahead (see the class docstring)."""
+        s = self.driver.state()
+        lead = self.first_lead_s if self.replanner.trajectory is None else self.lead_s
+        return TcpState(s.position, s.velocity, float(s.t) + lead)
+
+    def references(self, times: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Positions and velocities (K, 1, 3) of what is sent: the previous plan before the new one starts."""
+        traj = self.replanner.trajectory
+        if traj is None:
+            return self.replanner.references(times)
+        p = np.asarray(traj.position(times), dtype=float)
+        v = np.asarray(traj.velocity(times), dtype=float)
+        if self._previous is not None:
+            before = times < traj.t_start
+            if np.any(before):
+                p[before] = self._previous.position(times[before])
+                v[before] = self._previous.velocity(times[before])
+        return p[:, None, :], v[:, None, :]
+
+    def send(self, setpoints: Setpoints) -> None:
+        """Send the plan's rest (see the class docstring)."""
+        traj = self.replanner.trajectory
+        new_plan = traj is not self._current
+        if new_plan:
+            self._previous, self._current = self._current, traj
+        commanded = self.driver.commanded_state()
+        self._view.snapshot = commanded  # the clamps start from the state the setpoints start after
+        t0 = float(commanded.t)
+        t_end = max(t0 if traj is None else float(traj.t_end), t0 + 2.0 * CONTROL_PERIOD_S)
+        times = t0 + self.period_s * np.arange(1, math.ceil((t_end - t0) / self.period_s - 1e-9) + 1)
+        p, v = self.references(times)
+        self.clamped.send(Setpoints(times, p, v))
+        if traj is not None and new_plan:
+            late = float(self.driver.commanded_state().t) - float(traj.t_start)
+            self.max_late_s = max(self.max_late_s, late)
+        self.sends += 1
+        self.clamped_sends += int(self.clamped.last_report.changed)
+
+    def stop(self) -> None:
+        """Brake."""
+        self.driver.stop()
+
+    def close(self) -> None:
+        """Brake and close the driver."""
+        self.driver.close()
+
+
+class _FirstAction:
+    """The policy, except that its first answer is the action whose plan was checked before the start."""
+
+    def __init__(self, policy: Callable[[Any], Any], first: NDArray[np.float32]) -> None:
+        self.policy, self.first, self.calls = policy, first, 0
+
+    def __call__(self, obs: Any) -> Any:
+        self.calls += 1
+        return self.first if self.calls == 1 else self.policy(obs)
+
+
+@dataclass
+class RunResult:
+    """What a run recorded, for the report."""
+
+    exit_code: int
+    stop_reason: str
+    records: list[CycleRecord]
+    frames: list[NDArray[np.uint8]]
+    metrics: dict[str, Any]
+    #: The demo's P_DLO plot data (``commands.demo._write_plot``) when the truth is known (simulated camera).
+    trace: dict[str, Any] | None
+    #: Robot time series: measured and target joints, for the robot plot.
+    robot: dict[str, Any] = field(default_factory=dict)
+
+
+# ------------------------------------------------------------------------------------------------ set-up
+def arm_kinematics(cfg: RunConfig) -> tuple[Any, Any, Any]:
+    """(RobotArm entry, placed kinematics with the margin-scaled limits, the arm's own model)."""
+    from dyndlo_vision.robots.feasibility import ROBOT_ARMS
+    from dyndlo_vision.robots.kinematics import ArmKinematics, pose_matrix, rotation_x, rotation_y, rotation_z
+
+    arm = ROBOT_ARMS[cfg.robot.arm]
+    if cfg.robot.base_pose is None:
+        base = pose_matrix(arm.base_in_world)
+    else:
+        x, y, z, roll, pitch, yaw = cfg.robot.base_pose
+        rot = rotation_z(math.radians(yaw)) @ rotation_y(math.radians(pitch)) @ rotation_x(math.radians(roll))
+        base = pose_matrix((x, y, z), rot)
+    model = arm.model()
+    margin = cfg.safety.joint_margin
+    kin = ArmKinematics(model.scaled_limits(margin, margin), base_in_world=base,
+                        tcp_in_flange=pose_matrix(cfg.robot.tool_offset))
+    return arm, kin, model
+
+
+def resolve_policy(cfg: RunConfig) -> tuple[str, dict[str, Any], str | None]:
+    """The policy to run (``policy``, or ``fallback_policy`` when ``policy`` is not installed), its
+    metadata, and a note when the fallback was taken.
+
+    Raises:
+        FileNotFoundError: Neither is installed (no fallback given).
+        ValueError: A policy for another task.
+    """
+    from dyndlo_vision import policies
+
+    def meta_of(name: str) -> dict[str, Any]:
+        if name.startswith(SCRIPTED_PREFIX):
+            return {"task": "tip-control", "multi_step": False, "scripted": True}
+        return policies.resolve(name)[1]
+
+    name, note = cfg.policy, None
+    try:
+        meta = meta_of(name)
+    except FileNotFoundError as exc:
+        if cfg.fallback_policy is None:
+            raise FileNotFoundError(f"{cfg.path}: policy: {exc}") from None
+        note = (f"policy {cfg.policy!r} is not installed; running fallback_policy {cfg.fallback_policy!r}")
+        name = cfg.fallback_policy
+        meta = meta_of(name)
+    if meta.get("task", "tip-control") != cfg.task:
+        raise ValueError(f"{cfg.path}: policy {name!r} is for task {meta.get('task')!r}, not {cfg.task!r}")
+    return name, meta, note
+
+
+def _make_driver(cfg: RunConfig, arm: Any, kin: Any, dry_run: bool,
+                 fake_ports: tuple[int, int] | None) -> Any:
+    timeouts = {"connect_timeout_s": cfg.robot.connect_timeout_s}
+    if dry_run:
+        timeouts["answer_timeout_s"] = DRY_RUN_ANSWER_TIMEOUT_S
+    if cfg.robot.driver == "egm":
+        port = 0 if dry_run else cfg.robot.port
+        return RecordingEgmRobot(kin, port=port, period_s=arm.period_s, **timeouts)
+    host, rtde_port, script_port = cfg.robot.host or "", cfg.robot.port, cfg.robot.script_port
+    if dry_run:
+        assert fake_ports is not None
+        host, (rtde_port, script_port) = "127.0.0.1", fake_ports
+    return RecordingRtdeRobot(host, kin, rtde_port=rtde_port, script_port=script_port,
+                              frequency_hz=1.0 / arm.period_s, **timeouts)
+
+
+def _where(cfg: RunConfig, dry_run: bool) -> str:
+    if dry_run:
+        return f"the fake {cfg.robot.driver.upper()} controller on loopback"
+    if cfg.robot.driver == "egm":
+        return f"an ABB controller sending EGM to UDP port {cfg.robot.port}"
+    return f"the UR controller at {cfg.robot.host}:{cfg.robot.port} (RTDE)"
+
+
+def _build_source(cfg: RunConfig, env: Any, driver: Any, calib: Any) -> tuple[Any, Any]:
+    """The P_DLO source and the camera the video is read from (see the module docstring)."""
+    base = env.unwrapped
+    if cfg.camera.source == "simulated":
+        from dyndlo_vision.control.dry_run import FollowingCamera, place_scene_camera
+        from dyndlo_vision.control.sim_perception import tracked_state
+
+        place_scene_camera(base.model, base.data, "tracking", calib)
+        source, camera = tracked_state(env, "tracking", width=calib.width, height=calib.height,
+                                       segmenter=cfg.camera.segmenter)
+        following = FollowingCamera(camera, env, driver)
+        source.camera = following
+        return source, following
+    from dyndlo_vision.control.sim_perception import GRIPPER_MASK_RADIUS_M, MOTION_PLANE, pixels_per_metre
+    from dyndlo_vision.control.state_sources import TrackedState
+    from dyndlo_vision.tracking import LOOP_FILTER, BackgroundSegmenter, CableTracker, PointFilter
+    from dyndlo_vision.tracking.masks import GripperMaskedSegmenter
+
+    camera: Any
+    if cfg.camera.source == "video":
+        from dyndlo_vision.cameras.files import VideoFileCamera
+
+        camera = _RobotClockCamera(VideoFileCamera(cfg.camera.path, fps=cfg.camera.fps), driver)
+    elif cfg.camera.source == "device":
+        from dyndlo_vision.cameras.devices import OpenCVDeviceCamera
+
+        camera = OpenCVDeviceCamera(cfg.camera.device, width=calib.width, height=calib.height)
+    else:
+        from dyndlo_vision.cameras.devices import RealSenseCamera
+
+        camera = RealSenseCamera(width=calib.width, height=calib.height)
+    if cfg.camera.segmenter == "learned":
+        from dyndlo_vision.policies.segmenter import onnx_bytes
+        from dyndlo_vision.tracking.learned import LearnedSegmenter
+
+        inner: Any = LearnedSegmenter(onnx_bytes())
+    else:
+        import cv2
+
+        image = cv2.imread(str(cfg.camera.background), cv2.IMREAD_COLOR)
+        if image is None:
+            raise ValueError(f"{cfg.path}: camera.background: not an image OpenCV reads: "
+                             f"{cfg.camera.background}")
+        inner = BackgroundSegmenter(cv2.cvtColor(image, cv2.COLOR_BGR2RGB), open_radius=0)
+    home = base.scene.gripper_home[0]
+    masked = GripperMaskedSegmenter(inner, GRIPPER_MASK_RADIUS_M * pixels_per_metre(calib, home))
+    cable = base.scene.config.cable
+    tracker = CableTracker(calib, segmenter=masked, n_nodes=cable.num_nodes, plane=MOTION_PLANE)
+
+    def project(p: FloatArray) -> FloatArray:
+        uv = calib.project(np.asarray(p, dtype=float)[None])[0]
+        masked.center_uv = uv
+        return uv
+
+    source = TrackedState(camera, tracker, PointFilter(LOOP_FILTER), point_index=-1, project=project,
+                          cable_length_m=cable.length_m)
+    return source, camera
+
+
+class _RobotClockCamera:
+    """A replayed video, each frame stamped with the robot's time when it is read (as if live)."""
+
+    clock = "robot"
+
+    def __init__(self, camera: Any, driver: Any) -> None:
+        self.camera, self.driver = camera, driver
+
+    def read(self) -> Any:
+        from dyndlo_vision.cameras.protocol import Frame
+
+        frame = self.camera.read()
+        if frame is None:
+            return None
+        return Frame(rgb=frame.rgb, t_capture=float(self.driver.joints().t), index=frame.index,
+                     depth=frame.depth)
+
+    def close(self) -> None:
+        self.camera.close()
+
+
+def check_first_plan(kin: Any, period_s: float, replanner_factory: Callable[[], Any], action: Any,
+                     state: TcpState, joints: Any, box: WorkspaceBox, max_speed: float) -> dict[str, Any]:
+    """Check the whole first plan as the driver will receive it; returns its record.
+
+    Raises:
+        RunRefused: It leaves the arm's reach with the tool down, or breaks a joint limit.
+    """
+    from dyndlo_vision.robots.feasibility import joint_plan, limit_usage
+    from dyndlo_vision.robots.kinematics import IKError
+
+    trial = replanner_factory()
+    traj = trial.replan(np.asarray(action, dtype=np.float64), state.t)
+    t0 = float(joints.t)
+    times = t0 + period_s * np.arange(1, math.ceil((traj.t_end - t0) / period_s - 1e-9) + 1)
+    p, v = trial.references(times)
+    clamped, clamp = clamp_setpoints(Setpoints(times, p, v), box, max_speed, state)
+    hist_t, hist_q = np.array([t0 - period_s, t0]), np.array([joints.q, joints.q])
+    record: dict[str, Any] = {
+        "action": np.asarray(action, dtype=float).tolist(),
+        "duration_s": float(traj.t_end - state.t),
+        "clamped": {"positions_moved_into_box": clamp.positions_moved_into_box,
+                    "steps_rate_limited": clamp.steps_rate_limited,
+                    "max_speed_asked_m_s": clamp.max_speed_m_s},
+    }
+    try:
+        plan = joint_plan(kin, clamped.t, clamped.position[:, 0], hist_t, hist_q, period_s)
+    except IKError as exc:
+        raise RunRefused(f"first plan refused, nothing sent: no joint solution with the tool down: {exc}"
+                         ) from None
+    record["joint_usage"] = limit_usage(kin.arm, plan.t, plan.q)
+    if not plan.report.ok:
+        worst = max(plan.report.violations, key=lambda v: abs(v.value) / max(abs(v.limit), 1e-12))
+        raise RunRefused(
+            f"first plan refused, nothing sent: {worst} (limits scaled by safety.joint_margin; "
+            f"{len(plan.report.violations)} joint/quantity breaches in all; usage "
+            + ", ".join(f"{k} {v:.3g}" for k, v in record["joint_usage"].items()) + ")"
+        )
+    return record
+
+
+# ------------------------------------------------------------------------------------------------ the run
+def run_session(cfg: RunConfig, dry_run: bool, say: Callable[[str], None] = print,
+                annotate: Callable[..., NDArray[np.uint8]] | None = None) -> RunResult:
+    """Run the configuration (see the module docstring).
+
+    Args:
+        cfg: The checked configuration.
+        dry_run: Drive the fake controller of ``cfg.robot.driver`` on loopback instead of the robot.
+        say: Progress lines.
+        annotate: ``(rgb, record, calibration, goal) -> BGR frame`` for the video (None: no video).
+
+    Raises:
+        RunRefused, ValueError, FileNotFoundError: Before anything moved.
+    """
+    from dyndlo_vision import policies
+    from dyndlo_vision.control.scripted import scripted_policy
+    from dyndlo_vision.control.sim_env import as_sim_env
+    from dyndlo_vision.tasks.registry import make_env
+    from dyndlo_vision.tracking.camera_model import PinholeCamera
+    from dyndlo_vision.trajectory import Replanner
+
+    name, meta, note = resolve_policy(cfg)
+    if note:
+        say(f"note: {note}")
+    multi_step = bool(meta.get("multi_step", False))
+    calib = PinholeCamera.from_json(cfg.camera.calibration)
+    arm, kin, true_model = arm_kinematics(cfg)
+    env = make_env(cfg.task, multi_step=multi_step, **meta.get("env_options", {}))
+    base = as_sim_env(env)
+    goal = np.asarray(cfg.target, dtype=float)
+    simulated = cfg.camera.source == "simulated"
+    env.reset(seed=0, options={"goal": goal})
+    home = np.asarray(base.scene.gripper_home[0], dtype=float)
+    box = WorkspaceBox(cfg.safety.workspace_min, cfg.safety.workspace_max)
+    if not box.contains(home):
+        raise RunRefused(f"{cfg.path}: safety.workspace does not contain the task's home TCP {home.tolist()}")
+
+    def reachable(p: FloatArray) -> bool:
+        try:
+            kin.ik(np.asarray(p, dtype=float))
+        except ValueError:
+            return False
+        return bool(box.contains(p))
+
+    if name.startswith(SCRIPTED_PREFIX):
+        policy = scripted_policy(name[len(SCRIPTED_PREFIX):], base.spec_actions, reachable)
+    else:
+        model = policies.load(name, env=env)
+
+        def policy(obs: Any) -> Any:
+            return model.predict(obs, deterministic=True)[0]
+
+    fake = None
+    if dry_run:
+        from dyndlo_vision.control.dry_run import start_fake_controller
+
+        q0 = kin.ik(home).q
+        if cfg.robot.driver == "egm":
+            driver = _make_driver(cfg, arm, kin, True, None)
+            fake = start_fake_controller("egm", true_model, q0, egm_port=driver.bind())
+        else:
+            fake = start_fake_controller("rtde", true_model, q0)
+            driver = _make_driver(cfg, arm, kin, True, (fake.rtde_port, fake.script_port))
+    else:
+        driver = _make_driver(cfg, arm, kin, False, None)
+    say(f"connecting to {_where(cfg, dry_run)} (timeout {cfg.robot.connect_timeout_s:g} s)")
+    try:
+        try:
+            driver.connect()
+        except (TimeoutError, OSError) as exc:
+            raise RunRefused(f"robot unreachable: {_where(cfg, dry_run)}: {exc}") from None
+        try:
+            return _run_connected(cfg, dry_run, say, annotate, env, base, driver, fake, kin, true_model,
+                                  arm, policy, name, note, multi_step, calib, goal, home, box, simulated,
+                                  Replanner)
+        finally:
+            driver.close()  # brakes first; idempotent
+    finally:
+        if fake is not None:
+            fake.close()
+
+
+def _run_connected(cfg: RunConfig, dry_run: bool, say: Callable[[str], None], annotate: Any, env: Any,
+                   base: Any, driver: Any, fake: Any, kin: Any, true_model: Any, arm: Any, policy: Any,
+                   name: str, note: str | None, multi_step: bool, calib: Any, goal: FloatArray,
+                   home: FloatArray, box: WorkspaceBox, simulated: bool, replanner_cls: Any) -> RunResult:
+    from dyndlo_vision.robots.feasibility import limit_usage
+
+    state = driver.state()
+    tcp = state.position[0]
+    off = float(np.linalg.norm(tcp - home))
+    if off > cfg.robot.home_tolerance_m:
+        raise RunRefused(
+            f"the robot's TCP is at {np.round(tcp, 4).tolist()} m, {100 * off:.1f} cm from the task's home "
+            f"{home.tolist()} (robot.home_tolerance_m {cfg.robot.home_tolerance_m:g}): move it there first "
+            "(check robot.base_pose and robot.tool_offset)"
+        )
+    source, camera = _build_source(cfg, env, driver, calib)
+    try:
+        return _loop(cfg, dry_run, say, annotate, base, driver, fake, kin, true_model, arm, policy, name,
+                     note, multi_step, camera, goal, box, simulated, replanner_cls, source, limit_usage)
+    finally:
+        camera.close()
+
+
+def _loop(cfg: RunConfig, dry_run: bool, say: Callable[[str], None], annotate: Any, base: Any, driver: Any,
+          fake: Any, kin: Any, true_model: Any, arm: Any, policy: Any, name: str, note: str | None,
+          multi_step: bool, camera: Any, goal: FloatArray, box: WorkspaceBox, simulated: bool,
+          replanner_cls: Any, source: Any, limit_usage: Any) -> RunResult:
+    # ---------------------------------------------------------------- the first observation and plan
+    state = driver.state()
+    joints = driver.joints()
+    reading = source.read(state.t, state)
+    if reading.lost or not np.all(np.isfinite(reading.position)):
+        raise RunRefused("no estimate of the cable's tip from the camera's first frame (is the cable in "
+                         "view, the calibration right, the segmentation working?): nothing sent")
+    obs = observation_vector(state.position, state.velocity, reading.position, goal)
+    first_action = np.asarray(policy(obs), dtype=np.float32)
+
+    def new_replanner() -> Any:
+        return replanner_cls(base.spec_actions, state.position, base.task.final_point(goal))
+
+    first_plan = check_first_plan(kin, arm.period_s, new_replanner, first_action, state, joints, box,
+                                  cfg.safety.max_tcp_speed)
+    say(f"first plan checked on the {cfg.robot.arm}'s joint limits: " +
+        ", ".join(f"{k} {v:.3g}" for k, v in first_plan["joint_usage"].items()))
+    # ---------------------------------------------------------------- the loop
+    replanner = new_replanner()
+    robot = HorizonRobot(driver, replanner, box, cfg.safety.max_tcp_speed, lead_s=cfg.robot.plan_lead_s)
+    t_start = float(robot.state().t)
+    act = _FirstAction(policy, first_action)
+    loop = ControlLoop(source, robot, act, replanner, goal, period_s=CONTROL_PERIOD_S,
+                       setpoint_period_s=arm.period_s, truth=base.p_dlo if simulated else None)
+    records: list[CycleRecord] = []
+    frames: list[NDArray[np.uint8]] = []
+    truth_t: list[float] = []
+    truth: list[FloatArray] = []
+    settle = float(base.task.settle_s)
+
+    def film(record: CycleRecord | None, frame: Any, status: str | None = None) -> None:
+        if annotate is None:
+            return
+        if frame is None and simulated:
+            frame = camera.read()
+        if frame is not None:
+            frames.append(annotate(frame.rgb, record, camera_calibration(camera, source), goal, status=status,
+                                   t=frame.t_capture, truth=base.p_dlo() if simulated else None))
+
+    def on_cycle(record: CycleRecord, frame: Any) -> None:
+        records.append(record)
+        if simulated:
+            truth_t.append(float(record.t))
+            truth.append(np.asarray(record.p_dlo_true, dtype=float))
+        film(record, frame)
+
+    fault: list[str] = []
+
+    def plan_over() -> bool:
+        traj = replanner.trajectory
+        return traj is not None and float(driver.state().t) >= traj.t_end + settle - 1e-9
+
+    def done() -> bool:
+        if driver.fault is not None:
+            fault.append(driver.fault)
+            return True
+        if multi_step:
+            return simulated and base.is_done_early()
+        return plan_over()
+
+    mode = "multi" if multi_step else "single"
+    say(f"running {name} ({mode}-step) for at most {cfg.safety.duration_s:g} s")
+    exit_code, stop_reason = 0, ""
+    replan_end_t = t_start
+    try:
+        budget = cfg.safety.duration_s
+        if multi_step:
+            budget = min(budget, float(base.task.episode_s))
+        report = loop.run(budget, done=done, on_cycle=on_cycle, replan_every_cycle=multi_step)
+        replan_end_t = float(driver.state().t)
+        stop_reason = report.stop_reason
+        if fault:
+            exit_code, stop_reason = EXIT_STOPPED, f"robot fault: {fault[0]}"
+            driver.stop()
+        elif stop_reason == "lost":
+            exit_code, stop_reason = EXIT_STOPPED, "P_DLO estimate lost (the camera lost the cable)"
+        elif stop_reason == "done" and not multi_step:
+            stop_reason = "plan finished"
+        elif stop_reason == "done":
+            stop_reason = "target hit"
+        # Multi-step: the last plan runs out (it ends at rest), filmed, within the duration.
+        while exit_code == 0 and multi_step and not plan_over():
+            if driver.fault is not None:
+                exit_code, stop_reason = EXIT_STOPPED, f"robot fault: {driver.fault}"
+                break
+            if float(robot.state().t) - t_start >= cfg.safety.duration_s:
+                stop_reason = "duration"
+                break
+            wall = time.monotonic()
+            film(None, None, "following the last plan")
+            time.sleep(max(0.0, CONTROL_PERIOD_S - (time.monotonic() - wall)))
+        if exit_code == 0 and not multi_step and stop_reason == "duration":
+            stop_reason = "duration (safety.duration_s) before the plan finished"
+    except KeyboardInterrupt:
+        exit_code, stop_reason = EXIT_INTERRUPTED, "interrupted (Ctrl-C)"
+        driver.stop()
+    except Exception as exc:  # noqa: BLE001  (the loop stopped the robot; the report says why)
+        exit_code = EXIT_STOPPED
+        stop_reason = f"robot fault: {driver.fault}" if driver.fault else f"{type(exc).__name__}: {exc}"
+        log.error("run stopped: %s", stop_reason)
+    driver.close()  # brake to rest and wait for it
+    # ---------------------------------------------------------------- what happened
+    outcome: dict[str, Any] = {"success": None, "truth": "none: a real camera (no simulation)"}
+    trace = None
+    if simulated:
+        camera.advance()  # the scene up to the robot's last state
+        _, success, info = base.outcome()
+        final = base.p_dlo()
+        truth_t.append(camera.robot_time())
+        truth.append(np.asarray(final, dtype=float))
+        film(None, None, f"{'HIT' if success else 'miss'}, tip {100 * np.linalg.norm(final - goal):.1f} cm "
+             "from target centre")
+        outcome = {"success": bool(success), "truth": "the dry run's simulation (cable following the robot)",
+                   "final_distance_m": float(np.linalg.norm(final - goal)),
+                   "min_distance_m": float(info["min_distance_m"]), "avoid": info["avoid"],
+                   "final_p_dlo_m": np.asarray(final).tolist()}
+        trace = {
+            "t": [r.t for r in records], "estimate": [r.p_dlo_estimate.tolist() for r in records],
+            "measured": [r.measured for r in records], "truth_t": truth_t,
+            "truth": [p.tolist() for p in truth],
+            "goal": goal.tolist(), "success_radius_m": getattr(base.task, "success_radius_m", None),
+            "replan_end_t": replan_end_t, "success": bool(success), "min_distance_m": info["min_distance_m"],
+        }
+    metrics = _metrics(cfg, dry_run, name, note, multi_step, exit_code, stop_reason, records, outcome,
+                       first_plan, robot, driver, fake, kin, true_model, limit_usage, source)
+    rec = driver.targets
+    robot_series = {
+        "t_measured": [m[0] for m in driver.measured], "q_measured": [m[1].tolist() for m in driver.measured],
+        "t_target": [r[0] for r in rec if r[2]], "q_target": [r[1].tolist() for r in rec if r[2]],
+        "goal": goal.tolist(), "arm": cfg.robot.arm,
+    }
+    return RunResult(exit_code, stop_reason, records, frames, metrics, trace, robot_series)
+
+
+def camera_calibration(camera: Any, source: Any) -> Any:
+    """The pinhole model the video overlay projects with (the tracker's)."""
+    return source.tracker.camera if hasattr(source.tracker, "camera") else camera.calibration
+
+
+def _metrics(cfg: RunConfig, dry_run: bool, name: str, note: str | None, multi_step: bool, exit_code: int,
+             stop_reason: str, records: list[CycleRecord], outcome: dict[str, Any],
+             first_plan: dict[str, Any],
+             robot: HorizonRobot, driver: Any, fake: Any, kin: Any, true_model: Any, limit_usage: Any,
+             source: Any) -> dict[str, Any]:
+    controller = np.array([r.controller_ms for r in records]) if records else np.zeros(0)
+
+    def pct(q: float) -> float | None:
+        return float(np.percentile(controller, q)) if controller.size else None
+
+    active = [(t, q) for t, q, a in driver.targets if a]
+    sent_all = len(driver.targets)
+    setpoints: dict[str, Any] = {
+        "plans_sent": robot.sends,
+        "plans_clamped": robot.clamped_sends,
+        "plan_lead_s": robot.lead_s,
+        "plan_max_late_s": robot.max_late_s if math.isfinite(robot.max_late_s) else None,
+        "joint_targets_sent": sent_all,
+        "joint_targets_sent_moving": len(active),
+        "robot_states_received": len(driver.measured),
+    }
+    if fake is not None:
+        # The fake EGM controller records every answer, the fake UR script only the servo targets.
+        expected = sent_all if cfg.robot.driver == "egm" else len(active)
+        received = len(fake.received)
+        setpoints.update({"joint_targets_received_by_robot": received, "joint_targets_expected": expected,
+                          "joint_targets_lost": expected - received})
+    else:
+        setpoints["joint_targets_received_by_robot"] = None  # the controller does not report it back
+    usage: dict[str, Any] = {}
+    if len(active) >= 3:
+        t = np.array([a[0] for a in active])
+        q = np.array([a[1] for a in active])
+        usage = {"arm_limits": limit_usage(true_model, t, q), "margin_limits": limit_usage(kin.arm, t, q),
+                 "joint_margin": cfg.safety.joint_margin, "samples": int(t.size)}
+    errors = [np.linalg.norm(r.p_dlo_estimate - r.p_dlo_true) for r in records
+              if r.p_dlo_true is not None and np.all(np.isfinite(r.p_dlo_estimate))]
+    return {
+        "config": str(cfg.path),
+        "dry_run": dry_run,
+        "driver": cfg.robot.driver,
+        "arm": cfg.robot.arm,
+        "camera": cfg.camera.source,
+        "policy": name,
+        "policy_requested": cfg.policy,
+        "policy_note": note,
+        "multi_step": multi_step,
+        "target": list(cfg.target),
+        "exit_status": exit_code,
+        "stop_reason": stop_reason,
+        **outcome,
+        "estimate_rmse_m": float(np.sqrt(np.mean(np.square(errors)))) if errors else None,
+        "cycles": len(records),
+        "cycle_ms_p50": pct(50), "cycle_ms_p95": pct(95), "cycle_ms_p99": pct(99),
+        "cycle_ms_max": float(controller.max()) if controller.size else None,
+        "deadline_misses": int(sum(r.deadline_missed for r in records)),
+        "send_ms_p95": float(np.percentile([r.send_ms for r in records], 95)) if records else None,
+        "lost_cycles": int(sum(r.lost for r in records)),
+        "measured_cycles": int(sum(r.measured for r in records)),
+        "setpoints": setpoints,
+        "joint_limits": usage,
+        "first_plan": first_plan,
+        "driver_fault": driver.fault,
+        "safety": {"workspace_min": list(cfg.safety.workspace_min),
+                   "workspace_max": list(cfg.safety.workspace_max),
+                   "max_tcp_speed_m_s": cfg.safety.max_tcp_speed, "duration_s": cfg.safety.duration_s},
+        "cycle_ms_note": "controller time per 40 ms cycle: camera (in a dry run: simulating the scene up to "
+        "the robot's time and rendering) + tracking + filter + policy + planning",
+    }

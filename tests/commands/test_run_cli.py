@@ -1,0 +1,243 @@
+"""`dyndlo-vision run CONFIG.yaml --dry-run`: the shipped examples end to end against the fake controllers,
+and every way a run must refuse to start (exit status 2, the reason named, no output folder)."""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+
+from dyndlo_vision import policies
+from dyndlo_vision.cli import main
+from dyndlo_vision.control import dry_run
+from dyndlo_vision.robots.feasibility import ROBOT_ARMS
+from dyndlo_vision.robots.kinematics import check_joint_limits
+
+pytest.importorskip("abb_robot_client")
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+
+
+def config(tmp_path: Path, example: str = "run-gofa-dry.yaml", name: str = "cfg.yaml",
+           **changes: Any) -> Path:
+    """An example's config with ``changes`` (dotted keys; None deletes), written into tmp_path."""
+    data = yaml.safe_load((EXAMPLES / example).read_text())
+    data["camera"]["calibration"] = str(EXAMPLES / data["camera"]["calibration"])
+    for key, value in changes.items():
+        *parents, last = key.split(".")
+        node = data
+        for p in parents:
+            node = node[p]
+        if value is None:
+            node.pop(last, None)
+        else:
+            node[last] = value
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def refused(capsys: pytest.CaptureFixture[str], out: Path, *argv: str) -> str:
+    """Run, expect exit status 2 and no output folder; return the error line."""
+    with pytest.raises(SystemExit) as exc:
+        main(["run", *argv, "--out", str(out)])
+    assert exc.value.code == 2
+    assert not out.exists(), "a refused run left an output folder"
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith("dyndlo-vision run: error: ")
+    return err
+
+
+def spy_fake(monkeypatch: pytest.MonkeyPatch) -> list[Any]:
+    """Keep the fake controllers the runs start."""
+    fakes: list[Any] = []
+    start = dry_run.start_fake_controller
+
+    def spy(*args: Any, **kwargs: Any) -> Any:
+        fakes.append(start(*args, **kwargs))
+        return fakes[-1]
+
+    monkeypatch.setattr(dry_run, "start_fake_controller", spy)
+    return fakes
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("example", ["run-gofa-dry.yaml", "run-ur5e-dry.yaml"])
+def test_example_runs_dry(example: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                          capsys: pytest.CaptureFixture[str]) -> None:
+    fakes = spy_fake(monkeypatch)
+    out = tmp_path / "out"
+    assert main(["run", str(EXAMPLES / example), "--dry-run", "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["metrics.json", "p_dlo.png", "robot.png", "run.mp4"]
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["exit_status"] == 0 and m["stop_reason"] == "plan finished" and m["driver_fault"] is None
+    if "tip-control-single-step-gofa" not in policies.available():
+        assert m["policy"] == "scripted:slow-reach" and "not installed" in m["policy_note"]
+    # The simulation's truth decides the outcome; the slow reach brings the hanging tip onto the target.
+    assert m["success"] is True and m["min_distance_m"] < 0.035
+    # The robot received every joint target sent while it moved (and, for EGM, every answer).
+    sp = m["setpoints"]
+    assert sp["joint_targets_sent_moving"] > 200
+    assert sp["joint_targets_received_by_robot"] == sp["joint_targets_expected"]
+    assert sp["joint_targets_lost"] == 0
+    assert sp["plans_sent"] == m["cycles"] > 0
+    assert sp["plan_max_late_s"] < 0.0, "a plan was accepted after its start"
+    # No joint limit broken: over what the driver streamed (metrics) and over what the fake robot received.
+    for limits in ("arm_limits", "margin_limits"):
+        usage = m["joint_limits"][limits]
+        assert usage["velocity_fraction"] < 1.0 and usage["acceleration_fraction"] < 1.0
+        assert usage["position_margin_deg"] > 0.0
+    (fake,) = fakes
+    received = fake.received
+    t = np.array([r.t for r in received])
+    q = np.array([r.q for r in received])
+    moving = np.flatnonzero(np.any(np.abs(np.diff(q, axis=0)) > 0, axis=1))
+    assert moving.size > 100
+    arm = ROBOT_ARMS["gofa" if "gofa" in example else "ur5e"].model()
+    assert check_joint_limits(arm, t, q).ok
+    # The fake robot ended at rest where the plan ended.
+    assert np.allclose(fake.q, q[-1], atol=1e-4)
+    assert m["video"]["frames"] == m["cycles"] + 1
+    assert "plan finished" in capsys.readouterr().out
+
+
+def test_missing_config_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    err = refused(capsys, tmp_path / "out", str(tmp_path / "nope.yaml"), "--dry-run")
+    assert "config file not found" in err and "nope.yaml" in err
+
+
+def test_unknown_key(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    cfg = config(tmp_path, **{"safety.max_speed": 1.0})
+    err = refused(capsys, tmp_path / "out", str(cfg), "--dry-run")
+    assert "unknown key(s) ['safety.max_speed']" in err and "max_tcp_speed" in err
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "expected"),
+    [
+        ("robot.arm", "kuka", "robot.arm: got 'kuka'; expected one of ['gofa', 'ur5e']"),
+        ("robot.arm", "ur5e", "robot.arm: got 'ur5e'; expected 'gofa': the egm driver streams to the gofa"),
+        ("safety.joint_margin", 1.5, "safety.joint_margin: got 1.5; expected a number in (0, 1]"),
+        ("target", [0.8, 0.0], "target: got [0.8, 0.0]; expected a list of 3 finite numbers"),
+        ("camera.source", "webcam", "camera.source: got 'webcam'; expected one of"),
+        ("robot.host", "10.0.0.2", "robot.host: got '10.0.0.2'; expected no host for egm"),
+        ("safety.workspace.max", [0.1, 0.3, 1.0],
+         "safety.workspace.max: got [0.1, 0.3, 1.0]; expected above"),
+    ],
+)
+def test_bad_value(key: str, value: Any, expected: str, tmp_path: Path,
+                   capsys: pytest.CaptureFixture[str]) -> None:
+    cfg = config(tmp_path, **{key: value})
+    assert expected in refused(capsys, tmp_path / "out", str(cfg), "--dry-run")
+
+
+def test_missing_calibration(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    cfg = config(tmp_path, **{"camera.calibration": "no-such-camera.json"})
+    err = refused(capsys, tmp_path / "out", str(cfg), "--dry-run")
+    assert "camera.calibration: file not found" in err and "no-such-camera.json" in err
+
+
+def test_unknown_policy(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    cfg = config(tmp_path, policy="tip-control-no-such-policy", fallback_policy=None)
+    err = refused(capsys, tmp_path / "out", str(cfg), "--dry-run")
+    assert "policy" in err and "tip-control-no-such-policy" in err and "neither a file nor a shipped" in err
+    cfg = config(tmp_path, name="cfg2.yaml", policy="scripted:fast-whip")
+    err = refused(capsys, tmp_path / "out", str(cfg), "--dry-run")
+    assert "policy: got 'scripted:fast-whip'" in err and "scripted:slow-reach" in err
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("example", ["run-gofa-dry.yaml", "run-ur5e-dry.yaml"])
+def test_first_plan_breaking_a_joint_limit_is_refused(example: str, tmp_path: Path,
+                                                       monkeypatch: pytest.MonkeyPatch,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """Today's shipped single-step policy whips faster than either arm's joints can accelerate."""
+    fakes = spy_fake(monkeypatch)
+    cfg = config(tmp_path, example, policy="tip-control-single-step", fallback_policy=None)
+    err = refused(capsys, tmp_path / "out", str(cfg), "--dry-run")
+    assert "first plan refused, nothing sent: joint" in err
+    assert "acceleration" in err and "breaks the limit" in err and "rad/s^2" in err
+    joint = "axis_2" if "gofa" in example else "elbow"
+    assert f"joint {joint} acceleration" in err
+    # Nothing moved: the fake robot never received a moving target.
+    (fake,) = fakes
+    q = np.array([r.q for r in fake.received])
+    assert q.size == 0 or np.all(np.abs(q - q[0]) < 1e-12)
+
+
+def _free_port(kind: int) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def test_unreachable_egm_robot(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    cfg = config(tmp_path, **{"robot.port": _free_port(socket.SOCK_DGRAM), "robot.connect_timeout_s": 0.5})
+    err = refused(capsys, tmp_path / "out", str(cfg))
+    assert "robot unreachable: an ABB controller sending EGM to UDP port" in err
+    assert "no state from the robot within 0.5 s" in err
+
+
+def test_unreachable_rtde_robot(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    port = _free_port(socket.SOCK_STREAM)
+    cfg = config(tmp_path, "run-ur5e-dry.yaml", **{"robot.host": "127.0.0.1", "robot.port": port,
+                                                    "robot.connect_timeout_s": 0.5})
+    err = refused(capsys, tmp_path / "out", str(cfg))
+    assert f"robot unreachable: the UR controller at 127.0.0.1:{port} (RTDE)" in err
+
+
+@pytest.mark.slow
+def test_silent_robot_brakes_and_reports(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    """The controller stops answering mid-plan: the driver faults, the run stops with the reason."""
+    fakes = spy_fake(monkeypatch)
+    timers: list[threading.Timer] = []
+    start = dry_run.start_fake_controller  # the spy
+
+    def hang_later(*args: Any, **kwargs: Any) -> Any:
+        fake = start(*args, **kwargs)
+        timers.append(threading.Timer(1.2, fake.hang))
+        timers[-1].start()
+        return fake
+
+    monkeypatch.setattr(dry_run, "start_fake_controller", hang_later)
+    out = tmp_path / "out"
+    assert main(["run", str(EXAMPLES / "run-gofa-dry.yaml"), "--dry-run", "--out", str(out)]) == 1
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["stop_reason"].startswith("robot fault: watchdog: the robot stopped answering")
+    assert m["exit_status"] == 1 and m["cycles"] > 0
+    assert "stopped early: robot fault" in capsys.readouterr().err
+    assert len(fakes) == 1
+
+
+@pytest.mark.slow
+def test_ctrl_c_brakes_and_reports(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                   capsys: pytest.CaptureFixture[str]) -> None:
+    fakes = spy_fake(monkeypatch)
+    read = dry_run.FollowingCamera.read
+    calls = {"n": 0}
+
+    def interrupted(self: Any) -> Any:
+        calls["n"] += 1
+        if calls["n"] == 25:  # mid-plan
+            raise KeyboardInterrupt
+        return read(self)
+
+    monkeypatch.setattr(dry_run.FollowingCamera, "read", interrupted)
+    out = tmp_path / "out"
+    assert main(["run", str(EXAMPLES / "run-ur5e-dry.yaml"), "--dry-run", "--out", str(out)]) == 130
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["stop_reason"] == "interrupted (Ctrl-C)" and m["exit_status"] == 130
+    assert "stopped early: interrupted (Ctrl-C)" in capsys.readouterr().err
+    # Braked to rest within the limits: what the robot received is joint-feasible and ends still.
+    (fake,) = fakes
+    t = np.array([r.t for r in fake.received])
+    q = np.array([r.q for r in fake.received])
+    assert check_joint_limits(ROBOT_ARMS["ur5e"].model(), t, q).ok
+    assert np.all(np.abs(q[-1] - q[-2]) / (t[-1] - t[-2]) < 0.02)  # rad/s: at rest
