@@ -185,7 +185,7 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         the episode ends there with the avoid condition ``joints``, scored on the state reached (a
         single-step episode: the cable never moved, so no success), and with an avoid term that grows with
         how far the plan breaks the limits (:data:`JOINT_EXCESS_CAP`; not in the paper, whose avoid term is
-        flat: with it, SAC found no plan the GoFa can follow in 1 900 training episodes).
+        flat: with it, SAC learned plans the GoFa can follow more slowly; docs/RESULTS.md).
         ``info["joint_feasible"]`` says whether every plan passed, ``info["joint_usage"]`` how close the last
         judged one came to the limits, and ``info["joint_limit_reason"]`` why a plan was refused.
 
@@ -388,7 +388,8 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         """End the episode at a plan the arm refuses: nothing more is simulated; scored on the state now.
 
         The avoid term grows with how far the plan breaks the limits (see :data:`JOINT_EXCESS_CAP`): a flat
-        penalty gives a learner no direction towards plans the arm can follow when it finds none by chance.
+        penalty gives a learner no direction towards plans the arm can follow, other than the few it finds by
+        chance.
         """
         self._monitor.avoid["joints"] = True
         terms, success, extra = self.task.evaluate(self.scene, self._goal, self._monitor, True)
