@@ -247,7 +247,10 @@ def resolve_policy(cfg: RunConfig) -> tuple[str, dict[str, Any], str | None]:
 
     def meta_of(name: str) -> dict[str, Any]:
         if name.startswith(SCRIPTED_PREFIX):
-            return {"task": "tip-control", "multi_step": False, "scripted": True}
+            from dyndlo_vision.control.scripted import MULTI_STEP
+
+            return {"task": "tip-control", "multi_step": name[len(SCRIPTED_PREFIX):] in MULTI_STEP,
+                    "scripted": True}
         return policies.resolve(name)[1]
 
     name, note = cfg.policy, None
@@ -597,6 +600,8 @@ def _loop(cfg: RunConfig, dry_run: bool, say: Callable[[str], None], annotate: A
             stop_reason = "plan finished"
         elif stop_reason == "done":
             stop_reason = "target hit"
+        elif multi_step and budget < cfg.safety.duration_s:
+            stop_reason = "plan finished"  # the episode's re-planning time is over; its last plan runs out
         # Multi-step: the last plan runs out (it ends at rest), filmed, within the duration.
         while exit_code == 0 and multi_step and not plan_over():
             if driver.fault is not None:
@@ -608,7 +613,7 @@ def _loop(cfg: RunConfig, dry_run: bool, say: Callable[[str], None], annotate: A
             wall = time.monotonic()
             film(None, None, "following the last plan")
             time.sleep(max(0.0, CONTROL_PERIOD_S - (time.monotonic() - wall)))
-        if exit_code == 0 and not multi_step and stop_reason == "duration":
+        if exit_code == 0 and stop_reason == "duration":
             stop_reason = "duration (safety.duration_s) before the plan finished"
     except KeyboardInterrupt:
         exit_code, stop_reason = EXIT_INTERRUPTED, "interrupted (Ctrl-C)"

@@ -10,6 +10,9 @@ alone (table II: TCP position and velocity, P_DLO, P*).
   (P_DLO - TCP when the plan is made). When the arm cannot reach that point with the tool pointing down, the
   TCP goes as far along the straight line as the arm reaches, less 3 cm. A quasi-static move: the tip may
   hit the target only when the target is within that reach and the cable has swung out by the end.
+* ``slow-reach-replan``: the same, as a multi-step policy: re-planned every 40 ms from the commanded state
+  and the latest tip estimate, for 1.6 s, as the multi-step policies are (it exercises re-planning on a
+  robot: every plan joins the one the arm is following).
 """
 
 from __future__ import annotations
@@ -25,7 +28,10 @@ __all__ = ["SCRIPTED_POLICIES", "SlowReach", "scripted_policy"]
 #: Name -> one-line description.
 SCRIPTED_POLICIES: dict[str, str] = {
     "slow-reach": "carry the hanging tip slowly (3 x 0.5 s) to the target, as far as the arm reaches",
+    "slow-reach-replan": "slow-reach re-planned every control period (multi-step)",
 }
+#: The scripted policies that re-plan every control period.
+MULTI_STEP = frozenset({"slow-reach-replan"})
 REACH_MARGIN_M = 0.03
 
 

@@ -241,3 +241,55 @@ def test_ctrl_c_brakes_and_reports(tmp_path: Path, monkeypatch: pytest.MonkeyPat
     q = np.array([r.q for r in fake.received])
     assert check_joint_limits(ROBOT_ARMS["ur5e"].model(), t, q).ok
     assert np.all(np.abs(q[-1] - q[-2]) / (t[-1] - t[-2]) < 0.02)  # rad/s: at rest
+
+
+@pytest.mark.slow
+def test_multi_step_replans_join_on_the_robot(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Re-planning every 40 ms on the UR5e: every plan accepted before it starts, none breaks a limit."""
+    fakes = spy_fake(monkeypatch)
+    cfg = config(tmp_path, "run-ur5e-dry.yaml", policy="scripted:slow-reach-replan", fallback_policy=None)
+    out = tmp_path / "out"
+    assert main(["run", str(cfg), "--dry-run", "--out", str(out)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["multi_step"] is True and m["stop_reason"] in ("plan finished", "target hit")
+    sp = m["setpoints"]
+    assert sp["plans_sent"] == m["cycles"] >= 30  # one plan per cycle, 1.6 s of re-planning less the lead
+    assert sp["plan_max_late_s"] < 0.0 and sp["joint_targets_lost"] == 0
+    assert m["joint_limits"]["margin_limits"]["acceleration_fraction"] < 1.0
+    (fake,) = fakes
+    t = np.array([r.t for r in fake.received])
+    q = np.array([r.q for r in fake.received])
+    assert check_joint_limits(ROBOT_ARMS["ur5e"].model(), t, q).ok
+    # Frames continue while the last plan runs out after the re-planning.
+    assert m["video"]["frames"] > m["cycles"] + 5
+
+
+@pytest.mark.slow
+def test_video_camera_replayed_against_the_fake_robot(tmp_path: Path) -> None:
+    """camera.source video: frames of the scene (a folder of PNGs) and its background, tracked as if live."""
+    import cv2
+
+    from dyndlo_vision.cameras.simulated import MujocoCamera
+    from dyndlo_vision.control.sim_perception import render_without_cable
+    from dyndlo_vision.tasks.registry import make_env
+
+    env = make_env("tip-control")
+    env.reset(seed=0, options={"goal": (0.62, 0.0, 0.2)})
+    base = env.unwrapped
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    with MujocoCamera(base.model, base.data, "tracking") as cam:
+        cv2.imwrite(str(tmp_path / "empty.png"), cv2.cvtColor(render_without_cable(cam), cv2.COLOR_RGB2BGR))
+        image = cv2.cvtColor(cam.read().rgb, cv2.COLOR_RGB2BGR)
+    for i in range(60):  # the cable hanging still
+        cv2.imwrite(str(frames / f"f{i}.png"), image)
+    cfg = config(tmp_path, camera={"source": "video", "path": str(frames), "fps": 25,
+                                   "calibration": str(EXAMPLES / "tracking-camera.json"),
+                                   "segmenter": "background", "background": str(tmp_path / "empty.png")})
+    out = tmp_path / "out"
+    assert main(["run", str(cfg), "--dry-run", "--out", str(out)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["camera"] == "video" and m["stop_reason"] == "plan finished"
+    assert m["success"] is None and "no simulation" in m["truth"]  # nothing says where the real tip went
+    assert m["measured_cycles"] > 0
+    assert sorted(p.name for p in out.iterdir()) == ["metrics.json", "robot.png", "run.mp4"]
