@@ -97,23 +97,24 @@ class _CommandedView:
 
 
 class HorizonRobot:
-    """The loop's robot: a state ``lead_s`` ahead for the controller, the rest of the plan for the driver.
+    """The loop's robot: a state ``lead_s`` ahead for the controller, the rest of the plans for the driver.
 
     Latency: a cycle reads the robot's state, then grabs and tracks a frame, asks the policy, plans, and the
     driver solves IK for the plan before it takes over; all that takes tens of milliseconds, during which the
-    robot goes on following the previous plan. So :meth:`state` reports the measured TCP at the time
-    ``measured t + lead_s``: the loop plans from there (P_DLO predicted to it, the new plan starting there),
-    and until then the previous plan is sent. The new plan joins the old one where the old one is at that
-    time, as the environment's plans join (and as ``PlanFeasibility`` judges them in training); a plan
-    accepted after its start would join mid-way, and :attr:`max_late_s` records by how much.
+    robot goes on following the plans it has. So :meth:`state` reports the measured TCP at the time
+    ``measured t + lead_s`` (never before the current plan's start): the loop plans from there (P_DLO
+    predicted to it, the new plan starting there from where the current plan is then, as the environment's
+    plans join and as ``PlanFeasibility`` judges them in training). With a lead longer than the period
+    several plans are pending at once; what is sent follows, at each instant, the newest plan that has started
+    by then. A plan accepted after its start would join mid-way; :attr:`max_late_s` records by how much.
 
     ``send`` ignores the loop's one-period window except as a signal: it sends, from the driver's last target
-    on, the previous plan up to the new plan's start and the new plan to its end (at least two control
-    periods, holding the end), on the driver's cycle, through the workspace and speed clamps.
+    on, that piecewise plan to the newest plan's end (at least two control periods, holding the end), on the
+    driver's cycle, through the workspace and speed clamps.
 
     Args:
         driver: The connected streaming driver.
-        replanner: The loop's replanner (its current trajectory is the new plan).
+        replanner: The loop's replanner (its current trajectory is the newest plan).
         box: Workspace box of the TCP.
         max_speed_m_s: TCP speed limit.
         lead_s: How far ahead of the measured time plans start.
@@ -135,8 +136,7 @@ class HorizonRobot:
         self.clamped_sends = 0
         #: Largest (time the driver had sent targets up to when it accepted a new plan) - (the plan's start).
         self.max_late_s = -math.inf
-        self._current: Any = None
-        self._previous: Any = None
+        self._plans: list[Any] = []  # sent plans, oldest first, with non-decreasing start times
 
     def connect(self) -> None:
         """The driver is connected before the loop starts."""
@@ -144,37 +144,45 @@ class HorizonRobot:
     def state(self) -> TcpState:
         """The measured TCP, stamped ``lead_s`` ahead (see the class docstring)."""
         s = self.driver.state()
-        lead = self.first_lead_s if self.replanner.trajectory is None else self.lead_s
-        return TcpState(s.position, s.velocity, float(s.t) + lead)
-
-    def references(self, times: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Positions and velocities (K, 1, 3) of what is sent: the previous plan before the new one starts."""
         traj = self.replanner.trajectory
         if traj is None:
+            return TcpState(s.position, s.velocity, float(s.t) + self.first_lead_s)
+        return TcpState(s.position, s.velocity, max(float(s.t) + self.lead_s, float(traj.t_start)))
+
+    def references(self, times: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Positions and velocities (K, 1, 3) of what is sent: at each time the newest plan started by then
+        (before the first plan starts, the replanner's home at rest)."""
+        if not self._plans:
             return self.replanner.references(times)
-        p = np.asarray(traj.position(times), dtype=float)
-        v = np.asarray(traj.velocity(times), dtype=float)
-        if self._previous is not None:
-            before = times < traj.t_start
-            if np.any(before):
-                p[before] = self._previous.position(times[before])
-                v[before] = self._previous.velocity(times[before])
+        starts = np.array([float(p.t_start) for p in self._plans])
+        which = np.searchsorted(starts, times, side="right") - 1
+        p = np.empty((times.size, 3))
+        v = np.zeros((times.size, 3))
+        before = which < 0
+        if np.any(before):  # the arm at rest where the first plan starts (only before the first plan)
+            p[before] = np.asarray(self._plans[0].points[0], dtype=float)
+        for k in np.unique(which[~before]):
+            sel = which == k
+            p[sel] = self._plans[k].position(times[sel])
+            v[sel] = self._plans[k].velocity(times[sel])
         return p[:, None, :], v[:, None, :]
 
     def send(self, setpoints: Setpoints) -> None:
-        """Send the plan's rest (see the class docstring)."""
+        """Send the plans' rest (see the class docstring)."""
         traj = self.replanner.trajectory
-        new_plan = traj is not self._current
+        new_plan = traj is not None and (not self._plans or traj is not self._plans[-1])
         if new_plan:
-            self._previous, self._current = self._current, traj
+            self._plans.append(traj)
         commanded = self.driver.commanded_state()
         self._view.snapshot = commanded  # the clamps start from the state the setpoints start after
         t0 = float(commanded.t)
+        while len(self._plans) > 1 and self._plans[1].t_start <= t0:
+            self._plans.pop(0)  # superseded before the first time still to send
         t_end = max(t0 if traj is None else float(traj.t_end), t0 + 2.0 * CONTROL_PERIOD_S)
         times = t0 + self.period_s * np.arange(1, math.ceil((t_end - t0) / self.period_s - 1e-9) + 1)
         p, v = self.references(times)
         self.clamped.send(Setpoints(times, p, v))
-        if traj is not None and new_plan:
+        if new_plan:
             late = float(self.driver.commanded_state().t) - float(traj.t_start)
             self.max_late_s = max(self.max_late_s, late)
         self.sends += 1

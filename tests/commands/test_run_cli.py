@@ -293,3 +293,30 @@ def test_video_camera_replayed_against_the_fake_robot(tmp_path: Path) -> None:
     assert m["success"] is None and "no simulation" in m["truth"]  # nothing says where the real tip went
     assert m["measured_cycles"] > 0
     assert sorted(p.name for p in out.iterdir()) == ["metrics.json", "robot.png", "run.mp4"]
+
+
+@pytest.mark.slow
+def test_lost_estimate_brakes_and_reports(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """Re-planning (multi-step) on a camera that stops delivering: the estimate is lost, the arm brakes."""
+    fakes = spy_fake(monkeypatch)
+    read = dry_run.FollowingCamera.read
+    calls = {"n": 0}
+
+    def dies(self: Any) -> Any:
+        calls["n"] += 1
+        return read(self) if calls["n"] < 12 else None
+
+    monkeypatch.setattr(dry_run.FollowingCamera, "read", dies)
+    cfg = config(tmp_path, policy="scripted:slow-reach-replan", fallback_policy=None)
+    out = tmp_path / "out"
+    assert main(["run", str(cfg), "--dry-run", "--out", str(out)]) == 1
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["stop_reason"] == "P_DLO estimate lost (the camera lost the cable)"
+    assert m["lost_cycles"] == 1 and 12 <= m["cycles"] <= 20
+    assert "stopped early: P_DLO estimate lost" in capsys.readouterr().err
+    (fake,) = fakes
+    t = np.array([r.t for r in fake.received])
+    q = np.array([r.q for r in fake.received])
+    assert check_joint_limits(ROBOT_ARMS["gofa"].model(), t, q).ok
+    assert np.all(np.abs(q[-1] - q[-2]) / (t[-1] - t[-2]) < 0.02)  # braked to rest

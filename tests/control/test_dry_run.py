@@ -172,3 +172,34 @@ def test_joint_trajectory_when_the_coarse_grid_rounds_past_the_end() -> None:
         traj = kin.joint_trajectory(ts, np.tile(TCP_HOME_M, (ts.size, 1)), q0)
         np.testing.assert_allclose(traj.q, np.tile(q0, (ts.size, 1)), atol=1e-6)
     assert any(np.arange(t0, t0 + 1.32, 0.02)[-1] > np.linspace(t0, t0 + 1.32, 331)[-1] for t0 in starts)
+
+
+def test_horizon_robot_with_plans_pending() -> None:
+    """A lead longer than the period: the newest plan that has started by each instant is what is sent."""
+    spec = TipControl(planar=True).action_spec()
+    replanner = Replanner(spec, np.array([TCP_HOME_M]))
+    driver = _Driver()
+    robot = HorizonRobot(driver, replanner, WorkspaceBox((-2, -2, -2), (2, 2, 2)), 10.0, lead_s=0.08,
+                         first_lead_s=0.25)
+    nothing = Setpoints(np.array([0.0]), np.zeros((1, 1, 3)), np.zeros((1, 1, 3)))
+    plans = [replanner.replan(np.full(spec.size, 0.3), robot.state().t)]  # starts at 1.25
+    robot.send(nothing)
+    driver.t = 1.04
+    assert robot.state().t == pytest.approx(1.25)  # never before the current plan's start: it replaces it
+    driver.t = 1.30
+    driver.position = plans[0].position(np.array([1.30]))
+    plans.append(replanner.replan(np.full(spec.size, -0.2), robot.state().t))  # starts at 1.38
+    robot.send(nothing)
+    driver.t = 1.34
+    driver.position = plans[0].position(np.array([1.34]))
+    plans.append(replanner.replan(np.full(spec.size, 0.1), robot.state().t))  # starts at 1.42, 2nd pending
+    robot.send(nothing)
+    sent = driver.sent[-1]
+    assert sent.t[0] == pytest.approx(1.344)
+    for k, (lo, hi) in enumerate([(1.34, 1.38), (1.38, 1.42), (1.42, 9.0)]):
+        sel = (sent.t >= lo) & (sent.t < hi)
+        assert sel.any()
+        np.testing.assert_allclose(sent.position[sel, 0], plans[k].position(sent.t[sel]))
+    # Each plan starts where and how fast the previous is then: the whole is continuous in velocity.
+    v = np.diff(sent.position[:, 0], axis=0) / 0.004
+    assert np.max(np.abs(np.diff(v, axis=0))) / 0.004 < 20.0  # m/s^2: no step at the joins
