@@ -58,6 +58,9 @@ PLAN_LEAD_S = 2 * CONTROL_PERIOD_S
 #: The first plan starts this far ahead: its cycle also simulates or waits for the first frames and the driver
 #: solves IK for the whole plan; the arm is at rest until then, so a long lead costs nothing.
 FIRST_PLAN_LEAD_S = 0.25
+#: The shortest span of setpoints sent: a plan that has (nearly) ended is held this long, longer than the
+#: driver may take to accept it on a loaded machine.
+MIN_HORIZON_S = 0.25
 
 
 class RunRefused(ValueError):
@@ -108,9 +111,10 @@ class HorizonRobot:
     several plans are pending at once; what is sent follows, at each instant, the newest plan that has started
     by then. A plan accepted after its start would join mid-way; :attr:`max_late_s` records by how much.
 
-    ``send`` ignores the loop's one-period window except as a signal: it sends, from the driver's last target
-    on, that piecewise plan to the newest plan's end (at least two control periods, holding the end), on the
-    driver's cycle, through the workspace and speed clamps.
+    ``send`` ignores the loop's one-period window except as a signal: when there is a new plan it sends, from
+    the driver's last target on, that piecewise plan to the newest plan's end (at least :data:`MIN_HORIZON_S`,
+    holding the end), on the driver's cycle, through the workspace and speed clamps; without one it sends
+    nothing (the driver has it all, ending at rest: a single-step plan is sent once).
 
     Args:
         driver: The connected streaming driver.
@@ -137,6 +141,7 @@ class HorizonRobot:
         self.period_s = float(driver.period_s)
         self.lead_s = float(lead_s)
         self.sends = 0
+        self.unchanged = 0  # cycles that had no new plan to send
         self.clamped_sends = 0
         #: Largest (time the driver had sent targets up to when it accepted a new plan) - (the plan's start).
         self.max_late_s = -math.inf
@@ -177,6 +182,10 @@ class HorizonRobot:
         """Send the plans' rest (see the class docstring)."""
         traj = self.replanner.trajectory
         new_plan = traj is not None and (not self._plans or traj is not self._plans[-1])
+        if not new_plan and self.sends:
+            # The driver holds the whole of the plans already (they end at rest): nothing new to send.
+            self.unchanged += 1
+            return
         if new_plan:
             self._plans.append(traj)
         commanded = self.driver.commanded_state()
@@ -184,7 +193,7 @@ class HorizonRobot:
         t0 = float(commanded.t)
         while len(self._plans) > 1 and self._plans[1].t_start <= t0:
             self._plans.pop(0)  # superseded before the first time still to send
-        t_end = max(t0 if traj is None else float(traj.t_end), t0 + 2.0 * CONTROL_PERIOD_S)
+        t_end = max(t0 if traj is None else float(traj.t_end), t0 + MIN_HORIZON_S)
         times = t0 + self.period_s * np.arange(1, math.ceil((t_end - t0) / self.period_s - 1e-9) + 1)
         p, v = self.references(times)
         self.clamped.send(Setpoints(times, p, v))
@@ -676,6 +685,30 @@ def camera_calibration(camera: Any, source: Any) -> Any:
     return source.tracker.camera if hasattr(source.tracker, "camera") else camera.calibration
 
 
+def moving_targets_lost(sent: list[FloatArray], received: list[FloatArray], tol: float = 1e-9) -> int:
+    """How many of the joint targets sent while moving (each differing from the one before) the robot never
+    received. A target can be overwritten before the robot reads it (RTDE registers hold the latest value;
+    the halt command on close overwrites the last, a repeat of the rest position, which is not counted)."""
+    def distinct(qs: list[FloatArray]) -> list[FloatArray]:
+        out: list[FloatArray] = []
+        for q in qs:
+            if not out or np.max(np.abs(q - out[-1])) > tol:
+                out.append(np.asarray(q, dtype=float))
+        return out
+
+    sent_d, recv_d = distinct(sent), distinct(received)
+    lost, k = 0, 0
+    for q in sent_d:  # in order: the robot receives them in the order sent
+        j = k
+        while j < len(recv_d) and np.max(np.abs(recv_d[j] - q)) > tol:
+            j += 1
+        if j == len(recv_d):
+            lost += 1
+        else:
+            k = j + 1
+    return lost
+
+
 def _metrics(cfg: RunConfig, dry_run: bool, name: str, note: str | None, multi_step: bool, exit_code: int,
              stop_reason: str, records: list[CycleRecord], outcome: dict[str, Any],
              first_plan: dict[str, Any],
@@ -690,6 +723,7 @@ def _metrics(cfg: RunConfig, dry_run: bool, name: str, note: str | None, multi_s
     sent_all = len(driver.targets)
     setpoints: dict[str, Any] = {
         "plans_sent": robot.sends,
+        "cycles_without_new_plan": robot.unchanged,
         "plans_clamped": robot.clamped_sends,
         "plan_lead_s": robot.lead_s,
         "plan_max_late_s": robot.max_late_s if math.isfinite(robot.max_late_s) else None,
@@ -700,9 +734,11 @@ def _metrics(cfg: RunConfig, dry_run: bool, name: str, note: str | None, multi_s
     if fake is not None:
         # The fake EGM controller records every answer, the fake UR script only the servo targets.
         expected = sent_all if cfg.robot.driver == "egm" else len(active)
-        received = len(fake.received)
-        setpoints.update({"joint_targets_received_by_robot": received, "joint_targets_expected": expected,
-                          "joint_targets_lost": expected - received})
+        received = fake.received
+        setpoints.update({"joint_targets_received_by_robot": len(received),
+                          "joint_targets_expected": expected, "joint_targets_lost": expected - len(received),
+                          "moving_targets_lost": moving_targets_lost([q for _, q in active],
+                                                                     [r.q for r in received])})
     else:
         setpoints["joint_targets_received_by_robot"] = None  # the controller does not report it back
     usage: dict[str, Any] = {}

@@ -84,9 +84,10 @@ def test_example_runs_dry(example: str, tmp_path: Path, monkeypatch: pytest.Monk
     # The robot received every joint target sent while it moved (and, for EGM, every answer).
     sp = m["setpoints"]
     assert sp["joint_targets_sent_moving"] > 200
-    assert sp["joint_targets_received_by_robot"] == sp["joint_targets_expected"]
-    assert sp["joint_targets_lost"] == 0
-    assert sp["plans_sent"] == m["cycles"] > 0
+    assert sp["moving_targets_lost"] == 0
+    # At most the last (a repeat of the rest position) overwritten by the halt command on close (RTDE).
+    assert 0 <= sp["joint_targets_lost"] <= (1 if "ur5e" in example else 0)
+    assert sp["plans_sent"] == 1 and sp["cycles_without_new_plan"] == m["cycles"] - 1  # single-step
     assert sp["plan_max_late_s"] < 0.0, "a plan was accepted after its start"
     # No joint limit broken: over what the driver streamed (metrics) and over what the fake robot received.
     for limits in ("arm_limits", "margin_limits"):
@@ -254,7 +255,7 @@ def test_multi_step_replans_join_on_the_robot(tmp_path: Path, monkeypatch: pytes
     assert m["multi_step"] is True and m["stop_reason"] in ("plan finished", "target hit")
     sp = m["setpoints"]
     assert sp["plans_sent"] == m["cycles"] >= 30  # one plan per cycle, 1.6 s of re-planning less the lead
-    assert sp["plan_max_late_s"] < 0.0 and sp["joint_targets_lost"] == 0
+    assert sp["plan_max_late_s"] < 0.0 and sp["moving_targets_lost"] == 0 and sp["joint_targets_lost"] <= 1
     assert m["joint_limits"]["margin_limits"]["acceleration_fraction"] < 1.0
     (fake,) = fakes
     t = np.array([r.t for r in fake.received])

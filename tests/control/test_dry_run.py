@@ -203,3 +203,13 @@ def test_horizon_robot_with_plans_pending() -> None:
     # Each plan starts where and how fast the previous is then: the whole is continuous in velocity.
     v = np.diff(sent.position[:, 0], axis=0) / 0.004
     assert np.max(np.abs(np.diff(v, axis=0))) / 0.004 < 20.0  # m/s^2: no step at the joins
+
+
+def test_moving_targets_lost_counts_what_never_arrived() -> None:
+    from dyndlo_vision.control.robot_run import moving_targets_lost
+
+    q = [np.full(6, 0.01 * k) for k in range(10)]
+    rest = [q[-1], q[-1]]
+    assert moving_targets_lost(q + rest, q + rest[:1]) == 0  # the last repeat overwritten: not a loss
+    assert moving_targets_lost(q, q[:4] + q[5:]) == 1  # one moving target overwritten
+    assert moving_targets_lost(q, list(reversed(q))) == 9  # out of order: only one matches in order
