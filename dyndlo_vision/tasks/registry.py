@@ -78,7 +78,11 @@ TASKS: Mapping[str, TaskEntry] = {
     entry.name: entry
     for entry in (
         TaskEntry(
-            "tip-control", TipControl, shipped_policies=("tip-control-multi-step", "tip-control-single-step")
+            "tip-control",
+            TipControl,
+            shipped_policies=(
+                "tip-control-multi-step", "tip-control-single-step", "tip-control-single-step-gofa"
+            ),
         ),
         TaskEntry(
             "vaulting",
