@@ -266,7 +266,7 @@ def resolve_policy(cfg: RunConfig) -> tuple[str, dict[str, Any], str | None]:
         FileNotFoundError: Neither is installed (no fallback given).
         ValueError: A policy for another task.
     """
-    from dyndlo_vision import policies
+    import dyndlo_vision.policies as policies
 
     def meta_of(name: str) -> dict[str, Any]:
         if name.startswith(SCRIPTED_PREFIX):
@@ -448,7 +448,7 @@ def run_session(cfg: RunConfig, dry_run: bool, say: Callable[[str], None] = prin
     Raises:
         RunRefused, ValueError, FileNotFoundError: Before anything moved.
     """
-    from dyndlo_vision import policies
+    import dyndlo_vision.policies as policies
     from dyndlo_vision.control.scripted import scripted_policy
     from dyndlo_vision.control.sim_env import as_sim_env
     from dyndlo_vision.tasks.registry import make_env

@@ -10,9 +10,10 @@ alone (table II: TCP position and velocity, P_DLO, P*).
   (P_DLO - TCP when the plan is made). When the arm cannot reach that point with the tool pointing down, the
   TCP goes as far along the straight line as the arm reaches, less 3 cm. A quasi-static move: the tip may
   hit the target only when the target is within that reach and the cable has swung out by the end.
-* ``slow-reach-replan``: the same, as a multi-step policy: re-planned every 40 ms from the commanded state
-  and the latest tip estimate, for 1.6 s, as the multi-step policies are (it exercises re-planning on a
-  robot: every plan joins the one the arm is following).
+* ``slow-reach-replan``: the same destination (decided from the first observation), as a multi-step policy:
+  re-planned every 40 ms from the commanded state for 1.6 s, as the multi-step policies are. It exercises
+  re-planning on a robot (every plan joins the one the arm is following) without chasing the tip estimate,
+  which swings with the cable.
 """
 
 from __future__ import annotations
@@ -46,13 +47,17 @@ class SlowReach:
     Args:
         spec: The task's action spec (planar tip control: ``num_points`` x (dx, dz), then the segment times).
         reachable: ``tcp position (3,) -> bool``, whether the arm reaches it (None: everything is).
+        keep_destination: Decide the destination at the first call and keep it (``slow-reach-replan``).
     """
 
-    def __init__(self, spec: Any, reachable: Callable[[NDArray[np.float64]], bool] | None = None) -> None:
+    def __init__(self, spec: Any, reachable: Callable[[NDArray[np.float64]], bool] | None = None,
+                 keep_destination: bool = False) -> None:
         if not spec.planar:
             raise ValueError("scripted:slow-reach plans planar tip control only")
         self.spec = spec
         self.reachable = reachable
+        self.keep_destination = keep_destination
+        self._kept: NDArray[np.float64] | None = None
 
     def destination(self, obs: NDArray[np.float64]) -> NDArray[np.float64]:
         """Where the TCP goes for this observation."""
@@ -81,7 +86,13 @@ class SlowReach:
 
     def __call__(self, obs: NDArray[np.float64]) -> NDArray[np.float32]:
         obs = np.asarray(obs, dtype=float)
-        step = (self.destination(obs) - obs[0:3]) / self.spec.num_points
+        if not self.keep_destination:
+            dest = self.destination(obs)
+        else:
+            if self._kept is None:
+                self._kept = self.destination(obs)
+            dest = self._kept
+        step = (dest - obs[0:3]) / self.spec.num_points
         n = self.spec.num_points
         action = np.empty(3 * n)
         action[0:2 * n:2] = _normalise(np.full(n, step[0]), self.spec.dx_m)
@@ -99,4 +110,4 @@ def scripted_policy(name: str, spec: Any, reachable: Callable[[NDArray[np.float6
     """
     if name not in SCRIPTED_POLICIES:
         raise ValueError(f"unknown scripted policy {name!r}; expected one of {sorted(SCRIPTED_POLICIES)}")
-    return SlowReach(spec, reachable)
+    return SlowReach(spec, reachable, keep_destination=name in MULTI_STEP)
