@@ -77,9 +77,11 @@ def test_example_runs_dry(example: str, tmp_path: Path, monkeypatch: pytest.Monk
     assert sorted(p.name for p in out.iterdir()) == ["metrics.json", "p_dlo.png", "robot.png", "run.mp4"]
     m = json.loads((out / "metrics.json").read_text())
     assert m["exit_status"] == 0 and m["stop_reason"] == "plan finished" and m["driver_fault"] is None
-    if "tip-control-single-step-gofa" not in policies.available():
+    if "tip-control-single-step-gofa" in policies.available():
+        assert m["policy"] == "tip-control-single-step-gofa" and m["policy_note"] is None
+    else:
         assert m["policy"] == "scripted:slow-reach" and "not installed" in m["policy_note"]
-    # The simulation's truth decides the outcome; the slow reach brings the hanging tip onto the target.
+    # The simulation's truth decides the outcome (the GoFa policy, or the slow reach, hits this target).
     assert m["success"] is True and m["min_distance_m"] < 0.035
     # The robot received every joint target sent while it moved (and, for EGM, every answer).
     sp = m["setpoints"]
@@ -325,3 +327,17 @@ def test_lost_estimate_brakes_and_reports(tmp_path: Path, monkeypatch: pytest.Mo
     q = np.array([r.q for r in fake.received])
     assert check_joint_limits(ROBOT_ARMS["gofa"].model(), t, q).ok
     assert np.all(np.abs(q[-1] - q[-2]) / (t[-1] - t[-2]) < 0.02)  # braked to rest
+
+
+@pytest.mark.slow
+def test_fallback_policy_when_the_policy_is_not_installed(tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    cfg = config(tmp_path, "run-ur5e-dry.yaml", policy="tip-control-single-step-ur5e",
+                 fallback_policy="scripted:slow-reach")
+    out = tmp_path / "out"
+    assert main(["run", str(cfg), "--dry-run", "--out", str(out)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["policy"] == "scripted:slow-reach" and m["policy_requested"] == "tip-control-single-step-ur5e"
+    assert "'tip-control-single-step-ur5e' is not installed" in m["policy_note"]
+    assert m["success"] is True and m["setpoints"]["moving_targets_lost"] == 0
+    assert "note: policy 'tip-control-single-step-ur5e' is not installed" in capsys.readouterr().out
