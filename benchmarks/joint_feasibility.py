@@ -53,11 +53,15 @@ def main() -> None:
             t1 = time.perf_counter()
             _, _, _, _, info = judged.step(action)
             t2 = time.perf_counter()
-            # The check alone, on the same plan (the judged env's trajectory), timed apart.
+            # The check alone, on the same plan (the judged env's, on the arm's cycle), timed apart.
             base = judged.unwrapped
-            base.arm_check.start(0.0, base.scene.gripper_home[0])
+            check = base.arm_check
+            period = check.period_s
+            times = period * np.arange(int(np.ceil(base.trajectory.t_end / period)) + 1)
+            positions = base.replanner.references(times)[0][:, 0]
+            check.start(0.0, positions[0])
             t3 = time.perf_counter()
-            base._check_arm()
+            check.check(times, positions)
             t4 = time.perf_counter()
             tcp_ok = not any(v for key, v in info_plain["avoid"].items())
             rows[kind].append({

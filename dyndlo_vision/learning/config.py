@@ -16,7 +16,7 @@ from typing import Any
 import yaml
 
 from dyndlo_vision.policies import ALGORITHMS
-from dyndlo_vision.tasks.registry import TASKS, task_entry
+from dyndlo_vision.tasks.registry import TASKS, check_robot, task_entry
 
 HYPERPARAMS_VERSION = 1
 #: Tasks with a scripted baseline whose episodes can seed SAC's replay buffer (``learning.demonstrations``).
@@ -94,9 +94,7 @@ class RunConfig:
     def __post_init__(self) -> None:
         task_entry(self.task)
         if self.robot is not None:
-            from dyndlo_vision.robots.feasibility import robot_arm
-
-            robot_arm(self.robot)
+            check_robot(self.robot)
         if self.algo not in ALGORITHMS:
             raise ValueError(f"algo={self.algo!r}; expected one of {list(ALGORITHMS)}")
         for name in ("timesteps", "n_envs", "eval_freq", "eval_episodes", "checkpoint_freq"):

@@ -108,6 +108,17 @@ TASKS: Mapping[str, TaskEntry] = {
 ENV_IDS = tuple(entry.env_id for entry in TASKS.values())
 
 
+def check_robot(name: str) -> str:
+    """``name`` if it is an arm ``make_env(robot=...)`` can judge plans on (``"gofa"``, ``"ur5e"``).
+
+    Raises:
+        ValueError: An unknown arm, listing the known ones.
+    """
+    from dyndlo_vision.robots.feasibility import robot_arm
+
+    return robot_arm(name).name
+
+
 def task_entry(name: str) -> TaskEntry:
     """The registry row of a task name.
 
