@@ -81,7 +81,10 @@ TASKS: Mapping[str, TaskEntry] = {
             "tip-control",
             TipControl,
             shipped_policies=(
-                "tip-control-multi-step", "tip-control-single-step", "tip-control-single-step-gofa"
+                "tip-control-multi-step",
+                "tip-control-single-step",
+                "tip-control-single-step-gofa",
+                "tip-control-single-step-ur5e",
             ),
         ),
         TaskEntry(

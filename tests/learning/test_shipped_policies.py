@@ -21,8 +21,9 @@ def test_every_registered_policy_is_shipped_and_names_its_own_task() -> None:
             meta = policies.metadata(name)
             assert meta["task"] == task and meta["algo"] in ("ppo", "sac")
     assert policies.default_for("tip-control") == "tip-control-multi-step"
-    gofa = policies.metadata("tip-control-single-step-gofa")
-    assert gofa["robot"] == "gofa" and gofa["evaluation"]["joint_feasible_rate"] >= 0.95
+    for arm in ("gofa", "ur5e"):
+        meta = policies.metadata(f"tip-control-single-step-{arm}")
+        assert meta["robot"] == arm and meta["evaluation"]["joint_feasible_rate"] >= 0.95
 
 
 #: Seeds of the shipped-policy tests: never trained on (training uses seeds < 100 000 + its run seed) and not
@@ -45,7 +46,9 @@ def test_the_hit_threshold_follows_the_published_interval() -> None:
 
 @pytest.mark.slow
 @pytest.mark.parametrize(
-    "name", ["tip-control-single-step", "tip-control-multi-step", "tip-control-single-step-gofa"]
+    "name",
+    ["tip-control-single-step", "tip-control-multi-step", "tip-control-single-step-gofa",
+     "tip-control-single-step-ur5e"],
 )
 def test_shipped_tip_control_policy_meets_its_published_rate_on_unseen_seeds(name: str) -> None:
     """20 episodes on seeds outside training and the published evaluation; the published 95 % interval sets
