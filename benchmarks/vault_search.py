@@ -23,7 +23,7 @@ import numpy as np
 
 from dyndlo_vision.tasks import make_env
 from dyndlo_vision.tasks.baselines import FlickVault
-from dyndlo_vision.tasks.vaulting import OBSTACLE_CENTRE_M, OBSTACLE_SIZE_M, crossing_heights
+from dyndlo_vision.tasks.vaulting import vault_progress
 from dyndlo_vision.tasks.wrappers import DEFAULT_CABLE_RANGES, draw_cable
 
 
@@ -35,22 +35,6 @@ def parse_options(pairs: list[str]) -> dict[str, str]:
             raise SystemExit(f"--env-option {pair!r}: expected KEY=VALUE")
         options[key] = value
     return options
-
-
-def vault_progress(nodes: np.ndarray, middle: int) -> float:
-    """How close a failed episode came to a vault, in [0, 1): the search's gradient where the reward is flat.
-
-    Half of it is how far the middle node got towards the box's far face (from the start, x = 0.5 m); half is
-    how high the cable's lowest crossing of the box's mid-plane lies, as a fraction of the box's height (0
-    where it never crosses). The task's reward is -1 to -2 for almost every failure, which gives the
-    cross-entropy method nothing to climb.
-    """
-    far_face = OBSTACLE_CENTRE_M[0] + OBSTACLE_SIZE_M[0] / 2
-    top = OBSTACLE_CENTRE_M[2] + OBSTACLE_SIZE_M[2] / 2
-    reach = float(np.clip((nodes[middle, 0] - 0.5) / (far_face - 0.5), 0.0, 1.0))
-    heights = crossing_heights(nodes)
-    over = float(np.clip(min(heights) / top, 0.0, 1.0)) if heights else 0.0
-    return 0.5 * reach + 0.5 * over * 0.999
 
 
 def main() -> None:

@@ -69,6 +69,26 @@ def crossing_heights(nodes: NDArray[np.float64]) -> list[float]:
     return heights
 
 
+#: ``distance_reward="shaped"``: a failed episode's r_distance is lambda_2 times this times (1 - progress).
+SHAPED_DISTANCE_SCALE = 5.0
+
+
+def vault_progress(nodes: NDArray[np.float64], middle: int) -> float:
+    """How close a cable state came to a vault, in [0, 1): a slope where the task's reward is flat.
+
+    Half of it is how far the middle node got towards the box's far face (from x = 0.5 m, where it
+    starts); half is how high the cable's lowest crossing of the box's mid-plane lies, as a fraction of the
+    box's height (0 where it never crosses). The task's reward is -1 to -3 for almost every failure, which
+    gives a search or a learner nothing to climb.
+    """
+    far_face = OBSTACLE_CENTRE_M[0] + OBSTACLE_SIZE_M[0] / 2
+    top = OBSTACLE_CENTRE_M[2] + OBSTACLE_SIZE_M[2] / 2
+    reach = float(np.clip((nodes[middle, 0] - 0.5) / (far_face - 0.5), 0.0, 1.0))
+    heights = crossing_heights(nodes)
+    over = float(np.clip(min(heights) / top, 0.0, 1.0)) if heights else 0.0
+    return 0.5 * reach + 0.5 * over * 0.999
+
+
 def middle_landed_beyond(middle: NDArray[np.float64]) -> bool:
     """Whether a point lies beyond the obstacle's far face and below its top (landed on the far side)."""
     beyond = middle[0] > OBSTACLE_CENTRE_M[0] + OBSTACLE_SIZE_M[0] / 2
@@ -93,8 +113,14 @@ class Vaulting(Task):
     check_collision = False
 
     def __init__(self, planar: bool = True, multi_step: bool = False, cable: CableParams | None = None,
-                 physics: PhysicsOptions | None = None) -> None:
+                 physics: PhysicsOptions | None = None, distance_reward: str = "indicator") -> None:
+        """``distance_reward``: ``"indicator"`` (table V: lambda_2 when the episode fails) or ``"shaped"``
+        (not the paper's: lambda_2 x :data:`SHAPED_DISTANCE_SCALE` x (1 - :func:`vault_progress`) when it
+        fails)."""
         super().__init__(planar=planar, multi_step=multi_step)
+        if distance_reward not in ("indicator", "shaped"):
+            raise ValueError(f"distance_reward={distance_reward!r}; expected 'indicator' or 'shaped'")
+        self.distance_reward = distance_reward
         self.cable = cable or paper_cable(0.9)
         self.physics = physics or PhysicsOptions(integrator="discrete", timestep_s=0.001)
 
@@ -131,4 +157,8 @@ class Vaulting(Task):
         success = self.landed_beyond(scene) and not monitor.diverged
         terms = implicit_reward(self.coefficients(), monitor.any_avoid, success, not success,
                                 monitor.max_mean_height_m)
+        if self.distance_reward == "shaped" and not success:
+            progress = vault_progress(scene.cable_nodes(), self.p_dlo_node(scene))
+            terms["r_distance"] = self.coefficients().distance * SHAPED_DISTANCE_SCALE * (1.0 - progress)
+            info["vault_progress"] = progress
         return terms, success, info
