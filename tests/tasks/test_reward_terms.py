@@ -226,3 +226,53 @@ def test_explicit_time_reward(t_traj: float, expected: float) -> None:
     assert explicit_time_reward(TABLE_V["time_oscillation"], t_traj) == {
         "r_distance": pytest.approx(expected)
     }
+
+
+def test_vault_progress_climbs_towards_a_vault() -> None:
+    """vault_progress: 0 for the cable as it starts (middle at x = 0.5 m, never crossing the box's mid-plane),
+    growing as the middle nears the far face and as the crossing rises to the box's top, below 1 always."""
+    from dyndlo_vision.tasks.vaulting import OBSTACLE_CENTRE_M, OBSTACLE_SIZE_M, vault_progress
+
+    top = OBSTACLE_CENTRE_M[2] + OBSTACLE_SIZE_M[2] / 2
+    far = OBSTACLE_CENTRE_M[0] + OBSTACLE_SIZE_M[0] / 2
+
+    def cable(middle_x: float, crossing_z: float | None) -> np.ndarray:
+        # held end, middle, far end; the far end beyond the box when the cable crosses it
+        end_x = 0.85 if crossing_z is not None else 0.6
+        return np.array([[0.4, 0, 0.25], [middle_x, 0, crossing_z if crossing_z is not None else 0.01],
+                         [end_x, 0, crossing_z if crossing_z is not None else 0.01]])
+
+    start = vault_progress(cable(0.5, None), 1)
+    halfway = vault_progress(cable(0.6, None), 1)
+    low_crossing = vault_progress(cable(far, 0.05), 1)
+    over_the_top = vault_progress(cable(far, top), 1)
+    assert start == 0.0
+    assert 0 < halfway < low_crossing < over_the_top < 1.0
+    assert halfway == pytest.approx(0.5 * (0.6 - 0.5) / (far - 0.5))
+
+
+@pytest.mark.slow
+def test_shaped_vaulting_reward_slopes_only_for_failures() -> None:
+    """distance_reward='shaped': a failed episode's r_distance is lambda_2 x 5 x (1 - progress) (the indicator
+    gives lambda_2); a vault is scored exactly as table V scores it."""
+    from dyndlo_vision.tasks.baselines import FlickVault
+    from dyndlo_vision.tasks.registry import make_env
+    from dyndlo_vision.tasks.vaulting import SHAPED_DISTANCE_SCALE
+
+    shaped, plain = make_env("vaulting", distance_reward="shaped"), make_env("vaulting")
+    lam = TABLE_V["vaulting"].distance
+    still = np.zeros(shaped.action_space.shape, dtype=np.float32)
+    shaped.reset(seed=0)
+    info = shaped.step(still)[4]
+    assert not info["is_success"] and 0.0 <= info["vault_progress"] < 0.05
+    assert info["r_distance"] == pytest.approx(lam * SHAPED_DISTANCE_SCALE * (1.0 - info["vault_progress"]))
+    plain.reset(seed=0)
+    assert plain.step(still)[4]["r_distance"] == lam
+    obs, _ = shaped.reset(seed=0)
+    vault = FlickVault(shaped)(obs)
+    _, reward, _, _, info = shaped.step(vault)
+    plain.reset(seed=0)
+    _, reward_plain, _, _, info_plain = plain.step(vault)
+    assert info["is_success"] and info_plain["is_success"] and reward == reward_plain
+    with pytest.raises(ValueError, match="distance_reward='linear'"):
+        make_env("vaulting", distance_reward="linear")
