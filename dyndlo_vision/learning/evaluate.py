@@ -78,7 +78,7 @@ def evaluate_episode(
     extras = {
         k: float(info[k])
         for k in ("trajectory_time_s", "residual_oscillation_m", "min_distance_m", "sim_time_s")
-        if k in info
+        if info.get(k) is not None  # task IV's trajectory time is None when the tip never arrived
     }
     return EpisodeRecord(
         seed=seed,

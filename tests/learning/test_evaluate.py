@@ -187,3 +187,22 @@ def test_evaluate_reports_each_episode_as_it_ends() -> None:
     report, records = evaluate(lambda obs: obs, _CountingEnv(), episodes=3, seed=10, on_episode=seen.append)
     assert seen == records and [r.seed for r in seen] == [10, 11, 12]
     assert [r.success for r in seen] == [True, False, True] and report["successes"] == 2
+
+
+def test_an_episode_without_a_trajectory_time_is_recorded_without_it() -> None:
+    """Task IV reports trajectory_time_s = None when the tip never arrived (e.g. a plan an arm refused at
+    once): the record leaves it out instead of failing on float(None)."""
+    from dyndlo_vision.learning.evaluate import evaluate_episode
+
+    class OneStep:
+        def reset(self, seed: int) -> tuple[list[float], dict]:
+            return [0.0], {}
+
+        def step(self, action: object) -> tuple:
+            info = {"is_success": False, "trajectory_time_s": None, "residual_oscillation_m": 0.0,
+                    "sim_time_s": 0.0, "r_avoid": -50.0}
+            return [0.0], -50.0, True, False, info
+
+    record = evaluate_episode(OneStep(), lambda obs: 0, seed=3)
+    assert "trajectory_time_s" not in record.extras and record.extras["sim_time_s"] == 0.0
+    assert record.reward == -50.0 and record.terms["r_avoid"] == -50.0
