@@ -77,8 +77,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--touch",
         metavar="CSV",
         help="with --extrinsic, instead of --board-pose: corners of the board, lying as in that photo, "
-        "touched with the robot's TCP; a CSV with the header col,row,x,y,z (corner column and row from the "
-        "origin corner; TCP position in m in the robot's base frame), at least 3 corners not on one line",
+        "touched with the robot's TCP; a CSV with the header col,row,x,y,z (inner corner column and row from "
+        "the first inner corner; TCP position in m in the robot's base frame), at least 3 corners not on one "
+        "line",
     )
     p.add_argument(
         "--board-origin",
@@ -141,7 +142,7 @@ def _settings(args: argparse.Namespace) -> _Settings:
         raise ValueError(f"--square must be a positive length in metres, got {args.square!r}")
     if args.square > 0.5:
         raise ValueError(f"--square {args.square:g} m is not a checkerboard square; give the side in metres")
-    touch = getattr(args, "touch", None)
+    touch = args.touch
     if args.board_pose is not None and touch is not None:
         raise ValueError("--board-pose and --touch both give the board's pose: give one")
     extrinsic_given = [args.extrinsic is not None, args.board_pose is not None or touch is not None]
