@@ -68,7 +68,7 @@ def main() -> None:
                 "seed": seed, "plain_ms": 1e3 * (t1 - t0), "judged_ms": 1e3 * (t2 - t1),
                 "check_ms": 1e3 * (t4 - t3), "feasible": bool(info["joint_feasible"]), "tcp_ok": tcp_ok,
                 "hit": bool(info_plain["is_success"]),
-                "reason": info.get("joint_limit_reason", ""), **info["joint_usage"],
+                "kind": info.get("joint_limit_kind"), **info["joint_usage"],
             })
     report = {"robot": args.robot, "episodes": args.episodes, "seed": args.seed,
               "machine": f"{platform.machine()}, {platform.system()} {platform.release()}"}
@@ -77,10 +77,8 @@ def main() -> None:
         tcp_ok = [r for r in rs if r["tcp_ok"]]
         kinds: dict[str, int] = {}
         for r in rs:
-            if r["reason"]:
-                w = r["reason"].split()
-                key = "IK" if w[0] == "IK:" else f"{w[2]} {w[1]}"
-                kinds[key] = kinds.get(key, 0) + 1
+            if r["kind"]:
+                kinds[r["kind"]] = kinds.get(r["kind"], 0) + 1
         report[kind] = {
             "feasible": len(feasible),
             "tcp_checks_pass": len(tcp_ok),

@@ -46,6 +46,7 @@ class EpisodeRecord:
     joint_feasible: bool | None = None
     joint_usage: dict[str, float] = field(default_factory=dict)
     joint_limit_reason: str | None = None
+    joint_limit_kind: str | None = None
 
 
 def as_action_fn(policy: Any) -> Callable[[np.ndarray], np.ndarray]:
@@ -92,6 +93,7 @@ def evaluate_episode(
         joint_feasible=info.get("joint_feasible"),
         joint_usage=dict(info.get("joint_usage", {})),
         joint_limit_reason=info.get("joint_limit_reason"),
+        joint_limit_kind=info.get("joint_limit_kind"),
     )
 
 
@@ -146,10 +148,8 @@ def joint_summary(records: list[EpisodeRecord]) -> dict[str, Any]:
     both = sum(bool(r.joint_feasible) and r.success for r in records)
     reasons: dict[str, int] = {}
     for r in records:
-        if r.joint_limit_reason:
-            words = r.joint_limit_reason.split()
-            kind = "IK" if words[0] == "IK:" else f"{words[2]} {words[1]}"  # e.g. "acceleration axis_2"
-            reasons[kind] = reasons.get(kind, 0) + 1
+        if r.joint_limit_kind:
+            reasons[r.joint_limit_kind] = reasons.get(r.joint_limit_kind, 0) + 1
     usage = [r.joint_usage for r in records if r.joint_usage]
     out: dict[str, Any] = {
         "episodes": n,

@@ -220,10 +220,12 @@ def limit_usage(arm: ArmModel, t: ArrayLike, q: ArrayLike) -> dict[str, float]:
 
 @dataclass(frozen=True)
 class Feasibility:
-    """The verdict on one plan: ``reason`` is None when the arm can follow it."""
+    """The verdict on one plan: ``reason`` is None when the arm can follow it; ``kind`` names what broke in
+    a few words (``"IK"``, or quantity and joint of the worst breach, e.g. ``"acceleration axis_2"``)."""
 
     reason: str | None
     usage: dict[str, float]
+    kind: str | None = None
 
     @property
     def ok(self) -> bool:
@@ -277,10 +279,10 @@ class PlanFeasibility:
         try:
             plan = joint_plan(self.kinematics, ts, positions, hist_t, hist_q, self.period_s)
         except IKError as exc:
-            return Feasibility(f"IK: {exc}", {})
+            return Feasibility(f"IK: {exc}", {}, "IK")
         usage = limit_usage(self.kinematics.arm, plan.t, plan.q)
         if not plan.report.ok:
             worst = max(plan.report.violations, key=lambda v: abs(v.value) / max(abs(v.limit), 1e-12))
-            return Feasibility(str(worst), usage)
+            return Feasibility(str(worst), usage, f"{worst.quantity} {worst.joint}")
         self._plan = (plan.t, plan.q)
         return Feasibility(None, usage)

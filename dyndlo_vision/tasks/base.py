@@ -409,6 +409,7 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         info["joint_usage"] = dict(self._arm_verdict.usage)
         if not self._arm_verdict.ok:
             info["joint_limit_reason"] = self._arm_verdict.reason
+            info["joint_limit_kind"] = self._arm_verdict.kind
 
     def _simulate(self, nsteps: int) -> None:
         """Follow the trajectory for ``nsteps`` physics steps, checking constraints as we go.
