@@ -80,8 +80,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--robot", choices=sorted(ROBOT_ARMS), default=None,
                    help="single-TCP tasks: a plan this arm cannot follow (IK with the tool down, joint "
-                        "position, speed and acceleration limits, as its driver checks) sets the avoid "
-                        "condition 'joints'")
+                        "position, speed and acceleration limits, as its driver checks) is refused: the "
+                        "episode ends there with the avoid condition 'joints'")
     p.add_argument("--eval-freq", type=int, default=2000, help="evaluate every N steps (default 2000)")
     p.add_argument("--eval-episodes", type=int, default=20,
                    help="episodes per evaluation (seeds seed + 10000 on)")
