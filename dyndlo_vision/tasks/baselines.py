@@ -100,23 +100,20 @@ class GeometricLift:
 class FlickVault:
     """Task II scripted vault as a single-step policy ``obs -> action`` for ``DynDLO/Vaulting-v0``.
 
-    Via points are offsets from the TCP's position in the observation, each interval a fixed duration, one
-    shape per cable model (:attr:`SHAPES`), each the best of a search on that model's nominal cable
-    (``benchmarks/vault_search.py``, docs/RESULTS.md):
+    Via points are offsets from the TCP's position in the observation, each interval a fixed duration
+    (:attr:`SHAPE`): the TCP lifts the cable up and forward over the box (above M = 0.3 m: it pays table V's
+    lambda_4), and comes back to lay it over the box, its middle beyond (reward 8 on the nominal cable of
+    either model). It is the best of a cross-entropy search over the nominal and random chain cables
+    (``benchmarks/vault_search.py``, docs/RESULTS.md, "Vaulting, third layout").
 
-    * ``rod``: a quick dip towards the box, a flick up and forward that throws a wave along the cable over the
-      box, and a step back (reward 10 on its nominal cable).
-    * ``chain``: the rod's flick does not vault the inextensible chain, nor MuJoCo 3's composite cable (the
-      paper's model, ``benchmarks/paper_model_vault.py``): the middle stops short of the box. This shape
-      lifts the cable high (above M = 0.3 m: it pays table V's lambda_4), carries it forward over the box and
-      lowers it beyond (reward 8 on its nominal cable). It is fragile: 8 of 100 random cables.
+    The name is historical: in the second layout (support 0.2 m beyond the box) the rod vaulted with a flick
+    that kept the TCP below M, and no throw vaulted the inextensible chain (nor the paper's own model).
     """
 
-    #: Cable model -> (offsets from the start (m), intervals (s)).
-    SHAPES: dict[str, tuple[tuple[tuple[float, float, float], ...], tuple[float, ...]]] = {
-        "rod": (((0.063, 0.0, -0.125), (0.238, 0.0, 0.030), (0.125, 0.0, -0.020)), (0.137, 0.175, 0.196)),
-        "chain": (((0.002, 0.0, 0.389), (0.25, 0.0, 0.449), (0.152, 0.0, 0.256)), (0.367, 0.482, 0.488)),
-    }
+    #: (offsets from the start (m), intervals (s)).
+    SHAPE: tuple[tuple[tuple[float, float, float], ...], tuple[float, ...]] = (
+        ((0.071, 0.0, 0.363), (0.314, 0.0, 0.495), (0.081, 0.0, 0.316)), (0.336, 0.354, 0.32)
+    )
 
     def __init__(self, env: Any) -> None:
         base = env.unwrapped
@@ -127,15 +124,9 @@ class FlickVault:
         if not isinstance(base.task, Vaulting):
             raise ValueError(f"FlickVault vaults in DynDLO/Vaulting-v0, not in {type(base.task).__name__}")
         self.spec = base.spec_actions
-        self._base = base
-
-    @property
-    def shape(self) -> tuple[tuple[tuple[float, float, float], ...], tuple[float, ...]]:
-        """The offsets and intervals for the environment's current cable model."""
-        return self.SHAPES[self._base.scene.config.cable.model]
 
     def __call__(self, obs: NDArray[np.float32]) -> NDArray[np.float32]:
-        offsets, intervals = self.shape
+        offsets, intervals = self.SHAPE
         start = np.asarray(obs[:3], dtype=float)
         points = np.vstack([start, start + np.asarray(offsets)])
         times = np.concatenate([[0.0], np.cumsum(intervals)])

@@ -13,60 +13,82 @@ from dyndlo_vision.tasks.rewards import TABLE_V, RewardCoefficients, implicit_re
 from dyndlo_vision.trajectory import ActionSpec
 
 OBSTACLE_SIZE_M = (0.04, 0.08, 0.14)  # section III-A: a 4 x 8 x 14 cm box (x thickness, y width, height)
-OBSTACLE_CENTRE_M = (0.65, 0.0, 0.07)
-TCP_HOME_M = (0.40, 0.0, 0.25)  # below M = 0.3 m (table V), so the cable must be thrown, not carried
-SUPPORT_M = (0.85, 0.0, 0.01)  # beyond the obstacle: the fixed end (the paper gives no layout; ours)
+OBSTACLE_CENTRE_M = (0.55, 0.0, 0.07)
+TCP_HOME_M = (0.40, 0.0, 0.20)  # below M = 0.3 m (table V), so the cable must be thrown, not carried
+#: The fixed end, beyond the box: 0.45 m past the box's mid-plane, half the paper's 90 cm cable, so that a
+#: cable drawn taut over the box has its middle just beyond it (the paper gives no layout; this one is ours).
+SUPPORT_M = (1.00, 0.0, 0.01)
 FLOOR_Z_M = 0.01
 #: The cable passes the box's side at least this far from its mid-plane (half its 8 cm width plus 2 cm).
 MIN_SIDE_OFFSET_M = 0.06
 
 
+def _path_through(offset_m: float) -> tuple[tuple[float, float, float], ...]:
+    x_box, half = OBSTACLE_CENTRE_M[0], OBSTACLE_SIZE_M[0] / 2
+    return (TCP_HOME_M, (TCP_HOME_M[0], 0.0, FLOOR_Z_M), (x_box - half, -offset_m, FLOOR_Z_M),
+            (x_box + half, -offset_m, FLOOR_Z_M), SUPPORT_M)
+
+
+def _path_length(path: tuple[tuple[float, float, float], ...]) -> float:
+    return float(np.linalg.norm(np.diff(np.asarray(path), axis=0), axis=1).sum())
+
+
 def initial_path(length_m: float) -> tuple[tuple[float, float, float], ...]:
     """The cable hangs from the TCP to the floor and runs along the floor *past the side* of the obstacle to
-    the support beyond it: a U in the floor plane, as deep as it must be for the path to be ``length_m`` long
-    (10.5 cm off the box's mid-plane for the paper's 90 cm), so a cable of any length starts laid out and
-    attached at the support, going around the box, not over it.
+    the support beyond it: from the foot below the TCP out to the box's side, along it, and in to the support,
+    as far off the box's mid-plane as it must be for the path to be ``length_m`` long (16.4 cm for the paper's
+    90 cm), so a cable of any length starts laid out and attached at the support, going around the box, not
+    over it.
 
     Raises:
         ValueError: A cable too short to pass the box's side on the way to the support.
     """
-    x_tcp, x_support = TCP_HOME_M[0], SUPPORT_M[0]
-    drop = TCP_HOME_M[2] - FLOOR_Z_M
-    # drop + offset + (x_support - x_tcp) + offset = length
-    offset = (length_m - drop - (x_support - x_tcp)) / 2
-    if offset < MIN_SIDE_OFFSET_M - 1e-12:
-        shortest = drop + (x_support - x_tcp) + 2 * MIN_SIDE_OFFSET_M
+    shortest = _path_length(_path_through(MIN_SIDE_OFFSET_M))
+    if length_m < shortest - 1e-12:
         raise ValueError(
             f"a {length_m:.3f} m cable is too short for the vaulting scene (it must pass the box's side on "
             f"the floor on its way to the support; at least {shortest:.3f} m)"
         )
-    return (TCP_HOME_M, (x_tcp, 0.0, FLOOR_Z_M), (x_tcp, -offset, FLOOR_Z_M), (x_support, -offset, FLOOR_Z_M),
-            SUPPORT_M)
+    low, high = MIN_SIDE_OFFSET_M, MIN_SIDE_OFFSET_M + length_m  # the length grows with the offset
+    for _ in range(100):
+        mid = 0.5 * (low + high)
+        low, high = (mid, high) if _path_length(_path_through(mid)) < length_m else (low, mid)
+    return _path_through(0.5 * (low + high))
 
 
 def crosses_over_obstacle(nodes: NDArray[np.float64], tolerance_m: float = 0.01) -> bool:
-    """Whether the cable crosses the obstacle's mid-plane (x = its centre), and only at the obstacle's height.
+    """Whether the cable crosses the obstacle's mid-plane (x = its centre), and only over the box.
 
-    Every crossing must lie no lower than the box's top, less ``tolerance_m``: a cable that went over the box
-    rests on it or on the floor beyond; one dragged along the floor past the box's side face crosses it at
-    floor height, which is not a vault. A cable that never crosses has not gone over.
+    Every crossing must lie above the box's top face: no lower than the top, less ``tolerance_m``, and within
+    the box's width (``|y - y_box| <= half its width``). A cable that went over the box rests on it or on the
+    floor beyond; one dragged along the floor past the box's side face crosses it at floor height, and one
+    pulled up against the side face crosses it beside the box at the top's height: neither is a vault. A
+    cable that never crosses has not gone over.
     """
     top = OBSTACLE_CENTRE_M[2] + OBSTACLE_SIZE_M[2] / 2
-    heights = crossing_heights(nodes)
-    return bool(heights) and min(heights) >= top - tolerance_m
+    half_width = OBSTACLE_SIZE_M[1] / 2
+    points = crossings(nodes)
+    return bool(points) and all(
+        z >= top - tolerance_m and abs(y - OBSTACLE_CENTRE_M[1]) <= half_width for y, z in points
+    )
+
+
+def crossings(nodes: NDArray[np.float64]) -> list[tuple[float, float]]:
+    """(y, z) where the node polyline crosses the obstacle's mid-plane (x = its centre), in order."""
+    x_mid = OBSTACLE_CENTRE_M[0]
+    p = np.asarray(nodes, dtype=float)
+    side = np.sign(p[:, 0] - x_mid)
+    points = []
+    for i in np.flatnonzero(side[:-1] * side[1:] <= 0):
+        a, b = p[i], p[i + 1]
+        w = 0.0 if b[0] == a[0] else (x_mid - a[0]) / (b[0] - a[0])
+        points.append((float(a[1] + w * (b[1] - a[1])), float(a[2] + w * (b[2] - a[2]))))
+    return points
 
 
 def crossing_heights(nodes: NDArray[np.float64]) -> list[float]:
     """Heights at which the node polyline crosses the obstacle's mid-plane (x = its centre), in order."""
-    x_mid = OBSTACLE_CENTRE_M[0]
-    p = np.asarray(nodes, dtype=float)
-    side = np.sign(p[:, 0] - x_mid)
-    heights = []
-    for i in np.flatnonzero(side[:-1] * side[1:] <= 0):
-        a, b = p[i], p[i + 1]
-        w = 0.0 if b[0] == a[0] else (x_mid - a[0]) / (b[0] - a[0])
-        heights.append(float(a[2] + w * (b[2] - a[2])))
-    return heights
+    return [z for _, z in crossings(nodes)]
 
 
 #: ``distance_reward="shaped"``: a failed episode's r_distance is lambda_2 times this times (1 - progress).
@@ -76,15 +98,18 @@ SHAPED_DISTANCE_SCALE = 5.0
 def vault_progress(nodes: NDArray[np.float64], middle: int) -> float:
     """How close a cable state came to a vault, in [0, 1): a slope where the task's reward is flat.
 
-    Half of it is how far the middle node got towards the box's far face (from x = 0.5 m, where it
-    starts); half is how high the cable's lowest crossing of the box's mid-plane lies, as a fraction of the
-    box's height (0 where it never crosses). The task's reward is -1 to -3 for almost every failure, which
-    gives a search or a learner nothing to climb.
+    Half of it is how far the middle node got towards the box's far face, from below the TCP's home (the
+    cable as laid starts with its middle beside the box, so this half is nearly full from the start); half is
+    how high the cable's lowest crossing of the box's mid-plane lies, as a fraction of the box's height (0
+    where it never crosses, or crosses beside the box). The task's reward is -1 to -3 for almost every
+    failure, which gives a search or a learner nothing to climb.
     """
     far_face = OBSTACLE_CENTRE_M[0] + OBSTACLE_SIZE_M[0] / 2
     top = OBSTACLE_CENTRE_M[2] + OBSTACLE_SIZE_M[2] / 2
-    reach = float(np.clip((nodes[middle, 0] - 0.5) / (far_face - 0.5), 0.0, 1.0))
-    heights = crossing_heights(nodes)
+    home = TCP_HOME_M[0]
+    reach = float(np.clip((nodes[middle, 0] - home) / (far_face - home), 0.0, 1.0))
+    half_width = OBSTACLE_SIZE_M[1] / 2
+    heights = [z if abs(y - OBSTACLE_CENTRE_M[1]) <= half_width else 0.0 for y, z in crossings(nodes)]
     over = float(np.clip(min(heights) / top, 0.0, 1.0)) if heights else 0.0
     return 0.5 * reach + 0.5 * over * 0.999
 

@@ -301,19 +301,16 @@ def test_vaulting_demonstrations_are_scripted_vaults(tmp_path: Path) -> None:
         with pytest.raises(ValueError, match="demonstrations are available for single-step"):
             RunConfig(task=task, multi_step=False, algo="sac", timesteps=2, demonstrations=2)
 
-    # One shape per cable model, each searched on its nominal cable. The rod's flick keeps the TCP below M
-    # (reward 10); the chain's carry lifts it above M and pays lambda_4 (reward 8). Neither shape vaults the
-    # other model (the flick leaves the chain's middle at x = 0.53 m).
-    for model, expected in (("rod", 10.0), ("chain", 8.0)):
+    # One carry vaults the nominal cable of either model; it lifts the TCP above M and pays lambda_4
+    # (reward 8). Holding still (the middle of every action range) does not vault.
+    for model in ("rod", "chain"):
         env = gym.make("DynDLO/Vaulting-v0", cable=model)
         obs, _ = env.reset(seed=0)
         _, reward, _, _, info = env.step(FlickVault(env)(obs))
-        assert info["is_success"] and reward == pytest.approx(expected), model
-    env = gym.make("DynDLO/Vaulting-v0")  # the chain, with the rod's flick
-    obs, _ = env.reset(seed=0)
-    flick = FlickVault(env)
-    flick.SHAPES = {"chain": FlickVault.SHAPES["rod"]}
-    _, _, _, _, info = env.step(flick(obs))
+        assert info["is_success"] and reward == pytest.approx(8.0), model
+    env = gym.make("DynDLO/Vaulting-v0")
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.zeros(env.action_space.shape, np.float32))
     assert not info["is_success"]
     with pytest.raises(ValueError, match="Vaulting"):
         FlickVault(gym.make("DynDLO/Hooking-v0"))

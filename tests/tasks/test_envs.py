@@ -280,10 +280,13 @@ def test_vaulting_cable_starts_around_the_box_to_a_support_beyond_it() -> None:
         np.testing.assert_array_equal(path[-1], SUPPORT_M)
         # It passes the box on the floor, beside it: clear of the box's side face by 2 cm or more.
         assert path[2, 1] == path[3, 1] <= -MIN_SIDE_OFFSET_M + 1e-12
+        np.testing.assert_allclose(path[2:4, 0], np.array(OBSTACLE_CENTRE_M[0]) + [-0.02, 0.02])  # its faces
         assert np.all(path[1:, 2] <= 0.01)
-    assert initial_path(0.9)[2] == pytest.approx((0.40, -0.105, 0.01), abs=1e-12)
-    with pytest.raises(ValueError, match="too short for the vaulting scene"):
-        initial_path(0.75)
+    # The paper's 90 cm: 0.19 m down, then 0.13 m out and 0.1644 m aside, 0.04 m along the box, and 0.43 m
+    # in and 0.1644 m back to the support: 0.19 + 0.2096 + 0.04 + 0.4604 = 0.90.
+    assert initial_path(0.9)[2] == pytest.approx((0.53, -0.1644, 0.01), abs=1e-4)
+    with pytest.raises(ValueError, match=r"too short for the vaulting scene .*at least 0\.807 m"):
+        initial_path(0.80)
 
 
 def test_vaulting_success_needs_the_middle_landed_beyond_and_the_cable_over_the_box() -> None:
@@ -299,23 +302,28 @@ def test_vaulting_success_needs_the_middle_landed_beyond_and_the_cable_over_the_
     support = np.array(SUPPORT_M)
     on_top = top + 0.002
     # TCP on the robot's side, the cable draped over the box, its middle on the floor beyond, the support.
-    draped = np.array([[0.45, 0.0, 0.25], [x0 - 0.02, 0.0, on_top], [x0 + 0.02, 0.0, on_top],
-                       [0.75, 0.0, 0.01], support])
+    draped = np.array([[0.45, 0.0, 0.20], [x0 - 0.02, 0.0, on_top], [x0 + 0.02, 0.0, on_top],
+                       [x0 + 0.1, 0.0, 0.01], support])
     assert crosses_over_obstacle(draped) and middle_landed_beyond(draped[3])
     # As it starts: along the floor past the box's side (crossing at floor height); and what a policy learned
     # under the first success test (dragging the cable past the side face, 4.5 cm off its mid-plane).
     assert not crosses_over_obstacle(np.array(initial_path(0.9)))
-    around = np.array([[0.45, 0.0, 0.25], [x0 - 0.02, -0.045, 0.002], [x0 + 0.02, -0.045, 0.002], support])
+    around = np.array([[0.45, 0.0, 0.20], [x0 - 0.02, -0.045, 0.002], [x0 + 0.02, -0.045, 0.002], support])
     assert not crosses_over_obstacle(around)
+    # Pulled up against the box's side face (what lifting the TCP alone does in this layout): at the top's
+    # height, but beside the box.
+    beside = np.array([[0.40, 0.0, 0.50], [x0 - 0.02, -0.042, on_top], [x0 + 0.02, -0.042, on_top], support])
+    assert not crosses_over_obstacle(beside)
+    assert crosses_over_obstacle(beside * [1.0, 0.9, 1.0])  # 3.8 cm off the mid-plane: over the 8 cm box
     # Over the box and back (the TCP carried on beyond it and returned): both crossings are over it.
     there_and_back = np.vstack([draped[:3], draped[:3][::-1][1:] + [0.0, 0.0, 0.01]])
     assert crosses_over_obstacle(there_and_back)
-    never_reached = np.array([[0.45, 0.0, 0.25], [0.55, 0.0, 0.01]])
+    never_reached = np.array([[0.40, 0.0, 0.20], [x0 - 0.05, 0.0, 0.01]])
     assert not crosses_over_obstacle(never_reached)
     # The middle must have landed: beyond the far face and below the box's top, not held up in the air.
-    assert not middle_landed_beyond(np.array([0.75, 0.0, 0.30]))  # hanging from a TCP carried over the box
-    assert not middle_landed_beyond(np.array([0.60, 0.0, 0.01]))  # on the robot's side
-    assert not middle_landed_beyond(np.array([0.66, 0.0, on_top]))  # on top of the box
+    assert not middle_landed_beyond(np.array([x0 + 0.1, 0.0, 0.30]))  # hanging from a TCP carried over it
+    assert not middle_landed_beyond(np.array([x0 - 0.05, 0.0, 0.01]))  # on the robot's side
+    assert not middle_landed_beyond(np.array([x0 + 0.01, 0.0, on_top]))  # on top of the box
 
 
 def test_vaulting_does_not_start_as_a_success() -> None:
@@ -324,5 +332,5 @@ def test_vaulting_does_not_start_as_a_success() -> None:
     base = env.unwrapped
     assert not base.task.landed_beyond(base.scene)
     nodes = base.cable_nodes()
-    assert nodes[:, 2].max() == pytest.approx(0.25, abs=0.01)  # only the TCP's end is off the floor
-    assert np.all(nodes[20:, 2] < 0.03)  # past the 24 cm drop (16 of 60 segments) it lies on the floor
+    assert nodes[:, 2].max() == pytest.approx(0.20, abs=0.01)  # only the TCP's end is off the floor
+    assert np.all(nodes[16:, 2] < 0.03)  # past the 19 cm drop (13 of 60 segments) it lies on the floor

@@ -229,26 +229,29 @@ def test_explicit_time_reward(t_traj: float, expected: float) -> None:
 
 
 def test_vault_progress_climbs_towards_a_vault() -> None:
-    """vault_progress: 0 for the cable as it starts (middle at x = 0.5 m, never crossing the box's mid-plane),
-    growing as the middle nears the far face and as the crossing rises to the box's top, below 1 always."""
-    from dyndlo_vision.tasks.vaulting import OBSTACLE_CENTRE_M, OBSTACLE_SIZE_M, vault_progress
+    """vault_progress: 0 for a cable whose middle lies below the TCP's home and never crosses the box's
+    mid-plane, growing as the middle nears the far face and as the crossing rises to the box's top, below 1
+    always."""
+    from dyndlo_vision.tasks.vaulting import OBSTACLE_CENTRE_M, OBSTACLE_SIZE_M, TCP_HOME_M, vault_progress
 
     top = OBSTACLE_CENTRE_M[2] + OBSTACLE_SIZE_M[2] / 2
     far = OBSTACLE_CENTRE_M[0] + OBSTACLE_SIZE_M[0] / 2
+    home = TCP_HOME_M[0]
 
     def cable(middle_x: float, crossing_z: float | None) -> np.ndarray:
         # held end, middle, far end; the far end beyond the box when the cable crosses it
-        end_x = 0.85 if crossing_z is not None else 0.6
-        return np.array([[0.4, 0, 0.25], [middle_x, 0, crossing_z if crossing_z is not None else 0.01],
+        end_x = 1.0 if crossing_z is not None else OBSTACLE_CENTRE_M[0] - 0.05
+        return np.array([[home, 0, 0.2], [middle_x, 0, crossing_z if crossing_z is not None else 0.01],
                          [end_x, 0, crossing_z if crossing_z is not None else 0.01]])
 
-    start = vault_progress(cable(0.5, None), 1)
-    halfway = vault_progress(cable(0.6, None), 1)
+    start = vault_progress(cable(home, None), 1)
+    halfway_x = 0.5 * (home + far)
+    halfway = vault_progress(cable(halfway_x, None), 1)
     low_crossing = vault_progress(cable(far, 0.05), 1)
     over_the_top = vault_progress(cable(far, top), 1)
     assert start == 0.0
     assert 0 < halfway < low_crossing < over_the_top < 1.0
-    assert halfway == pytest.approx(0.5 * (0.6 - 0.5) / (far - 0.5))
+    assert halfway == pytest.approx(0.25)
 
 
 @pytest.mark.slow
@@ -264,7 +267,9 @@ def test_shaped_vaulting_reward_slopes_only_for_failures() -> None:
     still = np.zeros(shaped.action_space.shape, dtype=np.float32)
     shaped.reset(seed=0)
     info = shaped.step(still)[4]
-    assert not info["is_success"] and 0.0 <= info["vault_progress"] < 0.05
+    # The TCP rises 0.3 m and pulls the cable up against the box's side: no vault, and no progress over it
+    # (the middle lies beside the box from the start, so the reach half is full).
+    assert not info["is_success"] and info["vault_progress"] == pytest.approx(0.5)
     assert info["r_distance"] == pytest.approx(lam * SHAPED_DISTANCE_SCALE * (1.0 - info["vault_progress"]))
     plain.reset(seed=0)
     assert plain.step(still)[4]["r_distance"] == lam

@@ -111,10 +111,10 @@ def test_tip_control_linear_distance_reward(distance: float, r_distance: float) 
 
 # ------------------------------------------------------------------------------------------------ task II
 BOX_X, BOX_TOP, FAR_FACE = (
-    0.65,
+    0.55,
     0.14,
-    0.67,
-)  # obstacle centre x, top (0.07 + 0.14 / 2) and far face (0.65 + 0.02)
+    0.57,
+)  # obstacle centre x, top (0.07 + 0.14 / 2) and far face (0.55 + 0.02)
 
 
 def test_vaulting_obstacle_geometry() -> None:
@@ -124,13 +124,13 @@ def test_vaulting_obstacle_geometry() -> None:
 @pytest.mark.parametrize(
     ("middle", "landed"),
     [
-        ((0.6701, 0.0, 0.01), True),
-        ((0.6699, 0.0, 0.01), False),  # not past the far face
-        ((0.66, 0.0, 0.01), False),  # past the box's centre but not its far face
-        ((0.75, 0.0, 0.1399), True),
-        ((0.75, 0.0, 0.1401), False),  # above the box's top: held in the air
-        ((0.75, 0.3, 0.01), True),  # beside, but beyond: x and z decide
-        ((0.55, 0.0, 0.01), False),  # the robot's side
+        ((0.5701, 0.0, 0.01), True),
+        ((0.5699, 0.0, 0.01), False),  # not past the far face
+        ((0.56, 0.0, 0.01), False),  # past the box's centre but not its far face
+        ((0.65, 0.0, 0.1399), True),
+        ((0.65, 0.0, 0.1401), False),  # above the box's top: held in the air
+        ((0.65, 0.3, 0.01), True),  # beside, but beyond: x and z decide
+        ((0.45, 0.0, 0.01), False),  # the robot's side
     ],
 )
 def test_vaulting_middle_landed_beyond_boundaries(middle: tuple[float, float, float], landed: bool) -> None:
@@ -140,7 +140,7 @@ def test_vaulting_middle_landed_beyond_boundaries(middle: tuple[float, float, fl
 @pytest.mark.parametrize(
     ("z_before", "z_after", "over"),
     [
-        # A segment from x = 0.63 to x = 0.67 crosses the mid-plane x = 0.65 halfway: its height there is the
+        # A segment from x = 0.53 to x = 0.57 crosses the mid-plane x = 0.55 halfway: its height there is the
         # mean of its ends; it must be >= top - 1 cm = 0.13 m.
         (0.1405, 0.1205, True),  # 0.1305
         (0.1395, 0.1195, False),  # 0.1295
@@ -153,37 +153,37 @@ def test_vaulting_middle_landed_beyond_boundaries(middle: tuple[float, float, fl
 def test_vaulting_crossing_height_is_interpolated_at_the_mid_plane(
     z_before: float, z_after: float, over: bool
 ) -> None:
-    nodes = np.array([[0.45, 0.0, 0.25], [0.63, 0.0, z_before], [0.67, 0.0, z_after], [0.85, 0.0, 0.01]])
+    nodes = np.array([[0.40, 0.0, 0.20], [0.53, 0.0, z_before], [0.57, 0.0, z_after], [1.00, 0.0, 0.01]])
     assert crosses_over_obstacle(nodes) is over
 
 
 def test_vaulting_crossing_interpolation_uses_the_x_fraction() -> None:
-    # Crossing 1/4 of the way from (0.64, 0.10) to (0.68, 0.18): z = 0.10 + 0.25 * 0.08 = 0.12 < 0.13.
-    nodes = np.array([[0.45, 0.0, 0.25], [0.64, 0.0, 0.10], [0.68, 0.0, 0.18], [0.85, 0.0, 0.01]])
+    # Crossing 1/4 of the way from (0.54, 0.10) to (0.58, 0.18): z = 0.10 + 0.25 * 0.08 = 0.12 < 0.13.
+    nodes = np.array([[0.40, 0.0, 0.20], [0.54, 0.0, 0.10], [0.58, 0.0, 0.18], [1.00, 0.0, 0.01]])
     assert not crosses_over_obstacle(nodes)
-    # 3/4 of the way from (0.62, 0.1001) to (0.66, 0.1401): z = 0.1001 + 0.75 * 0.04 = 0.1301 >= 0.13: over.
-    nodes = np.array([[0.45, 0.0, 0.25], [0.62, 0.0, 0.1001], [0.66, 0.0, 0.1401], [0.85, 0.0, 0.01]])
+    # 3/4 of the way from (0.52, 0.1001) to (0.56, 0.1401): z = 0.1001 + 0.75 * 0.04 = 0.1301 >= 0.13: over.
+    nodes = np.array([[0.40, 0.0, 0.20], [0.52, 0.0, 0.1001], [0.56, 0.0, 0.1401], [1.00, 0.0, 0.01]])
     assert crosses_over_obstacle(nodes)
 
 
 def test_vaulting_every_crossing_must_be_over_the_box() -> None:
-    over = [[0.45, 0.0, 0.25], [0.63, 0.0, 0.15], [0.67, 0.0, 0.15]]
-    back_low = [[0.63, 0.0, 0.02], [0.70, 0.0, 0.02]]  # back under the box's top, then out again
-    assert crosses_over_obstacle(np.array(over + [[0.85, 0.0, 0.01]]))
+    over = [[0.40, 0.0, 0.20], [0.53, 0.0, 0.15], [0.57, 0.0, 0.15]]
+    back_low = [[0.53, 0.0, 0.02], [0.60, 0.0, 0.02]]  # back under the box's top, then out again
+    assert crosses_over_obstacle(np.array(over + [[1.00, 0.0, 0.01]]))
     assert not crosses_over_obstacle(np.array(over + back_low))
     # Never reaching the mid-plane is no vault.
-    assert not crosses_over_obstacle(np.array([[0.45, 0.0, 0.25], [0.64, 0.0, 0.3]]))
-    assert not crosses_over_obstacle(np.array([[0.70, 0.0, 0.25], [0.85, 0.0, 0.01]]))
+    assert not crosses_over_obstacle(np.array([[0.40, 0.0, 0.20], [0.54, 0.0, 0.3]]))
+    assert not crosses_over_obstacle(np.array([[0.60, 0.0, 0.25], [1.00, 0.0, 0.01]]))
 
 
 def _vault_nodes(middle: tuple[float, float, float], crossing_z: float) -> np.ndarray:
     """61 nodes (the 90 cm, 60-segment cable): TCP, over the mid-plane at ``crossing_z``, middle, support."""
-    tcp, support = np.array([0.40, 0.0, 0.25]), np.array([0.85, 0.0, 0.01])
-    a, b = np.array([0.60, 0.0, crossing_z]), np.array([0.70, 0.0, crossing_z])
+    tcp, support = np.array([0.40, 0.0, 0.20]), np.array([1.00, 0.0, 0.01])
+    a, b = np.array([0.50, 0.0, crossing_z]), np.array([0.60, 0.0, crossing_z])
     m = np.array(middle)
     parts = [
         np.linspace(tcp, a, 11)[:-1],  # nodes 0-9
-        np.linspace(a, b, 11)[:-1],  # nodes 10-19, crossing x = 0.65 between nodes 14 and 15
+        np.linspace(a, b, 11)[:-1],  # nodes 10-19, crossing x = 0.55 between nodes 14 and 15
         np.linspace(b, m, 11)[:-1],  # nodes 20-29
         np.linspace(m, support, 31),  # nodes 30 (the middle) - 60
     ]
@@ -195,10 +195,10 @@ def _vault_nodes(middle: tuple[float, float, float], crossing_z: float) -> np.nd
 @pytest.mark.parametrize(
     ("middle", "crossing_z", "success"),
     [
-        ((0.75, 0.0, 0.01), 0.15, True),
-        ((0.75, 0.0, 0.01), 0.02, False),  # around the box (crossing at floor height)
-        ((0.75, 0.0, 0.30), 0.35, False),  # middle held up over the far side
-        ((0.66, 0.0, 0.01), 0.15, False),  # middle short of the far face
+        ((0.65, 0.0, 0.01), 0.15, True),
+        ((0.65, 0.0, 0.01), 0.02, False),  # around the box (crossing at floor height)
+        ((0.65, 0.0, 0.30), 0.35, False),  # middle held up over the far side
+        ((0.56, 0.0, 0.01), 0.15, False),  # middle short of the far face
     ],
 )
 def test_vaulting_success_and_terms(
@@ -217,7 +217,7 @@ def test_vaulting_success_and_terms(
 
 def test_vaulting_avoid_and_height_terms() -> None:
     task = Vaulting()
-    scene = _Scene(_vault_nodes((0.75, 0.0, 0.01), 0.15))
+    scene = _Scene(_vault_nodes((0.65, 0.0, 0.01), 0.15))
     terms, ok, _ = task.evaluate(scene, np.zeros(3), _monitor(avoid="outreach", height=0.30), True)
     # lambda_1 = -10, lambda_4 = -2 at z_P = M = 0.3 m (>=); the success itself still pays 10.
     assert ok and _terms(terms) == (-10.0, 0.0, 10.0, -2.0)
