@@ -66,11 +66,13 @@ def crosses_over_obstacle(nodes: NDArray[np.float64], tolerance_m: float = 0.01)
     cable that never crosses has not gone over.
     """
     top = OBSTACLE_CENTRE_M[2] + OBSTACLE_SIZE_M[2] / 2
-    half_width = OBSTACLE_SIZE_M[1] / 2
     points = crossings(nodes)
-    return bool(points) and all(
-        z >= top - tolerance_m and abs(y - OBSTACLE_CENTRE_M[1]) <= half_width for y, z in points
-    )
+    return bool(points) and all(z >= top - tolerance_m and within_box_width(y) for y, z in points)
+
+
+def within_box_width(y: float) -> bool:
+    """Whether a crossing of the box's mid-plane at ``y`` lies over the box's 8 cm width, not beside it."""
+    return abs(y - OBSTACLE_CENTRE_M[1]) <= OBSTACLE_SIZE_M[1] / 2
 
 
 def crossings(nodes: NDArray[np.float64]) -> list[tuple[float, float]]:
@@ -108,8 +110,7 @@ def vault_progress(nodes: NDArray[np.float64], middle: int) -> float:
     top = OBSTACLE_CENTRE_M[2] + OBSTACLE_SIZE_M[2] / 2
     home = TCP_HOME_M[0]
     reach = float(np.clip((nodes[middle, 0] - home) / (far_face - home), 0.0, 1.0))
-    half_width = OBSTACLE_SIZE_M[1] / 2
-    heights = [z if abs(y - OBSTACLE_CENTRE_M[1]) <= half_width else 0.0 for y, z in crossings(nodes)]
+    heights = [z if within_box_width(y) else 0.0 for y, z in crossings(nodes)]
     over = float(np.clip(min(heights) / top, 0.0, 1.0)) if heights else 0.0
     return 0.5 * reach + 0.5 * over * 0.999
 
