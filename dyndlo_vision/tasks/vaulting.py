@@ -88,11 +88,6 @@ def crossings(nodes: NDArray[np.float64]) -> list[tuple[float, float]]:
     return points
 
 
-def crossing_heights(nodes: NDArray[np.float64]) -> list[float]:
-    """Heights at which the node polyline crosses the obstacle's mid-plane (x = its centre), in order."""
-    return [z for _, z in crossings(nodes)]
-
-
 #: ``distance_reward="shaped"``: a failed episode's r_distance is lambda_2 times this times (1 - progress).
 SHAPED_DISTANCE_SCALE = 5.0
 
