@@ -11,7 +11,9 @@ and counts:
 * stretch: the largest relative deviation of an edge (node to node) length from its rest length, at every
   40 ms decision (``env.unwrapped.cable_nodes()`` after each ``env.step``, the issue's measure) and over every
   physics step of the episode (the C rollout's recorded states);
-* non-finite states: physics steps whose recorded state has a NaN or an infinity.
+* non-finite states: physics steps whose recorded state has a NaN or an infinity;
+* torn (vaulting): episodes ended because the TCP went farther from the support than the cable is long
+  (``info["avoid"]["torn"]``), which the environment stops before the chain is dragged off its support.
 
     python benchmarks/chain_robustness.py [--model chain] [--episodes 1000] [--tasks TipControl Hooking]
         [--modes single multi] [--damping S] [--integrator discrete] [--solver CG] [--json out.json]
@@ -92,7 +94,7 @@ def run(task: str, multi_step: bool, episodes: int, args: argparse.Namespace) ->
     env = make_env(task, **options).unwrapped
     probe = StretchProbe(env.scene)
     rng = np.random.default_rng(args.seed)
-    diverged, with_warnings, warnings_total, text_before = 0, 0, 0, len(_TEXT_WARNINGS)
+    diverged, torn, with_warnings, warnings_total, text_before = 0, 0, 0, 0, len(_TEXT_WARNINGS)
     first_bad: list[int] = []
     decision_stretch = 0.0
     rest = cable.segment_length_m
@@ -121,12 +123,14 @@ def run(task: str, multi_step: bool, episodes: int, args: argparse.Namespace) ->
         warnings_total += n_warn
         bad = bool(info.get("diverged"))
         diverged += bad
+        torn += bool(info.get("avoid", {}).get("torn", False))
         with_warnings += n_warn > 0
         if (bad or n_warn) and len(first_bad) < 10:
             first_bad.append(args.seed + ep)
     return {
         "task": task, "mode": "multi" if multi_step else "single", "episodes": episodes,
-        "diverged": diverged, "episodes_with_warnings": with_warnings, "warnings": warnings_total,
+        "diverged": diverged, "torn": torn, "episodes_with_warnings": with_warnings,
+        "warnings": warnings_total,
         "text_warnings": len(_TEXT_WARNINGS) - text_before, "bad_seeds": first_bad,
         "max_stretch_rel": probe.max_rel, "max_decision_stretch_rel": decision_stretch,
         "non_finite_steps": probe.non_finite, "sim_s": sim_s, "wall_s": time.perf_counter() - start,
@@ -152,15 +156,16 @@ def main() -> None:
     mujoco.set_mju_user_warning(_count_warning)
     print(f"# {platform.machine()}, {os.cpu_count()} cpus; mujoco {mujoco.__version__}; "
           f"{' '.join(sys.argv[1:])}", flush=True)
-    print("| model | task | mode | episodes | diverged | episodes with warnings | warnings | text warnings | "
-          "non-finite steps | max stretch at decisions | max stretch, every step | sim-s / CPU-s |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|", flush=True)
+    print("| model | task | mode | episodes | diverged | torn | episodes with warnings | warnings | "
+          "text warnings | non-finite steps | max stretch at decisions | max stretch, every step | "
+          "sim-s / CPU-s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|", flush=True)
     results = []
     for task in args.tasks:
         for mode in args.modes:
             r = run(task, mode == "multi", args.episodes, args)
             results.append(r)
-            print(f"| {args.model} | {task} | {mode} | {r['episodes']} | {r['diverged']} | "
+            print(f"| {args.model} | {task} | {mode} | {r['episodes']} | {r['diverged']} | {r['torn']} | "
                   f"{r['episodes_with_warnings']} | {r['warnings']} | {r['text_warnings']} | "
                   f"{r['non_finite_steps']} | {r['max_decision_stretch_rel']:.2e} | "
                   f"{r['max_stretch_rel']:.2e} | "

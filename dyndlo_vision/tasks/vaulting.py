@@ -117,6 +117,19 @@ def middle_landed_beyond(middle: NDArray[np.float64]) -> bool:
     return bool(beyond and below_top)
 
 
+def beyond_cable_reach(tcp_positions: NDArray[np.float64], length_m: float) -> bool:
+    """Whether any TCP position, (..., 3), lies farther from the support than a ``length_m`` cable reaches.
+
+    The cable's held end is the TCP and its far end is fixed at the support, so no TCP position farther from
+    the support than the cable is long can be reached without tearing the cable or its support. In the
+    simulation the support is a soft equality constraint, and a kinematic TCP simply drags the cable's end off
+    it (by up to 0.56 m in random single-step plans, 2.1 m in multi-step ones, where the chain then blows up;
+    docs/RESULTS.md).
+    """
+    d = np.linalg.norm(np.asarray(tcp_positions, dtype=float) - np.asarray(SUPPORT_M), axis=-1)
+    return bool(np.any(d > length_m))
+
+
 class Vaulting(Task):
     """Make the cable's middle land beyond the obstacle (P_DLO is the middle node; P* the obstacle).
 
@@ -126,6 +139,10 @@ class Vaulting(Task):
     the box's mid-plane only over the box (:func:`crosses_over_obstacle`; around its side, as it starts, is
     not a vault). The cable rests on the floor by design, so cable-floor contact is not an avoid condition
     here.
+
+    One avoid condition of this task's own (not the paper's), ``avoid["torn"]``: the TCP went farther from the
+    support than the cable is long (:func:`beyond_cable_reach`), which a real cable survives only by tearing.
+    The episode ends at the next decision (multi-step) and never counts as a success.
     """
 
     kind = "implicit"
@@ -164,6 +181,15 @@ class Vaulting(Task):
     def sample_goal(self, rng: np.random.Generator) -> NDArray[np.float64]:
         return np.asarray(OBSTACLE_CENTRE_M, dtype=float)
 
+    def on_samples(self, times: NDArray[np.float64], tcp_positions: NDArray[np.float64],
+                   tcp_velocities: NDArray[np.float64], p_dlo: NDArray[np.float64],
+                   min_goal_distances: NDArray[np.float64], monitor: EpisodeMonitor) -> None:
+        torn = beyond_cable_reach(tcp_positions[:, 0], self.cable.length_m)
+        monitor.avoid["torn"] = monitor.avoid.get("torn", False) or torn
+
+    def is_done_early(self, scene: Scene, goal: NDArray[np.float64], monitor: EpisodeMonitor) -> bool:
+        return bool(monitor.avoid.get("torn", False))
+
     def landed_beyond(self, scene: Scene) -> bool:
         """Whether the middle node has landed past the far face of the obstacle, the cable over it."""
         nodes = scene.cable_nodes()
@@ -175,7 +201,7 @@ class Vaulting(Task):
         info = {"middle_x_m": float(middle[0])}
         if not final:
             return {"r_avoid": 0.0, "r_distance": 0.0, "r_success": 0.0, "r_dyn": 0.0}, False, info
-        success = self.landed_beyond(scene) and not monitor.diverged
+        success = self.landed_beyond(scene) and not (monitor.diverged or monitor.avoid.get("torn", False))
         terms = implicit_reward(self.coefficients(), monitor.any_avoid, success, not success,
                                 monitor.max_mean_height_m)
         if self.distance_reward == "shaped" and not success:

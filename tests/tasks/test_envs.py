@@ -334,3 +334,36 @@ def test_vaulting_does_not_start_as_a_success() -> None:
     nodes = base.cable_nodes()
     assert nodes[:, 2].max() == pytest.approx(0.20, abs=0.01)  # only the TCP's end is off the floor
     assert np.all(nodes[16:, 2] < 0.03)  # past the 19 cm drop (13 of 60 segments) it lies on the floor
+
+
+def test_vaulting_ends_an_episode_where_the_tcp_would_tear_the_cable_from_its_support() -> None:
+    """Random 40 ms re-plans drove the TCP 1.6-2.1 m from the support of a 0.9 m cable, which dragged the
+    cable's end off the (soft) support until the chain blew up (22 of 500 episodes): such an episode now ends
+    at the first decision past the cable's reach, as an avoid condition."""
+    from dyndlo_vision.tasks.vaulting import SUPPORT_M
+
+    back_and_up = np.array([-1, 1, -1, 1, -1, 1, -1, -1, -1], np.float32)  # 3 x (dx, dz), then 3 x dt
+    env = gym.make("DynDLO/Vaulting-v0", multi_step=True)
+    env.reset(seed=0)
+    base = env.unwrapped
+    reach = base.task.cable.length_m
+    steps, done = 0, False
+    while not done:
+        _, reward, terminated, truncated, info = env.step(back_and_up)
+        done, steps = terminated or truncated, steps + 1
+        tcp = base.scene.tcp_positions()[0]
+        beyond = bool(np.linalg.norm(tcp - np.array(SUPPORT_M)) > reach)
+        assert info["avoid"]["torn"] >= beyond  # the monitor saw it at the latest at the decision
+        assert info["avoid"]["torn"] == done  # and the episode ends there
+    assert info["avoid"]["torn"] and not info["is_success"] and "diverged" not in info
+    assert info["sim_time_s"] < base.task.episode_s - 0.5  # ended early, not at 2 s
+    assert reward == -10.0 - 1.0 - 2.0 * float(base.monitor.max_mean_height_m >= 0.3)
+    # Resting where it starts, the TCP stays within reach for the whole episode.
+    env.reset(seed=0)
+    home = base.scene.tcp_positions()[0]
+    hold = base.spec_actions.encode(np.tile(home, (4, 1)), np.arange(4) * 0.3)  # stay, in 0.3 s steps
+    done = False
+    while not done:
+        _, _, terminated, truncated, info = env.step(hold.astype(np.float32))
+        done = terminated or truncated
+    assert info["avoid"]["torn"] is False and info["sim_time_s"] >= base.task.episode_s

@@ -17,7 +17,13 @@ from dyndlo_vision.sim import CableParams
 from dyndlo_vision.tasks import EpisodeMonitor, Hooking, TimeOscillation, TipControl, Vaulting
 from dyndlo_vision.tasks.hooking import HOOK_PRONG
 from dyndlo_vision.tasks.time_oscillation import LAYOUTS
-from dyndlo_vision.tasks.vaulting import OBSTACLE_CENTRE_M, crosses_over_obstacle, middle_landed_beyond
+from dyndlo_vision.tasks.vaulting import (
+    OBSTACLE_CENTRE_M,
+    SUPPORT_M,
+    beyond_cable_reach,
+    crosses_over_obstacle,
+    middle_landed_beyond,
+)
 
 TERMS = ("r_avoid", "r_distance", "r_success", "r_dyn")
 
@@ -223,6 +229,38 @@ def test_vaulting_avoid_and_height_terms() -> None:
     assert ok and _terms(terms) == (-10.0, 0.0, 10.0, -2.0)
     terms, ok, _ = task.evaluate(scene, np.zeros(3), _monitor(height=0.2999), False)
     assert not ok and _terms(terms) == (0.0, 0.0, 0.0, 0.0)  # nothing before the end
+
+
+@pytest.mark.parametrize(("length", "distance", "torn"),
+                         [(0.9, 0.899, False), (0.9, 0.901, True), (1.0, 0.95, False), (1.0, 1.001, True)])
+def test_vaulting_tcp_beyond_the_cables_reach_from_the_support(
+    length: float, distance: float, torn: bool
+) -> None:
+    direction = np.array([-0.6, 0.0, 0.8])  # up and back from the support, towards the robot
+    tcp = np.array(SUPPORT_M) + distance * direction
+    assert beyond_cable_reach(tcp, length) is torn
+    # Any of K samples decides; a (K, 3) array is checked whole.
+    assert beyond_cable_reach(np.vstack([np.array(SUPPORT_M) + 0.5 * direction, tcp]), length) is torn
+
+
+def test_vaulting_torn_cable_is_an_avoid_that_ends_the_episode_and_is_never_a_success() -> None:
+    task = Vaulting(cable=CableParams(length_m=1.0, num_segments=60))
+    scene = _Scene(_vault_nodes((0.65, 0.0, 0.01), 0.15))  # a vault, as far as the cable's state shows
+    mon = _monitor(height=0.25)
+    direction = np.array([-0.6, 0.0, 0.8])
+    samples = np.array(SUPPORT_M) + np.array([0.9, 0.99])[:, None] * direction  # within a 1.0 m cable's reach
+    z3 = np.zeros((2, 1, 3))
+    task.on_samples(np.array([0.0, 0.002]), samples[:, None], z3, samples, np.zeros(2), mon)
+    assert mon.avoid["torn"] is False and not task.is_done_early(scene, np.zeros(3), mon)
+    terms, ok, _ = task.evaluate(scene, np.zeros(3), mon, True)
+    assert ok and _terms(terms) == (0.0, 0.0, 10.0, 0.0)
+    beyond = np.array(SUPPORT_M) + 1.01 * direction
+    task.on_samples(np.array([0.004]), beyond[None, None], z3[:1], beyond[None], np.zeros(1), mon)
+    later = samples[:1]  # back within reach: the flag stays
+    task.on_samples(np.array([0.006]), later[:, None], z3[:1], later, np.zeros(1), mon)
+    assert mon.avoid["torn"] is True and task.is_done_early(scene, np.zeros(3), mon)
+    terms, ok, _ = task.evaluate(scene, np.zeros(3), mon, True)
+    assert not ok and _terms(terms) == (-10.0, -1.0, 0.0, 0.0)
 
 
 def test_vaulting_ignores_cable_floor_contact_but_the_others_do_not() -> None:
