@@ -1,4 +1,5 @@
-"""``dyndlo-vision demo``: closed-loop tip control in simulation, on P_DLO estimated from rendered images.
+"""``dyndlo-vision demo``: the closed loop in simulation (tip control or vaulting), on P_DLO estimated from
+rendered images.
 
 The loop (``dyndlo_vision.control.loop``) reads the "tracking" camera at 25 Hz, tracks the cable, filters the
 tip, builds the observation from the *estimate*, queries the shipped policy, re-plans the B-spline from the
@@ -25,7 +26,11 @@ import numpy as np
 
 from dyndlo_vision._atomic import check_output_folder, staged_folder, write_atomic, write_video_atomic
 
-HELP = "closed-loop tip control in simulation on tracked state: video, plot and metrics"
+HELP = "closed-loop tip control or vaulting in simulation on tracked state: video, plot and metrics"
+#: Tasks the demo runs: their scenes have a "tracking" camera placed for them and a shipped policy.
+DEMO_TASKS = ("tip-control", "vaulting")
+#: What the yellow ring marks: the task's P* (table II).
+GOAL_NAMES = {"tip-control": "target", "vaulting": "obstacle"}
 
 # Overlay colours (RGB). ``tracking.annotate`` draws the tracked cable cyan and the estimate magenta. The
 # scene renders the cable red, the target as a green sphere, the sky black and the floor light grey, so the
@@ -36,18 +41,21 @@ CABLE_RGB = (0, 230, 255)
 ESTIMATE_RGB = (255, 0, 220)
 TRUE_RGB = (255, 255, 255)
 TARGET_RGB = (255, 220, 0)
-LEGEND = (
-    ("cyan: tracked cable", CABLE_RGB),
-    ("magenta +: estimate (dot filled: measured)", ESTIMATE_RGB),
-    ("white o: true P_DLO", TRUE_RGB),
-    ("yellow ring: target", TARGET_RGB),
-)
-#: Without the tracker nothing is tracked, and the magenta cross is the P_DLO the policy is given.
-LEGEND_UNTRACKED = (
-    ("magenta +: P_DLO given to the policy", ESTIMATE_RGB),
-    ("white o: true P_DLO", TRUE_RGB),
-    ("yellow ring: target", TARGET_RGB),
-)
+
+
+def make_legend(tracked: bool, goal_name: str = "target") -> tuple[tuple[str, Any], ...]:
+    """The video's legend. Without the tracker nothing is tracked, and the magenta cross is the P_DLO the
+    policy is given."""
+    if tracked:
+        return (("cyan: tracked cable", CABLE_RGB),
+                ("magenta +: estimate (dot filled: measured)", ESTIMATE_RGB),
+                ("white o: true P_DLO", TRUE_RGB), (f"yellow ring: {goal_name}", TARGET_RGB))
+    return (("magenta +: P_DLO given to the policy", ESTIMATE_RGB), ("white o: true P_DLO", TRUE_RGB),
+            (f"yellow ring: {goal_name}", TARGET_RGB))
+
+
+LEGEND = make_legend(True)
+LEGEND_UNTRACKED = make_legend(False)
 _PLOT_TRUE = "black"
 _PLOT_TARGET = "#c8a000"
 
@@ -57,10 +65,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from dyndlo_vision.tasks.registry import task_entry
 
     p.add_argument(
+        "--task",
+        choices=DEMO_TASKS,
+        default="tip-control",
+        help="the task (default: tip-control); its scene's camera is placed for it",
+    )
+    defaults = "; ".join(f"{t}: {list(task_entry(t).shipped_policies)}" for t in DEMO_TASKS)
+    p.add_argument(
         "--policy",
         default=None,
-        help="shipped policy name or .zip (default: the first shipped of "
-        f"{list(task_entry('tip-control').shipped_policies)})",
+        help=f"shipped policy name or .zip (default: the task's first shipped one of {defaults})",
     )
     p.add_argument(
         "--observation",
@@ -147,14 +161,20 @@ def run(args: argparse.Namespace) -> int:
     from dyndlo_vision.tasks.registry import make_env
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    name = args.policy or policies.default_for("tip-control")
+    task = getattr(args, "task", "tip-control")
+    name = args.policy or policies.default_for(task)
     _, meta = policies.resolve(name)
-    if meta.get("task", "tip-control") != "tip-control":
-        raise ValueError(f"the demo runs tip control; policy {name} is for {meta.get('task')}")
+    if meta.get("task", "tip-control") != task:
+        raise ValueError(f"policy {name} is for {meta.get('task')}, not --task {task}")
     multi_step = bool(meta.get("multi_step", False))
     from dyndlo_vision.tasks.wrappers import CABLE_RANGES
 
-    env = make_env("tip-control", multi_step=multi_step,
+    if task == "vaulting" and args.randomize_cable:
+        from dyndlo_vision.tasks.vaulting import check_cable_lengths
+
+        check_cable_lengths(CABLE_RANGES[args.cable_ranges]["length_m"][0],
+                            f"--cable-ranges {args.cable_ranges}")
+    env = make_env(task, multi_step=multi_step,
                    randomize_cable_every=1 if args.randomize_cable else None,
                    cable_ranges=CABLE_RANGES[args.cable_ranges])
     check_camera(env, args.camera)
@@ -175,6 +195,7 @@ def run(args: argparse.Namespace) -> int:
                 video if i == 0 else None,
                 latency_s=1e-3 * args.latency_ms,
                 segmenter=args.segmenter,
+                goal_name=GOAL_NAMES[task],
             )
             episodes.append(record)
             bar.update(1)
@@ -189,6 +210,7 @@ def run(args: argparse.Namespace) -> int:
             )
     trace = episodes[0]["trace"]
     metrics: dict[str, Any] = {
+        "task": task,
         "policy": str(name),
         "multi_step": multi_step,
         "observation": args.observation,
@@ -210,7 +232,7 @@ def run(args: argparse.Namespace) -> int:
         metrics["video"] = {"episode": 0, "seed": episodes[0]["seed"], "frames": len(video), "fps": fps,
                             "codec": codec}
         metrics["episodes"] = rows
-        _write_plot(stage / "p_dlo.png", trace)
+        _write_plot(stage / "p_dlo.png", trace, GOAL_NAMES[task])
         text = json.dumps(metrics, indent=2)
         write_atomic(stage / "metrics.json", lambda p: Path(p).write_text(text))
     if args.episodes > 1:
@@ -283,6 +305,7 @@ def film_episode(
     latency_s: float = 0.0,
     point_filter: Any = None,
     segmenter: str = "background",
+    goal_name: str = "target",
 ) -> dict[str, Any]:
     """One closed-loop episode (:func:`~dyndlo_vision.control.episode.run_loop_episode`), filmed.
 
@@ -293,17 +316,17 @@ def film_episode(
     """
     from dyndlo_vision.control.episode import run_loop_episode
 
-    legend = LEGEND if observation == "tracked" else LEGEND_UNTRACKED
+    shown_legend = make_legend(observation == "tracked", goal_name)
 
     def film(moment: Any) -> None:
         assert video is not None and moment.camera is not None
         calib = moment.camera.calibration
         rgb = moment.frame.rgb if moment.frame is not None else moment.camera.read().rgb
         if moment.cycle is not None:
-            video.append(_annotate(rgb, moment.cycle, calib, moment.goal, legend))
+            video.append(_annotate(rgb, moment.cycle, calib, moment.goal, shown_legend))
         else:
             video.append(_annotate_truth(rgb, moment.t, moment.p_dlo_true, calib, moment.goal, moment.status,
-                                         legend))
+                                         shown_legend))
 
     return run_loop_episode(
         env,
@@ -407,8 +430,8 @@ def _annotate_truth(rgb: np.ndarray, t: float, true_p: np.ndarray, calib: Any, g
     return cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
 
 
-def _write_plot(path: Path, trace: dict[str, Any]) -> None:
-    """Tip position (x, y, z) and distance to the target over time: truth vs estimate, up to the outcome."""
+def _write_plot(path: Path, trace: dict[str, Any], goal_name: str = "target") -> None:
+    """P_DLO (x, y, z) and its distance to the goal over time: truth vs estimate, up to the outcome."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -428,7 +451,7 @@ def _write_plot(path: Path, trace: dict[str, Any]) -> None:
     fig, axes = plt.subplots(4, 1, figsize=(8, 9), sharex=True)
     series = [(truth[:, k], est[:, k], goal[k], f"{name} (m)") for k, name in enumerate("xyz")]
     series.append((np.linalg.norm(truth - goal, axis=1), np.linalg.norm(est - goal, axis=1), None,
-                   "distance to\ntarget centre (m)"))
+                   f"distance to\n{goal_name} centre (m)"))
     for ax, (true_k, est_k, goal_k, label) in zip(axes, series, strict=True):
         ax.plot(truth_t, true_k, "-", color=_PLOT_TRUE, lw=1.5, label="true P_DLO")
         ax.plot(t, est_k, "--", color=rgb(ESTIMATE_RGB), lw=1)
@@ -437,7 +460,7 @@ def _write_plot(path: Path, trace: dict[str, Any]) -> None:
         ax.plot(t[~measured], est_k[~measured], "o", mfc="none", color=rgb(ESTIMATE_RGB), ms=4,
                 label="estimate, predicted")
         if goal_k is not None:
-            ax.axhline(goal_k, color=_PLOT_TARGET, lw=1.2, label="target")
+            ax.axhline(goal_k, color=_PLOT_TARGET, lw=1.2, label=goal_name)
         if trace["replan_end_t"] < end_t - 1e-9:
             ax.axvspan(trace["replan_end_t"], end_t, color="0.9", label="last plan, no re-planning")
         ax.axvline(end_t, color="0.4", ls=":", lw=1)
@@ -449,12 +472,12 @@ def _write_plot(path: Path, trace: dict[str, Any]) -> None:
                         label=f"success radius {100 * trace['success_radius_m']:.1f} cm")
     dist_ax.plot([end_t], [final], "o", color=_PLOT_TRUE, ms=6)
     # The closest approach is checked every 2 ms on the swept path; the 25 Hz samples drawn can miss it.
-    dist_ax.set_title(
-        f"outcome at {end_t:.2f} s: {'hit' if trace['success'] else 'miss'}; "
-        f"final distance {100 * final:.1f} cm, closest {100 * trace['min_distance_m']:.1f} cm",
-        fontsize=9,
-        loc="right",
-    )
+    if trace.get("success_radius_m"):
+        outcome = (f"{'hit' if trace['success'] else 'miss'}; final distance {100 * final:.1f} cm, "
+                   f"closest {100 * trace['min_distance_m']:.1f} cm")
+    else:
+        outcome = trace.get("outcome", "success" if trace["success"] else "failure")
+    dist_ax.set_title(f"outcome at {end_t:.2f} s: {outcome}", fontsize=9, loc="right")
     dist_ax.set_ylim(bottom=0.0)
     handles, labels = axes[0].get_legend_handles_labels()
     # One legend for all panels, below them: the distance panel's success radius joins the others'.
@@ -463,7 +486,8 @@ def _write_plot(path: Path, trace: dict[str, Any]) -> None:
             handles.append(h)
             labels.append(lab)
     axes[-1].set_xlabel("simulated time (s)")
-    fig.suptitle("Tip position: simulator truth vs the controller's estimate, up to the outcome")
+    point = {"target": "tip", "obstacle": "cable's middle"}.get(goal_name, "point")
+    fig.suptitle(f"P_DLO ({point}): simulator truth vs the controller's estimate, up to the outcome")
     fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8, frameon=False)
     fig.tight_layout(rect=(0.0, 0.05, 1.0, 1.0))
     write_atomic(path, lambda p: fig.savefig(p, dpi=100, format="png"))

@@ -30,6 +30,14 @@ CABLE_FIELDS = ("length_m", "mass_kg", "young_pa", "damping_s")
 SINGLE_STEP_MAX_S = 10.0
 
 
+def outcome_text(env: Any, success: bool, final_distance_m: float) -> str:
+    """The outcome in words, as the video's last frame shows it (tip control: hit or miss, and how far)."""
+    task = as_sim_env(env).task
+    if hasattr(task, "success_radius_m"):
+        return f"{'HIT' if success else 'miss'}, tip {100 * final_distance_m:.1f} cm from target centre"
+    return f"{type(task).__name__}: {'SUCCESS' if success else 'failure'}"
+
+
 @dataclass(frozen=True)
 class EpisodeMoment:
     """What a ``watch`` callback sees at one instant of a loop episode.
@@ -170,13 +178,14 @@ def run_loop_episode(
             )
             replan_end_t = float(base.scene.time)
         _, success, info = base.outcome()
-        final_distance = float(np.linalg.norm(base.p_dlo() - goal))
-        snapshot(f"{'HIT' if success else 'miss'}, tip {100 * final_distance:.1f} cm from target centre")
+        snapshot(outcome_text(base, success, float(np.linalg.norm(base.p_dlo() - goal))))
     finally:
         if camera is not None:
             camera.close()
     errors = report.estimate_errors()
     controller = report.controller_ms()
+    # Tip control reports the closest approach on the swept path; other tasks the monitor's 2 ms samples.
+    min_distance = float(info.get("min_distance_m", base.monitor.min_goal_distance_m))
     trace = {
         "t": [c.t for c in report.cycles],
         "estimate": [c.p_dlo_estimate.tolist() for c in report.cycles],
@@ -187,7 +196,8 @@ def run_loop_episode(
         "success_radius_m": getattr(base.task, "success_radius_m", None),
         "replan_end_t": replan_end_t,
         "success": bool(success),
-        "min_distance_m": float(info["min_distance_m"]),
+        "min_distance_m": min_distance,
+        "outcome": outcome_text(base, success, float(np.linalg.norm(truth[-1] - goal))),
     }
     cable = base.scene.config.cable
     return {
@@ -198,7 +208,7 @@ def run_loop_episode(
         "final_distance_m": float(np.linalg.norm(truth[-1] - goal)),
         "final_p_dlo_m": truth[-1].tolist(),
         "end_time_s": truth_t[-1],
-        "min_distance_m": float(info["min_distance_m"]),
+        "min_distance_m": min_distance,
         "estimate_rmse_m": float(np.sqrt(np.mean(errors**2))) if errors.size else None,
         "cycle_ms_p50": float(np.percentile(controller, 50)),
         "cycle_ms_p95": float(np.percentile(controller, 95)),
@@ -208,6 +218,7 @@ def run_loop_episode(
         "cycles": len(report.cycles),
         "stop_reason": report.stop_reason,
         "avoid": info["avoid"],
+        "diverged": bool(info.get("diverged", False)),
         "trace": trace,
         "_cycle_ms": controller.tolist(),
         "_stage_ms": {

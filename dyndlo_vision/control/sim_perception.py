@@ -31,7 +31,7 @@ from dyndlo_vision.tracking import (
 )
 from dyndlo_vision.tracking.masks import GripperMaskedSegmenter
 
-#: Planar tip control moves in the x-z plane through the origin.
+#: The planar tasks move in the x-z plane through the origin.
 MOTION_PLANE = Plane(np.array([0.0, 1.0, 0.0]), 0.0)
 GRIPPER_MASK_RADIUS_M = 0.03  # the 2 cm gripper sphere plus a margin
 # The tip filter's tuned acceleration noise without and with a camera latency (why: tracking.params).
@@ -106,8 +106,11 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
     # Nodes are spread over the observed centreline (from the gripper mask's edge to the far end): the last
     # one is the tip whenever the tip is in view. (With ``cable_length_px`` the tracker would mark nodes past
     # the observed length invisible, but the rendered 2 mm cable measures a few pixels short: no tip.)
+    # The floor, raised by the cable's radius: where the cable lies on it (vaulting's start, off the motion
+    # plane), a lift onto the motion plane would put it under the floor.
+    floor = Plane(np.array([0.0, 0.0, 1.0]), -base.scene.config.cable.radius_m)
     tracker = CableTracker(calib, segmenter=masked, n_nodes=base.scene.config.cable.num_nodes,
-                           plane=MOTION_PLANE)
+                           plane=MOTION_PLANE, floor=floor)
 
     def project(p: NDArray[np.float64]) -> NDArray[np.float64]:
         uv = calib.project(np.asarray(p, dtype=float)[None])[0]
@@ -122,7 +125,11 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
     not_yet_arrived = math.ceil(latency_s / CONTROL_PERIOD_S - 1e-9)
     # The known cable: a polyline shorter than it ends where the cable disappears (behind the target sphere,
     # say), so its end is not the tip; the tip is placed by continuing it (tracker.tip_from_polyline).
-    source = TrackedState(frames, tracker, point_filter, point_index=-1, project=project,
+    # P_DLO's node: the free tip (-1, continued past where the tracked cable disappears), or an inner node
+    # (vaulting's middle), the same fraction along the observed centreline as along the cable.
+    node = base.task.p_dlo_node(base.scene)
+    point_index = -1 if node == base.scene.config.cable.num_nodes - 1 else node
+    source = TrackedState(frames, tracker, point_filter, point_index=point_index, project=project,
                           max_missing_frames=3 + not_yet_arrived,
                           cable_length_m=base.scene.config.cable.length_m)
     return source, camera

@@ -2,11 +2,20 @@
 
 from dyndlo_vision.sim.cable import CableParams, paper_cable
 from dyndlo_vision.sim.physics import PhysicsOptions
-from dyndlo_vision.sim.scene import BoxProp, CapsuleProp, GripperGains, Scene, SceneConfig, build_mjcf
+from dyndlo_vision.sim.scene import (
+    BoxProp,
+    CameraPose,
+    CapsuleProp,
+    GripperGains,
+    Scene,
+    SceneConfig,
+    build_mjcf,
+)
 
 __all__ = [
     "BoxProp",
     "CableParams",
+    "CameraPose",
     "CapsuleProp",
     "GripperGains",
     "PhysicsOptions",

@@ -61,6 +61,41 @@ class CapsuleProp:
 
 
 @dataclass(frozen=True)
+class CameraPose:
+    """A fixed camera: position and MuJoCo's ``xyaxes`` (its x axis, then its y axis, in world coordinates;
+    it looks along minus their cross product)."""
+
+    pos_m: tuple[float, float, float]
+    xyaxes: tuple[float, float, float, float, float, float]
+    fovy_deg: float = 45.0
+
+    @classmethod
+    def looking_at(
+        cls, pos_m: Sequence[float], target_m: Sequence[float], fovy_deg: float = 45.0
+    ) -> CameraPose:
+        """A camera at ``pos_m`` aimed at ``target_m``, its image rows level (x axis horizontal).
+
+        Raises:
+            ValueError: The target is straight above or below the camera (no level x axis), or at it.
+        """
+        pos, target = np.asarray(pos_m, dtype=float), np.asarray(target_m, dtype=float)
+        view = target - pos
+        x = np.cross(view, [0.0, 0.0, 1.0])
+        if np.linalg.norm(x) < 1e-9 * max(1.0, float(np.linalg.norm(view))):
+            raise ValueError(
+                f"a camera at {pos_m} cannot look level at {target_m} (straight up, down or at it)"
+            )
+        x /= np.linalg.norm(x)
+        y = np.cross(x, view)
+        y /= np.linalg.norm(y)
+        return cls(tuple(float(v) for v in pos), (*map(float, x), *map(float, y)), fovy_deg)  # type: ignore[arg-type]
+
+
+#: The loop's camera for the planar tasks: 1.45 m in front of the x-z plane, looking along +y.
+TRACKING_CAMERA = CameraPose((0.65, -1.45, 0.575), (1.0, 0.0, 0.0, 0.0, 0.0, 1.0))
+
+
+@dataclass(frozen=True)
 class SceneConfig:
     """Everything needed to build one scene.
 
@@ -81,6 +116,10 @@ class SceneConfig:
         physics: Solver settings.
         gains: TCP loop gains.
         image_size: Off-screen framebuffer (width, height) for rendering.
+        tracking_camera: Pose of the "tracking" camera, the one the control loop tracks the cable from:
+            position and ``xyaxes`` (MuJoCo's camera x and y axes in world coordinates). The default looks
+            along +y at the x-z plane the planar tasks move in; a task whose cable lies lower or farther out
+            places it to see that.
     """
 
     cable: CableParams = field(default_factory=CableParams)
@@ -96,6 +135,7 @@ class SceneConfig:
     physics: PhysicsOptions = field(default_factory=PhysicsOptions)
     gains: GripperGains = field(default_factory=GripperGains)
     image_size: tuple[int, int] = (640, 480)
+    tracking_camera: CameraPose = field(default_factory=lambda: TRACKING_CAMERA)
 
     def __post_init__(self) -> None:
         if len(self.grippers_m) not in (1, 2):
@@ -240,6 +280,7 @@ def build_mjcf(config: SceneConfig) -> str:
     elif config.far_end == "support":
         equality = f'\n    <connect name="far_end" body1="support" body2="{last}" anchor="0 0 0"/>'
     world_bodies = "".join(bodies) + flex + "".join(props)
+    tc = config.tracking_camera
     return f"""<mujoco model="dyndlo">
   <compiler autolimits="true"/>
   <option {config.physics.to_mjcf(cable.model)}/>
@@ -257,7 +298,7 @@ def build_mjcf(config: SceneConfig) -> str:
     <light name="key" pos="0.5 -1 2.5" dir="0 0.4 -1" diffuse="0.6 0.6 0.6"/>
     <geom name="{FLOOR_NAME}" type="plane" size="3 3 0.1" material="floor"/>
     <camera name="front" pos="0.55 -1.7 0.45" xyaxes="1 0 0 0 0 1" fovy="45"/>
-    <camera name="tracking" pos="0.65 -1.45 0.575" xyaxes="1 0 0 0 0 1" fovy="45"/>
+    <camera name="tracking" pos="{_fmt(tc.pos_m)}" xyaxes="{_fmt(tc.xyaxes)}" fovy="{tc.fovy_deg:g}"/>
     <camera name="oblique" pos="1.6 -1.4 1.1" xyaxes="0.7 0.71 0 -0.25 0.25 0.93" fovy="45"/>{world_bodies}
   </worldbody>
   <equality>{equality}

@@ -7,7 +7,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from dyndlo_vision.sim import BoxProp, CableParams, PhysicsOptions, Scene, SceneConfig, paper_cable
+from dyndlo_vision.sim import (
+    BoxProp,
+    CableParams,
+    CameraPose,
+    PhysicsOptions,
+    Scene,
+    SceneConfig,
+    paper_cable,
+)
 from dyndlo_vision.tasks.base import EpisodeMonitor, Task
 from dyndlo_vision.tasks.rewards import TABLE_V, RewardCoefficients, implicit_reward
 from dyndlo_vision.trajectory import ActionSpec
@@ -19,6 +27,10 @@ TCP_HOME_M = (0.40, 0.0, 0.20)  # below M = 0.3 m (table V), so the cable must b
 #: cable drawn taut over the box has its middle just beyond it (the paper gives no layout; this one is ours).
 SUPPORT_M = (1.00, 0.0, 0.01)
 FLOOR_Z_M = 0.01
+#: The loop's camera: raised and tilted down (16 deg) at the box, so that it sees the cable on the floor from
+#: the TCP's foot to the support and the TCP up to 1 m (the planar tasks' camera looks level from 0.575 m and
+#: loses the floor in front of the box).
+TRACKING_CAMERA = CameraPose.looking_at((0.70, -1.7, 0.90), (0.70, 0.0, 0.40))
 #: The cable passes the box's side at least this far from its mid-plane (half its 8 cm width plus 2 cm).
 MIN_SIDE_OFFSET_M = 0.06
 
@@ -43,7 +55,7 @@ def initial_path(length_m: float) -> tuple[tuple[float, float, float], ...]:
     Raises:
         ValueError: A cable too short to pass the box's side on the way to the support.
     """
-    shortest = _path_length(_path_through(MIN_SIDE_OFFSET_M))
+    shortest = shortest_cable_m()
     if length_m < shortest - 1e-12:
         raise ValueError(
             f"a {length_m:.3f} m cable is too short for the vaulting scene (it must pass the box's side on "
@@ -54,6 +66,24 @@ def initial_path(length_m: float) -> tuple[tuple[float, float, float], ...]:
         mid = 0.5 * (low + high)
         low, high = (mid, high) if _path_length(_path_through(mid)) < length_m else (low, mid)
     return _path_through(0.5 * (low + high))
+
+
+def shortest_cable_m() -> float:
+    """The shortest cable the scene can lay out around the box's side to the support (0.807 m)."""
+    return _path_length(_path_through(MIN_SIDE_OFFSET_M))
+
+
+def check_cable_lengths(low_factor: float, what: str, nominal_m: float = 0.9) -> None:
+    """Raise ValueError, naming ``what``, if cables down to ``low_factor`` x ``nominal_m`` do not fit.
+
+    For a run that draws many cables: it fails before the first episode, not at the first short cable.
+    """
+    if low_factor * nominal_m < shortest_cable_m() - 1e-12:
+        raise ValueError(
+            f"{what} draws vaulting cables down to {low_factor:g} x {nominal_m:g} m = "
+            f"{low_factor * nominal_m:.3f} m, but the vaulting scene needs at least "
+            f"{shortest_cable_m():.3f} m (the cable passes the box's side on its way to the support)"
+        )
 
 
 def crosses_over_obstacle(nodes: NDArray[np.float64], tolerance_m: float = 0.01) -> bool:
@@ -165,7 +195,7 @@ class Vaulting(Task):
     def scene_config(self) -> SceneConfig:
         return SceneConfig(cable=self.cable, grippers_m=(TCP_HOME_M,), far_end="support", support_m=SUPPORT_M,
                            initial_path_m=initial_path(self.cable.length_m), settle_s=1.5,
-                           physics=self.physics,
+                           physics=self.physics, tracking_camera=TRACKING_CAMERA,
                            boxes=(BoxProp("obstacle", OBSTACLE_CENTRE_M, OBSTACLE_SIZE_M),))
 
     def action_spec(self) -> ActionSpec:

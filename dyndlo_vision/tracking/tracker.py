@@ -189,6 +189,7 @@ def lift_with_plane(
     camera: PinholeCamera,
     plane: Plane | tuple[ArrayLike, float],
     visible: ArrayLike | None = None,
+    floor: Plane | None = None,
 ) -> NDArray[np.float64]:
     """Lifts pixels to 3D by intersecting their rays with a known world plane.
 
@@ -197,6 +198,10 @@ def lift_with_plane(
         camera: The camera.
         plane: :class:`Plane` or ``(normal, d)`` for ``normal . x + d = 0``.
         visible: Optional (N,) mask; other rows come back NaN.
+        floor: Optional plane the cable cannot go below (its normal pointing up; for a cable resting on the
+            floor, the floor raised by the cable's radius). A ray that meets ``plane`` below it meets the
+            floor first: the cable seen there lies on the floor, off ``plane``, and is taken where its ray
+            meets the floor.
 
     Returns:
         (N, 3) world points (NaN rows where not visible).
@@ -211,6 +216,10 @@ def lift_with_plane(
     ok = _finite_rows(uv, visible)
     if np.any(ok):
         out[ok] = camera.intersect_plane(uv[ok], normal, float(d))
+        if floor is not None:
+            below = ok & (out @ np.asarray(floor.normal, dtype=np.float64) + floor.d < 0)
+            if np.any(below):
+                out[below] = camera.intersect_plane(uv[below], floor.normal, float(floor.d))
     return out
 
 
@@ -242,6 +251,7 @@ class CableTracker:
         plane: Plane | tuple[ArrayLike, float] | None = None,
         params: CenterlineParams | None = None,
         flip_ratio: float = 0.6,
+        floor: Plane | None = None,
     ) -> None:
         """Creates the tracker.
 
@@ -257,6 +267,7 @@ class CableTracker:
             params: Centreline tuning.
             flip_ratio: Without an anchor, the new polyline is reversed when its reversed
                 match cost to the previous one is below ``flip_ratio`` times the direct cost.
+            floor: With ``plane``: the plane the cable cannot go below (see :func:`lift_with_plane`).
         """
         self.camera = camera
         self.segmenter = segmenter if segmenter is not None else BackgroundSegmenter()
@@ -264,6 +275,7 @@ class CableTracker:
         self.anchor_uv = None if anchor_uv is None else np.asarray(anchor_uv, dtype=np.float64).reshape(2)
         self.cable_length_px = cable_length_px
         self.plane = plane
+        self.floor = floor
         self.params = params or CenterlineParams()
         self.flip_ratio = float(flip_ratio)
         self.prev: Centerline | None = None
@@ -313,7 +325,7 @@ class CableTracker:
         if depth is not None:
             return lift_with_depth(cl.nodes_uv, depth, self.camera, cl.visible)
         if self.plane is not None:
-            return lift_with_plane(cl.nodes_uv, self.camera, self.plane, cl.visible)
+            return lift_with_plane(cl.nodes_uv, self.camera, self.plane, cl.visible, self.floor)
         return np.full((cl.n_nodes, 3), np.nan)
 
     def process(

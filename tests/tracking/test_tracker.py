@@ -97,6 +97,28 @@ def test_lift_with_plane_recovers_3d_curve(camera: PinholeCamera) -> None:
     np.testing.assert_allclose(meas.nodes_xyz[:, 2], 0.0, atol=1e-12)
 
 
+def test_lift_with_plane_puts_what_lies_on_the_floor_off_the_plane_on_the_floor() -> None:
+    """Vaulting's cable starts on the floor, 16 cm in front of the motion plane y = 0: lifted onto the plane
+    alone it came out 10 cm under the floor. With the floor, points on it come back exactly; points in the
+    plane above the floor are unchanged."""
+    from .helpers import look_at_camera
+
+    camera = look_at_camera(eye=(0.7, -1.5, 0.85), target=(0.7, 0.0, 0.3))
+    plane, floor = Plane(np.array([0.0, 1.0, 0.0]), 0.0), Plane(np.array([0.0, 0.0, 1.0]), -0.01)
+    on_floor = np.array([[0.45, -0.164, 0.01], [0.6, -0.1, 0.01]])  # in front of the plane
+    in_plane = np.array([[0.5, 0.0, 0.3], [0.8, 0.0, 0.02]])
+    behind = np.array([[0.9, 0.05, 0.01]])  # on the floor behind the plane: its ray meets the plane first
+    uv = camera.project(np.vstack([on_floor, in_plane, behind]))
+    plain = lift_with_plane(uv, camera, plane)
+    assert np.all(plain[:2, 2] < -0.01)  # under the floor without it
+    lifted = lift_with_plane(uv, camera, plane, floor=floor)
+    np.testing.assert_allclose(lifted[:2], on_floor, atol=1e-9)
+    np.testing.assert_allclose(lifted[2:4], in_plane, atol=1e-9)
+    assert plain[4, 2] > 0.01 and np.array_equal(lifted[4], plain[4])  # above the floor: the plane's answer
+    tracker = CableTracker(camera, plane=plane, floor=floor)
+    assert tracker.floor is floor
+
+
 def test_lift_with_depth_matches_plane(camera: PinholeCamera) -> None:
     h, w = camera.height, camera.width
     vv, uu = np.mgrid[0:h, 0:w]
