@@ -391,7 +391,7 @@ def estimate_state(record: Any) -> str:
 
     - ``"lost"``: no usable estimate.
     - ``"measured"``: this cycle's frame gave the tip.
-    - ``"measured, continued"``: it gave the tip only by continuing the tracked cable past where it
+    - ``"measured, continued"``: it gave P_DLO only by continuing the tracked cable past where it
       disappears (the loop knows the cable's length).
     - ``"predicted"``: the filter's prediction, without a measurement this cycle.
     """

@@ -216,6 +216,7 @@ def run_loop_episode(
         "stage_ms_p95": report.stage_percentiles(95),
         "deadline_misses": int(sum(c.deadline_missed for c in report.cycles)),
         "cycles": len(report.cycles),
+        "lost_cycles": int(sum(c.lost for c in report.cycles)),
         "stop_reason": report.stop_reason,
         "avoid": info["avoid"],
         "diverged": bool(info.get("diverged", False)),

@@ -74,11 +74,15 @@ class LoopReport:
         return {k: float(np.percentile([c.stage_ms.get(k, 0.0) for c in self.cycles], q)) for k in keys}
 
     def estimate_errors(self) -> NDArray[np.float64]:
-        """|estimate - truth| per cycle where both exist (m)."""
+        """|estimate - truth| per cycle where both exist and the source had an estimate (not lost), m.
+
+        A lost source's position is a prediction coasted past its limit, which the loop does not act on (a
+        multi-step loop stops there; a single-step one has planned already): no estimate to score.
+        """
         errors = [
             np.linalg.norm(c.p_dlo_estimate - c.p_dlo_true)
             for c in self.cycles
-            if c.p_dlo_true is not None and np.all(np.isfinite(c.p_dlo_estimate))
+            if c.p_dlo_true is not None and not c.lost and np.all(np.isfinite(c.p_dlo_estimate))
         ]
         return np.asarray(errors)
 

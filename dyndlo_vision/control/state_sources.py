@@ -40,8 +40,10 @@ class PDloReading:
         stage_ms: Wall time per perception stage, e.g. {"camera": 12.1, "track": 3.9, "filter": 0.2}.
         pixel: (2,) pixel of the tracked point in the latest frame, when a camera was used.
         polyline_uv: (N, 2) tracked centreline in the latest frame, when a camera was used.
-        continued: The measurement placed the tip past where the tracked cable disappears (the polyline was
-            shorter than the known cable: :func:`~dyndlo_vision.tracking.tracker.tip_from_polyline`).
+        continued: The measurement was not seen directly: the tip was placed past where the tracked cable
+            disappears (the polyline was shorter than the known cable:
+            :func:`~dyndlo_vision.tracking.tracker.tip_from_polyline`), or an inner point was interpolated
+            across a gap in the tracked cable (:func:`bridged_point`).
     """
 
     position: NDArray[np.float64]
@@ -53,6 +55,26 @@ class PDloReading:
     polyline_uv: NDArray[np.float64] | None = None
     frame: Any = None
     continued: bool = False
+
+
+def bridged_point(measurement: Any, index: int) -> NDArray[np.float64] | None:
+    """An inner node the tracker left unseen on a gap it bridged, interpolated between the nearest seen
+    nodes on either side (3D, along the node index: the nodes are evenly spaced along the centreline).
+
+    The tracker marks nodes on a bridged gap (an occluder, a segmentation hole) invisible. For the tip that
+    is right: beyond the last seen node nothing says where the cable goes. An inner point (vaulting's middle)
+    with the cable seen on both sides lies between them. Returns None for the end nodes, a node seen
+    already, or one without seen nodes on both sides.
+    """
+    n = len(measurement.visible)
+    k = index % n
+    seen = np.flatnonzero(measurement.visible & np.all(np.isfinite(measurement.nodes_xyz), axis=1))
+    if measurement.visible[k] or seen.size < 2 or not seen[0] < k < seen[-1]:
+        return None
+    b = int(seen[np.searchsorted(seen, k)])
+    a = int(seen[np.searchsorted(seen, k) - 1])
+    w = (k - a) / (b - a)
+    return np.asarray((1.0 - w) * measurement.nodes_xyz[a] + w * measurement.nodes_xyz[b], dtype=float)
 
 
 class TrueState:
@@ -235,6 +257,10 @@ class TrackedState:
             point = meas.point(self.point_index)
             if point is not None:
                 pixel = meas.nodes_uv[self.point_index]
+            elif self.point_index != -1:
+                point = bridged_point(meas, self.point_index)
+                if point is not None:
+                    pixel, continued = meas.nodes_uv[self.point_index], True
             if self.point_index == -1 and self.cable_length_m is not None and meas.visible.any():
                 tip = tip_from_polyline(meas, held, self.cable_length_m)
                 if tip is None:
