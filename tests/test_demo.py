@@ -497,18 +497,34 @@ def test_demo_vaulting_tracks_the_cables_middle_from_a_camera_that_sees_the_scen
 
 
 @pytest.mark.slow
-def test_demo_vaulting_rejects_a_mismatched_policy_and_cables_too_short_for_its_scene(
+def test_demo_vaulting_rejects_a_mismatched_policy(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "demo"
     for argv, message in (
         (["--task", "vaulting", "--policy", "tip-control-multi-step"],
          "is for tip-control, not --task vaulting"),
-        (["--task", "vaulting", "--randomize-cable", "--cable-ranges", "beyond"],
-         "down to 0.8 x 0.9 m = 0.720 m, but the vaulting scene needs at least 0.807 m"),
     ):
         with pytest.raises(SystemExit) as exc:
             main(["demo", "--out", str(out), *argv])
         assert exc.value.code == 2
         assert message in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_vaulting_draws_beyond_the_training_ranges_only_with_cables_that_fit_its_scene() -> None:
+    from dyndlo_vision.tasks.vaulting import check_cable_lengths, shortest_cable_m
+    from dyndlo_vision.tasks.wrappers import BEYOND_TRAINING_CABLE_RANGES, cable_ranges_for
+
+    assert cable_ranges_for("tip-control", "beyond") == BEYOND_TRAINING_CABLE_RANGES
+    vaulting = cable_ranges_for("vaulting", "beyond")
+    assert vaulting["length_m"] == (0.9, 1.2)  # 0.8x would be 0.72 m, under the 0.807 m that fit
+    assert {k: v for k, v in vaulting.items() if k != "length_m"} == {
+        k: v for k, v in BEYOND_TRAINING_CABLE_RANGES.items() if k != "length_m"}
+    assert 0.9 * 0.9 >= shortest_cable_m() > 0.8 * 0.9
+    check_cable_lengths(vaulting["length_m"][0], "beyond")
+    too_short = "down to 0.8 x 0.9 m = 0.720 m, but the vaulting scene needs at least 0.807 m"
+    with pytest.raises(ValueError, match=too_short):
+        check_cable_lengths(0.8, "--cable-ranges beyond")
+    with pytest.raises(ValueError, match="cable ranges 'wider'; expected one of"):
+        cable_ranges_for("vaulting", "wider")

@@ -113,6 +113,23 @@ BEYOND_TRAINING_CABLE_RANGES: dict[str, tuple[float, float]] = {
 }
 #: Named ranges, for the command line.
 CABLE_RANGES = {"training": DEFAULT_CABLE_RANGES, "beyond": BEYOND_TRAINING_CABLE_RANGES}
+#: Where a task's scene cannot take a named range whole: vaulting's cable must pass the box's side on the
+#: floor on its way to the support, which takes at least 0.807 m (0.897x the paper's 0.9 m), so its "beyond"
+#: lengths start at 0.9x, the training ranges' low end; the other parameters are issue 16's.
+TASK_CABLE_RANGES: dict[tuple[str, str], dict[str, tuple[float, float]]] = {
+    ("vaulting", "beyond"): {**BEYOND_TRAINING_CABLE_RANGES, "length_m": (0.9, 1.2)},
+}
+
+
+def cable_ranges_for(task: str, name: str) -> dict[str, tuple[float, float]]:
+    """The named cable ranges (:data:`CABLE_RANGES`) as drawn for ``task`` (:data:`TASK_CABLE_RANGES`).
+
+    Raises:
+        ValueError: An unknown name.
+    """
+    if name not in CABLE_RANGES:
+        raise ValueError(f"cable ranges {name!r}; expected one of {sorted(CABLE_RANGES)}")
+    return dict(TASK_CABLE_RANGES.get((task, name), CABLE_RANGES[name]))
 
 
 #: The cable parameters a factor can scale: the continuous physical ones (not the discretisation or model).
