@@ -71,8 +71,8 @@ def bridged_point(measurement: Any, index: int) -> NDArray[np.float64] | None:
     seen = np.flatnonzero(measurement.visible & np.all(np.isfinite(measurement.nodes_xyz), axis=1))
     if measurement.visible[k] or seen.size < 2 or not seen[0] < k < seen[-1]:
         return None
-    b = int(seen[np.searchsorted(seen, k)])
-    a = int(seen[np.searchsorted(seen, k) - 1])
+    after = int(np.searchsorted(seen, k))
+    a, b = int(seen[after - 1]), int(seen[after])
     w = (k - a) / (b - a)
     return np.asarray((1.0 - w) * measurement.nodes_xyz[a] + w * measurement.nodes_xyz[b], dtype=float)
 
