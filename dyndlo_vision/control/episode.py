@@ -178,7 +178,8 @@ def run_loop_episode(
             )
             replan_end_t = float(base.scene.time)
         _, success, info = base.outcome()
-        snapshot(outcome_text(base, success, float(np.linalg.norm(base.p_dlo() - goal))))
+        outcome = outcome_text(base, success, float(np.linalg.norm(base.p_dlo() - goal)))
+        snapshot(outcome)
     finally:
         if camera is not None:
             camera.close()
@@ -197,7 +198,7 @@ def run_loop_episode(
         "replan_end_t": replan_end_t,
         "success": bool(success),
         "min_distance_m": min_distance,
-        "outcome": outcome_text(base, success, float(np.linalg.norm(truth[-1] - goal))),
+        "outcome": outcome,
     }
     cable = base.scene.config.cable
     return {
