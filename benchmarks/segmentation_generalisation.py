@@ -297,20 +297,24 @@ def part_speed(seg, checkpoint: str | None, seed: int, repeats: int = 200) -> di
     if checkpoint:
         import torch
 
-        from dyndlo_vision.learning.segtrain import build_net
+        from dyndlo_vision.learning.segtrain import build_net, full_res_logits
 
         torch.set_num_threads(1)
-        net = build_net()
-        net.load_state_dict(torch.load(checkpoint, weights_only=False)["net"])
+        ck = torch.load(checkpoint, weights_only=False)
+        arch = ck["config"].get("arch", "cablenet")
+        net = build_net(arch)
+        net.load_state_dict(ck["net"])
         net.eval()
         w, h = seg.input_size(480, 640)
 
         def torch_seg(k: int) -> None:
-            small = cv2.resize(frames[k], (w, h), interpolation=cv2.INTER_AREA)
+            small = frames[k] if (w, h) == (640, 480) else cv2.resize(frames[k], (w, h), cv2.INTER_AREA)
             x = torch.from_numpy(small.astype(np.float32).transpose(2, 0, 1)[None] / 255.0 - 0.5)
             with torch.inference_mode():
-                lg = net(x)[0, 0].numpy()
-            _ = cv2.resize(lg, (640, 480), interpolation=cv2.INTER_LINEAR) > 0
+                lg = full_res_logits(net, x, arch)[0, 0].numpy()
+            if lg.shape != (480, 640):
+                lg = cv2.resize(lg, (640, 480), interpolation=cv2.INTER_LINEAR)
+            _ = lg > 0
 
         # Interleaved with the cv2.dnn segmenter, so both see the same machine load.
         a, b = [], []
@@ -354,7 +358,7 @@ def part_loopcam(model: str | None, episodes: int = 3) -> dict:
     env.close()
     out = {}
     for short in (240, 360, 480):
-        seg = LearnedSegmenter(onnx_bytes(model), short_side=short)
+        seg = LearnedSegmenter(onnx_bytes(model), short_side=short)  # 480: the frame's own size
         ts = []
         for k in range(30):
             t = time.perf_counter()
@@ -374,7 +378,11 @@ def part_loopcam(model: str | None, episodes: int = 3) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--model", help="ONNX file (default: the shipped segmenter)")
-    ap.add_argument("--short-side", type=int, default=240)
+    ap.add_argument(
+        "--short-side",
+        default="auto",
+        help="network input's short side: an int, 'none' (the frame's own size) or 'auto' (the network's)",
+    )
     ap.add_argument("--external", default=str(EXTERNAL))
     ap.add_argument("--render-seed", type=int, default=1000)
     ap.add_argument("--renders", type=int, default=100)
@@ -384,10 +392,12 @@ def main() -> int:
     ap.add_argument("--out", required=True)
     args = ap.parse_args()
     cv2.setNumThreads(1)
-    seg = LearnedSegmenter(onnx_bytes(args.model), short_side=args.short_side)
+    ss = args.short_side.lower()
+    short = "auto" if ss == "auto" else None if ss == "none" else int(ss)
+    seg = LearnedSegmenter(onnx_bytes(args.model), short_side=short)
     report: dict = {
         "model": args.model or "shipped",
-        "short_side": args.short_side,
+        "short_side": seg.short_side,
         "machine": f"{platform.machine()} {os.cpu_count()} cpus, {platform.python_version()}",
     }
     parts = args.parts.split(",")

@@ -29,6 +29,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=0.0,
         help="share of each batch from the external train split (its held-out half is never used)",
     )
+    p.add_argument(
+        "--arch",
+        choices=("cablenet-s2d4", "cablenet"),
+        default="cablenet-s2d4",
+        help="network: cablenet-s2d4 (full-resolution mask, the shipped one) or cablenet (half resolution)",
+    )
     p.add_argument("--init", metavar="CHECKPOINT.pt", help="start from these weights (fine-tuning)")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     p.add_argument("--resume", action="store_true", help="continue OUT/checkpoint.pt")
@@ -48,7 +54,12 @@ def run(args: argparse.Namespace) -> int:
     if args.threads < 1:
         raise ValueError(f"--threads must be >= 1, got {args.threads}")
     cfg = TrainConfig(
-        steps=args.steps, batch=args.batch, lr=args.lr, seed=args.seed, external_share=args.external_share
+        steps=args.steps,
+        batch=args.batch,
+        lr=args.lr,
+        seed=args.seed,
+        external_share=args.external_share,
+        arch=args.arch,
     )
     try:
         meta = train(
@@ -62,9 +73,11 @@ def run(args: argparse.Namespace) -> int:
             threads=args.threads,
         )
     except KeyboardInterrupt:
+        ext = f" --external {args.external} --external-share {args.external_share}" if args.external else ""
         print(
             f"interrupted; resume with: dyndlo-vision seg-train --resume --data {args.data} --out {args.out} "
-            f"--steps {args.steps}",
+            f"--steps {args.steps} --batch {args.batch} --lr {args.lr} --seed {args.seed} --arch {args.arch}"
+            f"{ext}",
             file=sys.stderr,
         )
         return 130

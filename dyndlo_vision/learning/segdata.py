@@ -9,7 +9,8 @@ samples, so the cable is caught hanging, swinging and whipping. Every sample of 
 * cable colour (saturated colours, black, white, greys, browns) and rendered radius,
 * lighting (key light position and strength, head light ambient/diffuse),
 * background: the rendered floor, or a procedural texture (value noise, stripes, checkers, wood grain,
-  clutter of shapes, plain with a gradient) composited behind everything the scene rendered,
+  clutter of shapes, plain with a gradient) composited behind everything the scene rendered; in a share of
+  the textured samples scaled to the cable's brightness, so that only colour sets the cable apart,
 * distractors drawn in 2D: gripper-like blobs, boxes, bars, extra cables (these are labelled: a real photo's
   mask holds every cable), occluders in front of the cable (its label is removed under them),
 * camera effects: motion blur, defocus, colour gains and gamma, Gaussian noise, JPEG compression.
@@ -47,6 +48,8 @@ class SegDataConfig:
     #: Least and most cable width in output pixels.
     min_width_px: float = 0.7
     max_width_px: float = 12.0
+    #: Share of textured samples whose background is scaled to the cable's brightness (colour-only contrast).
+    lum_match_share: float = 0.3
 
     def check(self) -> None:
         for name in ("width", "height", "samples_per_scene"):
@@ -55,8 +58,9 @@ class SegDataConfig:
                 raise ValueError(f"{name} must be a positive int, got {v!r}")
         if self.width < 32 or self.height < 32:
             raise ValueError(f"image size must be at least 32x32, got {self.width}x{self.height}")
-        if not 0.0 <= self.texture_share <= 1.0:
-            raise ValueError(f"texture_share must be in [0, 1], got {self.texture_share!r}")
+        for name in ("texture_share", "lum_match_share"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)!r}")
         if not 0.5 <= self.min_width_px <= self.max_width_px:
             raise ValueError(
                 f"cable widths must satisfy 0.5 <= min_width_px <= max_width_px, got "
@@ -79,6 +83,11 @@ def _value_noise(rng: np.random.Generator, h: int, w: int, octaves: int = 4) -> 
     out /= total
     lo, hi = float(out.min()), float(out.max())
     return (out - lo) / max(hi - lo, 1e-6)
+
+
+def _luminance(rgb: NDArray[np.floating]) -> NDArray[np.floating]:
+    """Rec. 601 luma of RGB values (last axis)."""
+    return np.asarray(rgb[..., 0] * 0.299 + rgb[..., 1] * 0.587 + rgb[..., 2] * 0.114)
 
 
 def _random_colour(rng: np.random.Generator) -> NDArray[np.float32]:
@@ -404,8 +413,16 @@ class SceneSampler:
         cable2 = self.cable_look.mask(seg).astype(np.float32)
         bg2 = (types == -1) | ((types == int(mujoco.mjtObj.mjOBJ_GEOM)) & (ids == self.floor_geom))
         textured = bool(rng.random() < cfg.texture_share)
+        lum_matched = False
         if textured:
             bg = procedural_background(rng, h, w).astype(np.float32)
+            on_cable = cable2 > 0.5
+            if rng.random() < cfg.lum_match_share and on_cable.any():
+                # Colour-only contrast: the background as bright as the cable, so that only hue and
+                # saturation tell them apart (a red cable on a grey floor of the same brightness).
+                cable_lum = float(np.mean(_luminance(rgb2[on_cable])))
+                bg *= np.float32(cable_lum / max(float(np.mean(_luminance(bg))), 1.0))
+                lum_matched = True
             bg2f = bg2.astype(np.float32)
             bg_big = cv2.resize(bg, (2 * w, 2 * h), interpolation=cv2.INTER_LINEAR)
             rgb2 = rgb2 * (1 - bg2f[..., None]) + bg_big * bg2f[..., None]
@@ -472,6 +489,7 @@ class SceneSampler:
         meta = {
             "width_px": round(width_px, 2),
             "textured": textured,
+            "lum_matched": lum_matched,
             "extra_cables": n_extra,
             "colour": [round(float(c), 3) for c in colour],
             "fovy_deg": round(fovy, 1),

@@ -1,12 +1,14 @@
-"""Training of the learned cable segmenter (:class:`CableNet`) on ``seg-data`` datasets, ONNX export.
+"""Training of the learned cable segmenter on ``seg-data`` datasets, ONNX export.
 
-The network is a small encoder-decoder (28 k parameters): three stride-2 convolutions to 1/8 of the
-input, two dilated convolutions (dilation 2 and 4) for context, and two decoder stages with skips back
-to 1/2 of the input, where one logit per pixel is produced. At run time the logits are upsampled to the
-frame and thresholded at 0 (:class:`dyndlo_vision.tracking.learned.LearnedSegmenter`); training applies
-the same bilinear upsampling before the loss, so what is trained is what runs. Inference runs through
-``cv2.dnn`` on the exported ONNX file: on one core it runs several times faster than torch
-(docs/RESULTS.md, "Learned cable segmenter").
+Two architectures (:func:`build_net`), both small encoder-decoders (about 30 k parameters):
+``cablenet-s2d4`` (the default and the shipped one) takes the frame as 4x4 blocks and gives 16 sub-pixel
+logits per block, so its mask has the frame's full resolution; ``cablenet`` (the first shipped network)
+gives logits at half its input, which the run-time side upsamples. A cable 1.6 px wide in a 640x480 frame,
+the loop's camera, is 0.4 px at ``cablenet``'s output when it runs at 320x240, and came out in fragments.
+Training computes the loss on the logits at the input's resolution exactly as they are made at run time
+(:func:`full_res_logits`), so what is trained is what runs. Inference runs through ``cv2.dnn`` on the
+exported ONNX file (:class:`dyndlo_vision.tracking.learned.LearnedSegmenter`): on one core it runs several
+times faster than torch (docs/RESULTS.md, "Learned cable segmenter").
 
 Fine-tuning on labelled real photos (``--external``) mixes them into the batches; only the ``train`` half
 of :func:`external_split` is used, the other half is held out for reporting.
@@ -28,7 +30,17 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["CableNet", "TrainConfig", "export_onnx", "external_split", "load_external", "train"]
+__all__ = [
+    "ARCHITECTURES",
+    "CableNet",
+    "TrainConfig",
+    "build_net",
+    "export_onnx",
+    "external_split",
+    "full_res_logits",
+    "load_external",
+    "train",
+]
 
 
 def _torch() -> Any:
@@ -37,8 +49,28 @@ def _torch() -> Any:
     return torch
 
 
-def build_net(c1: int = 8, c2: int = 16, c3: int = 32) -> Any:
-    """The :class:`CableNet` module (torch is imported only here)."""
+#: Architectures :func:`build_net` knows. ``cablenet``: the first shipped network (RGB in, logits at half the
+#: input). ``cablenet-s2d4``: the frame enters as 4x4 space-to-depth blocks (48 channels at 1/4 of the frame,
+#: every pixel kept) and leaves as 16 sub-pixel logits per block, so the mask has the frame's own resolution
+#: and a cable 1-2 px wide is not lost to downsampling.
+ARCHITECTURES = ("cablenet", "cablenet-s2d4")
+
+#: Block size of the ``cablenet-s2d4`` layout (the run-time side reads it from the network's channel counts).
+S2D_BLOCK = 4
+
+
+def build_net(arch: str = "cablenet", c1: int = 8, c2: int = 16, c3: int = 32) -> Any:
+    """The network of architecture ``arch`` (see :data:`ARCHITECTURES`; torch is imported only here).
+
+    ``cablenet``: three stride-2 convolutions to 1/8 of the input, two dilated convolutions (dilation 2 and
+    4) for context, and two decoder stages with skips back to 1/2, where one logit per pixel is produced.
+    ``cablenet-s2d4``: the same encoder-decoder one level lower: its input is the frame in 4x4 blocks
+    (N x 48 x H/4 x W/4, channel ``c * 16 + 4 * i + j`` = colour ``c`` of pixel ``(i, j)`` of the block, as
+    ``torch.nn.functional.pixel_unshuffle``), a 1x1 convolution mixes each block, two stride-2
+    convolutions go to 1/16 of the frame, and the output is 16 logits per block (``pixel_shuffle`` order).
+    """
+    if arch not in ARCHITECTURES:
+        raise ValueError(f"arch must be one of {ARCHITECTURES}, got {arch!r}")
     torch = _torch()
     nn = torch.nn
     functional = torch.nn.functional
@@ -47,6 +79,9 @@ def build_net(c1: int = 8, c2: int = 16, c3: int = 32) -> Any:
         return nn.Sequential(
             nn.Conv2d(i, o, k, s, padding=d * (k // 2), dilation=d, bias=False), nn.BatchNorm2d(o), nn.ReLU()
         )
+
+    def up(x: Any) -> Any:
+        return functional.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
 
     class CableNet(nn.Module):  # type: ignore[misc,name-defined]
         def __init__(self) -> None:
@@ -60,19 +95,47 @@ def build_net(c1: int = 8, c2: int = 16, c3: int = 32) -> Any:
             e1 = self.e1(x)
             e2 = self.e2(e1)
             e = self.e5(self.e4(self.e3(e2)))
-            d = functional.interpolate(e, scale_factor=2.0, mode="bilinear", align_corners=False)
-            d = self.d2b(self.d2(torch.cat([d, e2], 1)))
-            d = functional.interpolate(d, scale_factor=2.0, mode="bilinear", align_corners=False)
-            return self.out(self.d1(torch.cat([d, e1], 1)))
+            d = self.d2b(self.d2(torch.cat([up(e), e2], 1)))
+            return self.out(self.d1(torch.cat([up(d), e1], 1)))
 
-    return CableNet()
+    class CableNetS2D(nn.Module):  # type: ignore[misc,name-defined]
+        def __init__(self) -> None:
+            super().__init__()
+            blk = 3 * S2D_BLOCK * S2D_BLOCK
+            self.e1, self.e2, self.e3 = cbr(blk, 2 * c1, k=1), cbr(2 * c1, c2, s=2), cbr(c2, c3, s=2)
+            self.e4, self.e5 = cbr(c3, c3, d=2), cbr(c3, c3, d=4)
+            self.d2, self.d2b = cbr(c3 + c2, c2, k=1), cbr(c2, c2)
+            self.d1 = cbr(c2 + 2 * c1, 2 * c1, k=1)
+            self.out = nn.Conv2d(2 * c1, S2D_BLOCK * S2D_BLOCK, 1)
+
+        def forward(self, x: Any) -> Any:
+            e1 = self.e1(x)
+            e2 = self.e2(e1)
+            e = self.e5(self.e4(self.e3(e2)))
+            d = self.d2b(self.d2(torch.cat([up(e), e2], 1)))
+            return self.out(self.d1(torch.cat([up(d), e1], 1)))
+
+    return CableNet() if arch == "cablenet" else CableNetS2D()
+
+
+def full_res_logits(net: Any, x: Any, arch: str) -> Any:
+    """Logits of a batch of RGB inputs ``x`` (N x 3 x H x W, ``RGB / 255 - 0.5``) at the input's size: the
+    ``cablenet-s2d4`` blocks go in and out with ``pixel_unshuffle``/``pixel_shuffle`` (H, W multiples of 16);
+    ``cablenet``'s half-size logits are upsampled bilinearly, as at run time."""
+    functional = _torch().nn.functional
+    if arch == "cablenet-s2d4":
+        return functional.pixel_shuffle(net(functional.pixel_unshuffle(x, S2D_BLOCK)), S2D_BLOCK)
+    return functional.interpolate(net(x), size=x.shape[2:], mode="bilinear", align_corners=False)
 
 
 CableNet = build_net  # the factory is the public name of the architecture
 
 
 def export_onnx(net: Any) -> bytes:
-    """The network (eval mode, batch norm folded by the exporter) as ONNX bytes with dynamic H, W."""
+    """The network (eval mode, batch norm folded by the exporter) as ONNX bytes with dynamic H, W.
+
+    Its input is what the network takes: RGB for ``cablenet``, 4x4 blocks for ``cablenet-s2d4`` (the
+    run-time side tells them apart by the number of input channels)."""
     torch = _torch()
     net = net.eval()
     buf = io.BytesIO()
@@ -82,7 +145,7 @@ def export_onnx(net: Any) -> bytes:
         warnings.simplefilter("ignore")
         torch.onnx.export(
             net,
-            torch.zeros(1, 3, 240, 320),
+            torch.zeros(1, net_in_channels(net), 64, 80),
             buf,
             dynamo=False,
             input_names=["rgb"],
@@ -91,6 +154,11 @@ def export_onnx(net: Any) -> bytes:
             opset_version=13,
         )
     return buf.getvalue()
+
+
+def net_in_channels(net: Any) -> int:
+    """Input channels of a :func:`build_net` network (3: RGB; 48: 4x4 blocks)."""
+    return int(net.e1[0].in_channels)
 
 
 # ----------------------------------------------------------------------------- data
@@ -173,13 +241,16 @@ def _augment(
     if rng.random() < 0.5:
         img, m = img[::-1], m[::-1]
     x_in = img.astype(np.float32) * (1.0 / 255.0) - 0.5
-    if rng.random() < 0.3:  # colour jitter: channel shuffle, grey
-        x_in = (
-            x_in[..., rng.permutation(3)]
-            if rng.random() < 0.5
-            else np.repeat(x_in.mean(-1, keepdims=True), 3, -1)
-        )
+    if rng.random() < 0.15:  # colour jitter: channel shuffle (not grey: a cable set apart by colour alone
+        x_in = x_in[..., rng.permutation(3)]  # would vanish while its label stays)
     return np.ascontiguousarray(x_in.transpose(2, 0, 1)), (m >= 0.4).astype(np.float32)
+
+
+_LAYOUTS = {
+    "cablenet": "RGB float32 NCHW, value/255 - 0.5; logits at 1/2 of the input; upsampled, > 0 = cable",
+    "cablenet-s2d4": "RGB value/255 - 0.5 as 4x4 blocks (pixel_unshuffle, 48 channels at 1/4); 16 logits per "
+    "block (pixel_shuffle order) give the input's resolution; > 0 = cable",
+}
 
 
 @dataclass(frozen=True)
@@ -193,6 +264,8 @@ class TrainConfig:
     lr: float = 3e-3
     pos_weight: float = 3.0
     seed: int = 0
+    #: Network architecture (:data:`ARCHITECTURES`).
+    arch: str = "cablenet-s2d4"
     #: Share of each batch drawn from the external train split (0: synthetic only).
     external_share: float = 0.0
     checkpoint_every: int = 250
@@ -216,8 +289,9 @@ def train(
     progress: bool = True,
     threads: int = 1,
 ) -> dict[str, Any]:
-    """Trains (or resumes) a :class:`CableNet`; writes ``out/checkpoint.pt``, ``history.json``, and at the end
-    ``cable_segmenter.onnx`` with ``cable_segmenter.json``. Returns the metadata written to the JSON."""
+    """Trains (or resumes) a :func:`build_net` network; writes ``out/checkpoint.pt``, ``history.json``, and at
+    the end ``cable_segmenter.onnx`` with ``cable_segmenter.json``. Returns the metadata written to the
+    JSON."""
     torch = _torch()
     from tqdm import tqdm
 
@@ -231,6 +305,12 @@ def train(
         raise FileExistsError(f"--out {out} already holds files; use --resume to continue, or another folder")
     if config.external_share > 0 and external is None:
         raise ValueError("external_share > 0 needs --external DIR")
+    if config.arch not in ARCHITECTURES:
+        raise ValueError(f"arch must be one of {ARCHITECTURES}, got {config.arch!r}")
+    if config.arch == "cablenet-s2d4" and (config.crop_h % 16 or config.crop_w % 16):
+        raise ValueError(
+            f"cablenet-s2d4 needs crops in multiples of 16 px, got {config.crop_h}x{config.crop_w}"
+        )
     images, masks = load_dataset(Path(data))
     ext_images: list[Any] = []
     ext_masks: list[Any] = []
@@ -239,7 +319,7 @@ def train(
         if not ext_images:
             raise ValueError(f"no labelled images found under {external}")
     out.mkdir(parents=True, exist_ok=True)
-    net = build_net()
+    net = build_net(config.arch)
     opt = torch.optim.Adam(net.parameters(), lr=config.lr)
     step = 0
     history: list[dict[str, float]] = []
@@ -292,9 +372,7 @@ def train(
                 ys.append(y)
             xb = torch.from_numpy(np.stack(xs))
             yb = torch.from_numpy(np.stack(ys))[:, None]
-            logit = torch.nn.functional.interpolate(
-                net(xb), size=yb.shape[2:], mode="bilinear", align_corners=False
-            )
+            logit = full_res_logits(net, xb, config.arch)
             bce = torch.nn.functional.binary_cross_entropy_with_logits(logit, yb, pos_weight=pos_weight)
             p = torch.sigmoid(logit)
             inter = (p * yb).sum(dim=(1, 2, 3))
@@ -320,9 +398,9 @@ def train(
     onnx = export_onnx(net)
     (out / "cable_segmenter.onnx").write_bytes(onnx)
     meta = {
-        "architecture": "CableNet(c1=8, c2=16, c3=32)",
+        "architecture": f"{config.arch}(c1=8, c2=16, c3=32)",
         "parameters": int(sum(p.numel() for p in net.parameters())),
-        "input": "RGB float32 NCHW, value/255 - 0.5; logits at 1/2 of the input; upsampled, > 0 = cable",
+        "input": _LAYOUTS[config.arch],
         "train_config": asdict(config),
         "data": str(data),
         "data_manifest": json.loads((Path(data) / "dataset.json").read_text()),

@@ -1,11 +1,18 @@
 """The learned cable segmenter at run time: a small CNN (ONNX) evaluated with OpenCV's ``cv2.dnn``.
 
 Pure computation on arrays: the network arrives as ONNX bytes (the shipped one from
-:func:`dyndlo_vision.policies.segmenter.onnx_bytes`). The frame is resized so that its shorter side is
-``short_side`` pixels (the scale the network was trained at; 640x480 -> 320x240), rounded to a multiple of 8,
-fed as ``RGB / 255 - 0.5``; the logits (at half that size) are resized bilinearly to the frame and
-thresholded, so the mask has the frame's size. cv2.dnn runs the network 3-4x faster than torch on one core
-(docs/RESULTS.md, "Learned segmenter"), and torch is not needed at run time.
+:func:`dyndlo_vision.policies.segmenter.onnx_bytes`). Two input layouts, told apart by the network's number
+of input channels when it is loaded:
+
+* **blocks** (48 channels, ``cablenet-s2d4``, the shipped network): the frame, as ``RGB / 255 - 0.5``, enters
+  in 4x4 blocks (every pixel kept) and leaves as 16 logits per block, put back in place: the mask has the
+  network input's own resolution, so a cable 1-2 px wide survives. The frame runs at its own size unless
+  ``short_side`` asks for another; it is edge-padded to a multiple of 16.
+* **RGB** (3 channels, ``cablenet``, the first network): the frame is resized to ``short_side`` (240), the
+  logits (half that size) are resized bilinearly to the frame.
+
+cv2.dnn runs these networks several times faster than torch on one core (docs/RESULTS.md, "Learned
+segmenter"), and torch is not needed at run time.
 """
 
 from __future__ import annotations
@@ -14,64 +21,131 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["LearnedSegmenter"]
+__all__ = ["LearnedSegmenter", "from_blocks", "to_blocks"]
+
+#: Block size of the 48-channel layout (``segtrain.S2D_BLOCK``).
+BLOCK = 4
+#: Frame sides of the block layout are padded to a multiple of this (the block and two stride-2 levels).
+_MULTIPLE = 16
+
+
+def to_blocks(rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
+    """(H, W, 3) uint8 with H, W multiples of 4 -> (1, 48, H/4, W/4) float32 ``RGB / 255 - 0.5``, channel
+    ``c * 16 + 4 * i + j`` holding colour ``c`` of pixel ``(i, j)`` of each block (``pixel_unshuffle``)."""
+    h, w = rgb.shape[:2]
+    blocks = rgb.reshape(h // BLOCK, BLOCK, w // BLOCK, BLOCK, 3).transpose(4, 1, 3, 0, 2)
+    out = np.empty((1, 3 * BLOCK * BLOCK, h // BLOCK, w // BLOCK), np.float32)
+    np.multiply(blocks.reshape(out.shape), np.float32(1.0 / 255.0), out=out, casting="unsafe")
+    out -= np.float32(0.5)
+    return out
+
+
+def from_blocks(blocks: NDArray[np.generic]) -> NDArray[np.generic]:
+    """(16, h, w) per-block values -> (4h, 4w) image (``pixel_shuffle``)."""
+    c, h, w = blocks.shape
+    return blocks.reshape(BLOCK, BLOCK, h, w).transpose(2, 0, 3, 1).reshape(h * BLOCK, w * BLOCK)
 
 
 class LearnedSegmenter:
     """Segments cables with a CNN; ``segmenter(rgb) -> (H, W) bool mask``.
 
     Args:
-        onnx: The network as ONNX bytes (input ``rgb`` N x 3 x H x W float32, output one logit per pixel at
-            half the input size).
-        short_side: The frame's shorter side is resized to this many pixels before the network (None: the
-            frame's own size).
+        onnx: The network as ONNX bytes: input ``rgb`` N x 48 x H/4 x W/4 (blocks) with output N x 16 x H/4 x
+            W/4, or N x 3 x H x W (RGB) with one logit per pixel at half the input size.
+        short_side: The frame's shorter side is resized to this many pixels before the network; None: the
+            frame's own size. ``"auto"``: None for a block network, 240 for an RGB network (the scales they
+            were trained at).
         threshold: Logit above which a pixel is cable (0: probability 0.5).
         min_area: Connected components of the mask smaller than this many pixels are dropped (0: off).
 
     Raises:
-        ValueError: ONNX bytes OpenCV cannot read, or bad settings.
+        ValueError: ONNX bytes OpenCV cannot read, a network of neither layout, or bad settings.
     """
 
     def __init__(
-        self, onnx: bytes, *, short_side: int | None = 240, threshold: float = 0.0, min_area: int = 0
+        self,
+        onnx: bytes,
+        *,
+        short_side: int | None | str = "auto",
+        threshold: float = 0.0,
+        min_area: int = 0,
     ) -> None:
         if not isinstance(onnx, bytes | bytearray) or not onnx:
             raise ValueError(f"onnx must be non-empty bytes, got {type(onnx).__name__}")
-        if short_side is not None and (
+        if short_side != "auto" and short_side is not None and (
             isinstance(short_side, bool) or not isinstance(short_side, int) or short_side < 16
         ):
-            raise ValueError(f"short_side must be None or an int >= 16, got {short_side!r}")
+            raise ValueError(f"short_side must be 'auto', None or an int >= 16, got {short_side!r}")
         if not np.isfinite(threshold):
             raise ValueError(f"threshold must be finite, got {threshold!r}")
         try:
             self._net = cv2.dnn.readNetFromONNX(np.frombuffer(bytes(onnx), np.uint8))
         except cv2.error as exc:
             raise ValueError(f"OpenCV cannot read the segmenter's ONNX bytes: {exc}") from exc
-        self.short_side = short_side
+        self.blocks = self._probe_layout()
+        if short_side == "auto":
+            short_side = None if self.blocks else 240
+        self.short_side: int | None = short_side  # type: ignore[assignment]
         self.threshold = float(threshold)
         self.min_area = int(min_area)
 
+    def _probe_layout(self) -> bool:
+        """True for the 48-channel block layout, False for RGB (one tiny forward pass of each)."""
+        for channels, blocks in ((3 * BLOCK * BLOCK, True), (3, False)):
+            try:
+                self._net.setInput(np.zeros((1, channels, 16, 16), np.float32))
+                out = self._net.forward()
+            except cv2.error:
+                continue
+            if blocks and out.shape[1] == BLOCK * BLOCK:
+                return True
+            if not blocks and out.shape[1] == 1:
+                return False
+        raise ValueError(
+            "the segmenter's network takes neither 48-channel 4x4 blocks (16 logits out) nor RGB (1 logit "
+            "out)"
+        )
+
     def input_size(self, height: int, width: int) -> tuple[int, int]:
-        """(w, h) of the network input for a frame of ``height`` x ``width`` (multiples of 8)."""
+        """(w, h) the frame is resized to before the network (a block network pads it further to 16)."""
         s = 1.0 if self.short_side is None else self.short_side / min(height, width)
+        if self.blocks:
+            return max(4, int(round(width * s))), max(4, int(round(height * s)))
         return max(8, int(round(width * s / 8)) * 8), max(8, int(round(height * s / 8)) * 8)
 
-    def logits(self, rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
-        """The network's logits (h, w) at half the input size (see :meth:`input_size`)."""
+    def _resized(self, rgb: NDArray[np.uint8]) -> NDArray[np.uint8]:
         if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
             raise ValueError(f"rgb must be an (H, W, 3) uint8 RGB image, got {rgb.dtype} {rgb.shape}")
         h, w = rgb.shape[:2]
         size = self.input_size(h, w)
-        interp = cv2.INTER_AREA if size[0] < w else cv2.INTER_LINEAR
-        small = rgb if size == (w, h) else cv2.resize(rgb, size, interpolation=interp)
+        if size == (w, h):
+            return rgb
+        return cv2.resize(rgb, size, interpolation=cv2.INTER_AREA if size[0] < w else cv2.INTER_LINEAR)
+
+    def _block_logits(self, small: NDArray[np.uint8]) -> NDArray[np.float32]:
+        """(16, h, w) logits of a block network for the (resized) frame, edge-padded to a multiple of 16."""
+        h, w = small.shape[:2]
+        ph, pw = -h % _MULTIPLE, -w % _MULTIPLE
+        padded = cv2.copyMakeBorder(small, 0, ph, 0, pw, cv2.BORDER_REPLICATE) if ph or pw else small
+        self._net.setInput(to_blocks(padded))
+        return np.asarray(self._net.forward()[0], dtype=np.float32)
+
+    def logits(self, rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
+        """The network's logits (h, w): at the resized frame's size (blocks) or half of it (RGB)."""
+        small = self._resized(rgb)
+        if self.blocks:
+            h, w = small.shape[:2]
+            return np.ascontiguousarray(from_blocks(self._block_logits(small))[:h, :w])
         blob = cv2.dnn.blobFromImage(small, 1.0 / 255.0, mean=(127.5, 127.5, 127.5), swapRB=False)
         self._net.setInput(blob)
         return np.asarray(self._net.forward()[0, 0], dtype=np.float32)
 
     def logits_full(self, rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
-        """The logits resized bilinearly to the frame (H, W)."""
+        """The logits at the frame's size (H, W), resized bilinearly where the network's are not."""
         lg = self.logits(rgb)
         h, w = rgb.shape[:2]
+        if lg.shape == (h, w):
+            return lg
         return cv2.resize(lg, (w, h), interpolation=cv2.INTER_LINEAR)
 
     def probability(self, rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
@@ -80,8 +154,14 @@ class LearnedSegmenter:
 
     def segment(self, rgb: NDArray[np.uint8]) -> NDArray[np.bool_]:
         """The (H, W) bool cable mask of one RGB frame."""
-        _, m = cv2.threshold(self.logits_full(rgb), self.threshold, 1, cv2.THRESH_BINARY)
-        mask = m.astype(np.uint8)
+        small = self._resized(rgb)
+        if self.blocks and small.shape == rgb.shape:  # threshold the blocks, then put them in place
+            h, w = small.shape[:2]
+            cable = self._block_logits(small) > self.threshold
+            mask = np.ascontiguousarray(from_blocks(cable.view(np.uint8))[:h, :w])
+        else:
+            _, m = cv2.threshold(self.logits_full(rgb), self.threshold, 1, cv2.THRESH_BINARY)
+            mask = m.astype(np.uint8)
         if self.min_area > 1:
             n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
             small = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] < self.min_area) + 1

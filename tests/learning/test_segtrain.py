@@ -10,8 +10,16 @@ import pytest
 
 from dyndlo_vision.cli import main
 from dyndlo_vision.learning.segdata import SegDataConfig, write_dataset
-from dyndlo_vision.learning.segtrain import TrainConfig, build_net, export_onnx, external_split, train
-from dyndlo_vision.tracking.learned import LearnedSegmenter
+from dyndlo_vision.learning.segtrain import (
+    ARCHITECTURES,
+    TrainConfig,
+    build_net,
+    export_onnx,
+    external_split,
+    full_res_logits,
+    train,
+)
+from dyndlo_vision.tracking.learned import LearnedSegmenter, from_blocks, to_blocks
 
 
 @pytest.fixture(scope="module")
@@ -38,16 +46,55 @@ def test_train_resume_export(dataset: Path, tmp_path: Path) -> None:
         train(dataset, tmp_path / "none", cfg, resume=True, progress=False)
 
 
-def test_onnx_matches_torch() -> None:
+@pytest.mark.parametrize("arch", ARCHITECTURES)
+def test_onnx_matches_torch(arch: str) -> None:
+    """What runs (cv2.dnn on the ONNX file, blocks laid out in numpy) is what was trained (torch)."""
     import torch
 
-    net = build_net().eval()
+    torch.manual_seed(0)
+    net = build_net(arch)
+    for m in net.modules():  # batch-norm statistics away from the identity, so their folding counts
+        if isinstance(m, torch.nn.BatchNorm2d):
+            m.running_mean.uniform_(-0.2, 0.2)
+            m.running_var.uniform_(0.5, 2.0)
+    net.eval()
     seg = LearnedSegmenter(export_onnx(net), short_side=None)
+    assert seg.blocks == (arch == "cablenet-s2d4")
     rgb = np.random.default_rng(0).integers(0, 255, (64, 96, 3), dtype=np.uint8)
     x = torch.from_numpy(rgb.astype(np.float32).transpose(2, 0, 1)[None] / 255.0 - 0.5)
     with torch.inference_mode():
-        ref = net(x)[0, 0].numpy()
-    assert np.abs(seg.logits(rgb) - ref).max() < 1e-4
+        ref = full_res_logits(net, x, arch)[0, 0].numpy()
+    got = seg.logits_full(rgb)
+    assert np.abs(got - ref).max() < 1e-4
+    np.testing.assert_array_equal(seg(rgb), ref > 0)
+
+
+def test_blocks_are_pixel_unshuffle() -> None:
+    import torch
+
+    rgb = np.random.default_rng(1).integers(0, 255, (8, 12, 3), dtype=np.uint8)
+    x = torch.from_numpy(rgb.astype(np.float32).transpose(2, 0, 1)[None] / 255.0 - 0.5)
+    ref = torch.nn.functional.pixel_unshuffle(x, 4).numpy()
+    np.testing.assert_allclose(to_blocks(rgb), ref, atol=1e-6)
+    np.testing.assert_array_equal(from_blocks(ref[0, :16]), torch.nn.functional.pixel_shuffle(
+        torch.from_numpy(ref[:, :16]), 4)[0, 0].numpy())
+
+
+def test_frames_of_any_size_keep_their_size() -> None:
+    seg = LearnedSegmenter(export_onnx(build_net("cablenet-s2d4").eval()))
+    for shape in ((50, 70, 3), (480, 640, 3), (17, 33, 3)):
+        assert seg(np.zeros(shape, np.uint8)).shape == shape[:2]
+    assert LearnedSegmenter(export_onnx(build_net("cablenet-s2d4").eval()), short_side=96).input_size(
+        480, 640
+    ) == (128, 96)
+
+
+def test_block_crops_must_be_multiples_of_16(dataset: Path, tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="multiples of 16"):
+        train(dataset, tmp_path / "r", TrainConfig(steps=1, crop_h=60, crop_w=64), progress=False)
+    with pytest.raises(ValueError, match="arch must be one of"):
+        train(dataset, tmp_path / "r", TrainConfig(steps=1, arch="unet"), progress=False)
+    assert not (tmp_path / "r").exists()
 
 
 def test_external_split_halves(tmp_path: Path) -> None:
