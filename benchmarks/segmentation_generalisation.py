@@ -5,6 +5,7 @@ Three parts, all on data the learned segmenter was not trained on:
 * ``external``: the labelled real photos in ``../shared/data/external`` (mBEST S1-S3, cables_dataset):
   mask DICE per image, mean per data set, and on the held-out half (``learning.segtrain.external_split``,
   odd positions) separately, because a fine-tuned model saw the even half.
+* ``flat``: flat-coloured synthetic cables 1-11 px wide on plain walls (640x480): median DICE per width.
 * ``renders``: the seg-data generator with seeds the training never used (``--render-seed``, default 1000):
   mask DICE.
 * ``loopcam``: the control loop's own camera view (tip control, 640x480, a 1.6 px red cable): mask DICE
@@ -102,6 +103,24 @@ def part_external(seg, root: Path) -> dict:
                     "classical_empty_share": float(np.mean([r["classical_empty"] for r in sel])),
                 }
     return {"summary": summary, "rows": rows}
+
+
+def part_flat(seg) -> dict:
+    """Flat-coloured synthetic cables (``render_cable``, an S curve, 640x480) of widths 1-11 px, five
+    colours on three plain walls: median mask DICE per width."""
+    from dyndlo_vision.tracking.synthetic import render_cable, s_curve
+
+    colours = [(230, 70, 40), (40, 80, 220), (60, 200, 60), (20, 20, 20), (240, 240, 240)]
+    walls = [(150, 150, 150), (200, 190, 170), (40, 40, 40)]
+    out = {}
+    for width in (1, 2, 3, 7, 11):
+        scores = []
+        for wall in walls:
+            for colour in colours:
+                rgb, truth = render_cable(s_curve(80, 560, 240, amp=90), (480, 640), width, colour, wall)
+                scores.append(dice(seg(rgb), truth))
+        out[f"{width}px"] = {"median": float(np.median(scores)), "min": float(np.min(scores))}
+    return out
 
 
 def part_renders(seg, seed: int, n: int) -> dict:
@@ -387,7 +406,7 @@ def main() -> int:
     ap.add_argument("--render-seed", type=int, default=1000)
     ap.add_argument("--renders", type=int, default=100)
     ap.add_argument("--whip-seed", type=int, default=0)
-    ap.add_argument("--parts", default="external,renders,whip,loopcam,speed")
+    ap.add_argument("--parts", default="external,flat,renders,whip,loopcam,speed")
     ap.add_argument("--checkpoint", help="seg-train checkpoint.pt: also time the network in torch")
     ap.add_argument("--out", required=True)
     args = ap.parse_args()
@@ -407,6 +426,9 @@ def main() -> int:
             print(json.dumps(report["external"]["summary"], indent=1))
         else:
             print(f"skipping external: {args.external} not found")
+    if "flat" in parts:
+        report["flat"] = part_flat(seg)
+        print(json.dumps(report["flat"], indent=1))
     if "renders" in parts:
         report["renders"] = part_renders(seg, args.render_seed, args.renders)
         print(json.dumps(report["renders"], indent=1))

@@ -85,7 +85,7 @@ def main() -> int:
     parser.add_argument("--out", required=True)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--styles", default="plain,textured-blur,occluded")
-    parser.add_argument("--variants", help="comma-separated names of VARIANTS to run (default: all)")
+    parser.add_argument("--variants", help="names of VARIANTS to run, separated by ';' (default: all)")
     parser.add_argument("--extra", default="", help="more track arguments for every variant, e.g. "
                         "'--sigma-accel 200'")
     args = parser.parse_args()
@@ -109,7 +109,7 @@ def main() -> int:
                     w.writerow([f"{k / 25.0:.6f}", *(f"{c:.6f}" for c in p)])
             anchor = calib.project(tcps[:1])[0]
             style_results = {}
-            chosen = VARIANTS if args.variants is None else {k: VARIANTS[k] for k in args.variants.split(",")}
+            chosen = VARIANTS if args.variants is None else {k: VARIANTS[k] for k in args.variants.split(";")}
             for name, extra in chosen.items():
                 out = folder / f"{style}.csv"
                 argv = [sys.executable, "-m", "dyndlo_vision", "track", str(video),

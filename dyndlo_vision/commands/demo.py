@@ -119,7 +119,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--segmenter",
         choices=["background", "learned"],
         default="background",
-        help="tracked observation: the classical background segmenter (default) or the shipped learned CNN",
+        help="tracked observation: the classical background segmenter (default) or the shipped "
+        "full-resolution CNN (cable-segmenter-fine)",
     )
     p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     p.add_argument(

@@ -32,13 +32,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="learned CNN (default), background contrast, or HSV bounds",
     )
     p.add_argument(
-        "--model", metavar="FILE.onnx", help="learned: an ONNX file from seg-train instead of the shipped"
+        "--model",
+        metavar="FILE.onnx",
+        help="learned: an ONNX file from seg-train, or a shipped network by name: cable-segmenter "
+        "(default) or cable-segmenter-fine (full resolution, for cables 1-3 px wide)",
     )
     p.add_argument(
         "--short-side",
         type=int,
-        default=240,
-        help="learned: the image's shorter side is resized to this before the network",
+        default=None,
+        help="learned: the image's shorter side is resized to this before the network (default: the "
+        "network's own, 480 for the shipped one)",
     )
     p.add_argument("--hsv-lower", default="0,80,60", help="hsv: lower H,S,V bound (OpenCV ranges)")
     p.add_argument("--hsv-upper", default="179,255,255", help="hsv: upper H,S,V bound")
@@ -62,9 +66,10 @@ def _segmenter(args: argparse.Namespace) -> Any:
         from dyndlo_vision.policies.segmenter import onnx_bytes
         from dyndlo_vision.tracking.learned import LearnedSegmenter
 
-        if args.short_side < 16:
+        if args.short_side is not None and args.short_side < 16:
             raise ValueError(f"--short-side must be >= 16, got {args.short_side}")
-        return LearnedSegmenter(onnx_bytes(args.model), short_side=args.short_side)
+        short = "auto" if args.short_side is None else args.short_side
+        return LearnedSegmenter(onnx_bytes(args.model), short_side=short)
     if args.model:
         raise ValueError("--model is for --segmenter learned")
     if args.segmenter == "background":

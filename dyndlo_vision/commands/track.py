@@ -44,6 +44,7 @@ from typing import TYPE_CHECKING, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
+from dyndlo_vision.policies.segmenter import SHIPPED_NAMES as SHIPPED_SEGMENTERS
 from dyndlo_vision.tracking.masks import (
     MAX_WIDTH_RATIO,
     MIN_CUT_RADIUS_PX,
@@ -103,7 +104,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--segmenter-model",
         metavar="FILE.onnx",
-        help="learned: an ONNX file from seg-train instead of the shipped",
+        help="learned: an ONNX file from seg-train, or a shipped network by name: cable-segmenter (default) "
+        "or cable-segmenter-fine (full resolution, for cables 1-3 px wide)",
     )
     p.add_argument("--hsv-lower", metavar="H,S,V", help="lower HSV bound (OpenCV: H 0-179, S, V 0-255)")
     p.add_argument("--hsv-upper", metavar="H,S,V", help="upper HSV bound; H lower > upper wraps through red")
@@ -372,8 +374,10 @@ def _settings(args: argparse.Namespace) -> _Settings:
     model = None if args.segmenter_model is None else Path(args.segmenter_model)
     if model is not None and args.segmenter != "learned":
         raise ValueError("--segmenter-model is for --segmenter learned")
-    if model is not None and not model.is_file():
-        raise FileNotFoundError(f"--segmenter-model {model} does not exist")
+    if model is not None and not model.is_file() and str(model) not in SHIPPED_SEGMENTERS:
+        raise FileNotFoundError(
+            f"--segmenter-model {model} does not exist (shipped names: {', '.join(SHIPPED_SEGMENTERS)})"
+        )
     if args.open_radius < 0:
         raise ValueError(f"--open-radius must be >= 0, got {args.open_radius}")
     if args.nodes < 2:

@@ -38,7 +38,7 @@ GRIPPER_MASK_RADIUS_M = 0.03  # the 2 cm gripper sphere plus a margin
 LOOP_SIGMA_ACCEL = LOOP_FILTER.sigma_accel
 LATENT_LOOP_SIGMA_ACCEL = LATENT_LOOP_FILTER.sigma_accel
 #: Segmenters the loop can use: the classical background segmenter against the scene rendered without the
-#: cable (default), or the shipped learned CNN (no background image needed).
+#: cable (default), or the shipped full-resolution CNN ``cable-segmenter-fine`` (no background image needed).
 LOOP_SEGMENTERS = ("background", "learned")
 #: Longest simulated camera latency (s): beyond a quarter second the loop re-plans on a past the cable has
 #: long left.
@@ -96,10 +96,11 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
     home = base.scene.gripper_home[0]
     scale = pixels_per_metre(calib, home)
     if segmenter == "learned":
-        from dyndlo_vision.policies.segmenter import onnx_bytes
+        from dyndlo_vision.policies.segmenter import FINE_NAME, onnx_bytes
         from dyndlo_vision.tracking.learned import LearnedSegmenter
 
-        inner: Any = LearnedSegmenter(onnx_bytes())
+        # The full-resolution network: the loop camera's cable is 1.6 px wide (docs/RESULTS.md).
+        inner: Any = LearnedSegmenter(onnx_bytes(FINE_NAME))
     else:
         inner = BackgroundSegmenter(render_without_cable(camera), open_radius=0)
     masked = GripperMaskedSegmenter(inner, GRIPPER_MASK_RADIUS_M * scale)

@@ -6,8 +6,8 @@ of input channels when it is loaded:
 
 * **blocks** (48 channels, ``cablenet-s2d4``, the shipped network): the frame, as ``RGB / 255 - 0.5``, enters
   in 4x4 blocks (every pixel kept) and leaves as 16 logits per block, put back in place: the mask has the
-  network input's own resolution, so a cable 1-2 px wide survives. The frame runs at its own size unless
-  ``short_side`` asks for another; it is edge-padded to a multiple of 16.
+  network input's own resolution, so a cable 1-2 px wide survives. The frame is resized to a short side of
+  480 px (a 640x480 frame runs at its own size) and edge-padded to a multiple of 16.
 * **RGB** (3 channels, ``cablenet``, the first network): the frame is resized to ``short_side`` (240), the
   logits (half that size) are resized bilinearly to the frame.
 
@@ -53,8 +53,8 @@ class LearnedSegmenter:
         onnx: The network as ONNX bytes: input ``rgb`` N x 48 x H/4 x W/4 (blocks) with output N x 16 x H/4 x
             W/4, or N x 3 x H x W (RGB) with one logit per pixel at half the input size.
         short_side: The frame's shorter side is resized to this many pixels before the network; None: the
-            frame's own size. ``"auto"``: None for a block network, 240 for an RGB network (the scales they
-            were trained at).
+            frame's own size. ``"auto"``: 480 for a block network, 240 for an RGB network (the scales they
+            score best at on the real photos, docs/RESULTS.md).
         threshold: Logit above which a pixel is cable (0: probability 0.5).
         min_area: Connected components of the mask smaller than this many pixels are dropped (0: off).
 
@@ -84,7 +84,7 @@ class LearnedSegmenter:
             raise ValueError(f"OpenCV cannot read the segmenter's ONNX bytes: {exc}") from exc
         self.blocks = self._probe_layout()
         if short_side == "auto":
-            short_side = None if self.blocks else 240
+            short_side = 480 if self.blocks else 240
         self.short_side: int | None = short_side  # type: ignore[assignment]
         self.threshold = float(threshold)
         self.min_area = int(min_area)

@@ -1,10 +1,20 @@
-"""The shipped learned cable segmenter: ``cable-segmenter.onnx`` and the JSON beside it (how it was made).
+"""The shipped learned cable segmenters: ONNX networks and the JSON beside each (how it was made).
+
+Two networks, for two kinds of picture (docs/RESULTS.md, "Learned cable segmenter"):
+
+* ``cable-segmenter`` (the default of ``segment``, ``track --segmenter learned`` and the real robot): RGB at a
+  short side of 240 px, mask at half that. The better of the two on renders and on cables several pixels
+  wide.
+* ``cable-segmenter-fine`` (the simulated loop's ``--segmenter learned``): the frame in 4x4 blocks at 480 px,
+  mask at the frame's full resolution. Made for cables 1-3 px wide, such as the loop camera's 1.6 px
+  cable, which the first network cuts into fragments; weaker on wide, flat-coloured cables.
 
 This module only hands out the bytes and the metadata (``policies`` imports nothing above ``tasks``); the
 network runs in :class:`dyndlo_vision.tracking.learned.LearnedSegmenter`::
 
-    seg = LearnedSegmenter(onnx_bytes())                       # the shipped network
-    seg = LearnedSegmenter(onnx_bytes("runs/seg/cable_segmenter.onnx"), short_side=240)
+    seg = LearnedSegmenter(onnx_bytes())                       # the default network
+    seg = LearnedSegmenter(onnx_bytes(FINE_NAME))              # the full-resolution one
+    seg = LearnedSegmenter(onnx_bytes("runs/seg/cable_segmenter.onnx"))
 """
 
 from __future__ import annotations
@@ -14,29 +24,36 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-__all__ = ["SHIPPED_NAME", "onnx_bytes", "segmenter_metadata"]
+__all__ = ["FINE_NAME", "SHIPPED_NAME", "SHIPPED_NAMES", "onnx_bytes", "segmenter_metadata"]
 
 SHIPPED_NAME = "cable-segmenter"
+FINE_NAME = "cable-segmenter-fine"
+SHIPPED_NAMES = (SHIPPED_NAME, FINE_NAME)
 
 
-def _shipped(suffix: str) -> Any:
-    return resources.files(__name__).joinpath(f"{SHIPPED_NAME}{suffix}")
+def _shipped(name: str, suffix: str) -> Any:
+    if name not in SHIPPED_NAMES:
+        raise ValueError(f"no shipped segmenter {name!r}; shipped: {list(SHIPPED_NAMES)}")
+    return resources.files(__name__).joinpath(f"{name}{suffix}")
 
 
-def segmenter_metadata() -> dict[str, Any]:
-    """The shipped segmenter's JSON (the commands and data that produced it, and its measured scores)."""
-    return dict(json.loads(_shipped(".json").read_text()))
+def segmenter_metadata(name: str = SHIPPED_NAME) -> dict[str, Any]:
+    """A shipped segmenter's JSON (the commands and data that produced it, and its measured scores)."""
+    return dict(json.loads(_shipped(name, ".json").read_text()))
 
 
 def onnx_bytes(path: str | Path | None = None) -> bytes:
-    """The shipped network (``path=None``) or the ONNX file at ``path`` (e.g. from ``seg-train``), as bytes.
+    """A network as bytes: the default shipped one (``None``), a shipped one by name (:data:`SHIPPED_NAMES`),
+    or the ONNX file at ``path`` (e.g. from ``seg-train``).
 
     Raises:
-        FileNotFoundError: ``path`` does not exist.
+        FileNotFoundError: ``path`` is neither a shipped name nor an existing file.
     """
     if path is None:
-        return bytes(_shipped(".onnx").read_bytes())
+        path = SHIPPED_NAME
+    if str(path) in SHIPPED_NAMES:
+        return bytes(_shipped(str(path), ".onnx").read_bytes())
     p = Path(path)
     if not p.is_file():
-        raise FileNotFoundError(f"segmenter file {p} does not exist")
+        raise FileNotFoundError(f"segmenter file {p} does not exist (shipped names: {list(SHIPPED_NAMES)})")
     return p.read_bytes()
