@@ -1,10 +1,11 @@
 """Training of the learned cable segmenter on ``seg-data`` datasets, ONNX export.
 
 Two architectures (:func:`build_net`), both small encoder-decoders (about 30 k parameters):
-``cablenet-s2d4`` (the default and the shipped one) takes the frame as 4x4 blocks and gives 16 sub-pixel
-logits per block, so its mask has the frame's full resolution; ``cablenet`` (the first shipped network)
-gives logits at half its input, which the run-time side upsamples. A cable 1.6 px wide in a 640x480 frame,
-the loop's camera, is 0.4 px at ``cablenet``'s output when it runs at 320x240, and came out in fragments.
+``cablenet-s2d4`` (``seg-train``'s default; shipped as ``cable-segmenter-fine``) takes the frame as 4x4
+blocks and gives 16 sub-pixel logits per block, so its mask has the frame's full resolution; ``cablenet``
+(shipped as ``cable-segmenter``, the default network) gives logits at half its input, which the run-time
+side upsamples. A cable 1.6 px wide in a 640x480 frame, the loop's camera, is 0.4 px at ``cablenet``'s
+output when it runs at 320x240, and comes out in fragments.
 Training computes the loss on the logits at the input's resolution exactly as they are made at run time
 (:func:`full_res_logits`), so what is trained is what runs. Inference runs through ``cv2.dnn`` on the
 exported ONNX file (:class:`dyndlo_vision.tracking.learned.LearnedSegmenter`): on one core it runs several
@@ -311,6 +312,12 @@ def train(
         raise ValueError(
             f"cablenet-s2d4 needs crops in multiples of 16 px, got {config.crop_h}x{config.crop_w}"
         )
+    init_state = None
+    if init is not None and not resume:
+        init_state = torch.load(Path(init), weights_only=False)
+        init_arch = init_state.get("config", {}).get("arch", "cablenet")  # before the choice: cablenet
+        if init_arch != config.arch:
+            raise ValueError(f"--init {init} holds a {init_arch} network; train it with --arch {init_arch}")
     images, masks = load_dataset(Path(data))
     ext_images: list[Any] = []
     ext_masks: list[Any] = []
@@ -334,8 +341,8 @@ def train(
         opt.load_state_dict(ck["opt"])
         step, history = int(ck["step"]), list(ck["history"])
         rng.bit_generator.state = ck["rng"]
-    elif init is not None:
-        net.load_state_dict(torch.load(Path(init), weights_only=False)["net"])
+    elif init_state is not None:
+        net.load_state_dict(init_state["net"])
     pos_weight = torch.tensor([config.pos_weight])
     bar = tqdm(
         total=config.steps,

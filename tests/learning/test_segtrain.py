@@ -89,6 +89,15 @@ def test_frames_of_any_size_keep_their_size() -> None:
     ) == (128, 96)
 
 
+def test_init_needs_the_same_architecture(dataset: Path, tmp_path: Path) -> None:
+    cfg = TrainConfig(steps=1, batch=1, crop_h=64, crop_w=64, arch="cablenet")
+    train(dataset, tmp_path / "a", cfg, progress=False)
+    with pytest.raises(ValueError, match="--arch cablenet"):
+        train(dataset, tmp_path / "b", TrainConfig(steps=1, batch=1, crop_h=64, crop_w=64), progress=False,
+              init=tmp_path / "a" / "checkpoint.pt")
+    assert not (tmp_path / "b").exists()
+
+
 def test_block_crops_must_be_multiples_of_16(dataset: Path, tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="multiples of 16"):
         train(dataset, tmp_path / "r", TrainConfig(steps=1, crop_h=60, crop_w=64), progress=False)
