@@ -1,15 +1,16 @@
 """The learned cable segmenter at run time: a small CNN (ONNX) evaluated with OpenCV's ``cv2.dnn``.
 
-Pure computation on arrays: the network arrives as ONNX bytes (the shipped one from
+Pure computation on arrays: the network arrives as ONNX bytes (the shipped ones from
 :func:`dyndlo_vision.policies.segmenter.onnx_bytes`). Two input layouts, told apart by the network's number
 of input channels when it is loaded:
 
-* **blocks** (48 channels, ``cablenet-s2d4``, the shipped network): the frame, as ``RGB / 255 - 0.5``, enters
-  in 4x4 blocks (every pixel kept) and leaves as 16 logits per block, put back in place: the mask has the
-  network input's own resolution, so a cable 1-2 px wide survives. The frame is resized to a short side of
-  480 px (a 640x480 frame runs at its own size) and edge-padded to a multiple of 16.
-* **RGB** (3 channels, ``cablenet``, the first network): the frame is resized to ``short_side`` (240), the
-  logits (half that size) are resized bilinearly to the frame.
+* **blocks** (48 channels, ``cablenet-s2d4``, shipped as ``cable-segmenter-fine``): the frame, as
+  ``RGB / 255 - 0.5``, enters in 4x4 blocks (every pixel kept) and leaves as 16 logits per block, put back
+  in place: the mask has the network input's own resolution, so a cable 1-2 px wide survives. The frame is
+  resized to a short side of 480 px (a 640x480 frame runs at its own size) and edge-padded to a multiple
+  of 16.
+* **RGB** (3 channels, ``cablenet``, shipped as ``cable-segmenter``, the default): the frame is resized to
+  ``short_side`` (240), the logits (half that size) are resized bilinearly to the frame.
 
 cv2.dnn runs these networks several times faster than torch on one core (docs/RESULTS.md, "Learned
 segmenter"), and torch is not needed at run time.
@@ -54,7 +55,7 @@ class LearnedSegmenter:
             W/4, or N x 3 x H x W (RGB) with one logit per pixel at half the input size.
         short_side: The frame's shorter side is resized to this many pixels before the network; None: the
             frame's own size. ``"auto"``: 480 for a block network, 240 for an RGB network (the scales they
-            score best at on the real photos, docs/RESULTS.md).
+            were measured at, docs/RESULTS.md).
         threshold: Logit above which a pixel is cable (0: probability 0.5).
         min_area: Connected components of the mask smaller than this many pixels are dropped (0: off).
 
@@ -154,10 +155,9 @@ class LearnedSegmenter:
 
     def segment(self, rgb: NDArray[np.uint8]) -> NDArray[np.bool_]:
         """The (H, W) bool cable mask of one RGB frame."""
-        small = self._resized(rgb)
-        if self.blocks and small.shape == rgb.shape:  # threshold the blocks, then put them in place
-            h, w = small.shape[:2]
-            cable = self._block_logits(small) > self.threshold
+        h, w = rgb.shape[:2]
+        if self.blocks and self.input_size(h, w) == (w, h):  # threshold the blocks, then put them in place
+            cable = self._block_logits(self._resized(rgb)) > self.threshold
             mask = np.ascontiguousarray(from_blocks(cable.view(np.uint8))[:h, :w])
         else:
             _, m = cv2.threshold(self.logits_full(rgb), self.threshold, 1, cv2.THRESH_BINARY)
