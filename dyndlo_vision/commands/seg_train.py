@@ -33,7 +33,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--arch",
         choices=("cablenet-s2d4", "cablenet"),
         default="cablenet-s2d4",
-        help="network: cablenet-s2d4 (full-resolution mask, the shipped one) or cablenet (half resolution)",
+        help="network: cablenet-s2d4 (full-resolution mask, as cable-segmenter-fine) or cablenet (half "
+        "resolution, as cable-segmenter)",
     )
     p.add_argument("--init", metavar="CHECKPOINT.pt", help="start from these weights (fine-tuning)")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")

@@ -42,7 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=int,
         default=None,
         help="learned: the image's shorter side is resized to this before the network (default: the "
-        "network's own, 480 for the shipped one)",
+        "network's own: 240 for cable-segmenter, 480 for cable-segmenter-fine)",
     )
     p.add_argument("--hsv-lower", default="0,80,60", help="hsv: lower H,S,V bound (OpenCV ranges)")
     p.add_argument("--hsv-upper", default="179,255,255", help="hsv: upper H,S,V bound")
