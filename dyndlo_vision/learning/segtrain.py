@@ -84,13 +84,21 @@ def build_net(arch: str = "cablenet", c1: int = 8, c2: int = 16, c3: int = 32) -
     def up(x: Any) -> Any:
         return functional.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
 
+    blocks = arch == "cablenet-s2d4"
+    w1 = 2 * c1 if blocks else c1  # width of the finest level
+
     class CableNet(nn.Module):  # type: ignore[misc,name-defined]
         def __init__(self) -> None:
             super().__init__()
-            self.e1, self.e2, self.e3 = cbr(3, c1, s=2), cbr(c1, c2, s=2), cbr(c2, c3, s=2)
+            if blocks:  # 4x4 blocks in: one 1x1 convolution mixes each block's 48 values
+                self.e1 = cbr(3 * S2D_BLOCK * S2D_BLOCK, w1, k=1)
+            else:  # RGB in: a stride-2 convolution to half the input
+                self.e1 = cbr(3, w1, s=2)
+            self.e2, self.e3 = cbr(w1, c2, s=2), cbr(c2, c3, s=2)
             self.e4, self.e5 = cbr(c3, c3, d=2), cbr(c3, c3, d=4)
             self.d2, self.d2b = cbr(c3 + c2, c2, k=1), cbr(c2, c2)
-            self.d1, self.out = cbr(c2 + c1, c1, k=1), nn.Conv2d(c1, 1, 1)
+            self.d1 = cbr(c2 + w1, w1, k=1)
+            self.out = nn.Conv2d(w1, S2D_BLOCK * S2D_BLOCK if blocks else 1, 1)
 
         def forward(self, x: Any) -> Any:
             e1 = self.e1(x)
@@ -99,24 +107,7 @@ def build_net(arch: str = "cablenet", c1: int = 8, c2: int = 16, c3: int = 32) -
             d = self.d2b(self.d2(torch.cat([up(e), e2], 1)))
             return self.out(self.d1(torch.cat([up(d), e1], 1)))
 
-    class CableNetS2D(nn.Module):  # type: ignore[misc,name-defined]
-        def __init__(self) -> None:
-            super().__init__()
-            blk = 3 * S2D_BLOCK * S2D_BLOCK
-            self.e1, self.e2, self.e3 = cbr(blk, 2 * c1, k=1), cbr(2 * c1, c2, s=2), cbr(c2, c3, s=2)
-            self.e4, self.e5 = cbr(c3, c3, d=2), cbr(c3, c3, d=4)
-            self.d2, self.d2b = cbr(c3 + c2, c2, k=1), cbr(c2, c2)
-            self.d1 = cbr(c2 + 2 * c1, 2 * c1, k=1)
-            self.out = nn.Conv2d(2 * c1, S2D_BLOCK * S2D_BLOCK, 1)
-
-        def forward(self, x: Any) -> Any:
-            e1 = self.e1(x)
-            e2 = self.e2(e1)
-            e = self.e5(self.e4(self.e3(e2)))
-            d = self.d2b(self.d2(torch.cat([up(e), e2], 1)))
-            return self.out(self.d1(torch.cat([up(d), e1], 1)))
-
-    return CableNet() if arch == "cablenet" else CableNetS2D()
+    return CableNet()
 
 
 def full_res_logits(net: Any, x: Any, arch: str) -> Any:
