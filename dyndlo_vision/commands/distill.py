@@ -53,6 +53,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="penalise the expert's commanded TCP speeds above this (e.g. 1.7; default: off)",
     )
     p.add_argument(
+        "--cable-ranges",
+        choices=("training", "beyond"),
+        default=None,
+        help="draw every episode's cable from these ranges (training: evaluate --randomize-cable's; beyond: "
+        "issue 16's wider ones); default: the nominal cable",
+    )
+    p.add_argument(
+        "--teacher-search",
+        action="store_true",
+        help="privileged teacher: refine the teacher's plan for each episode's cable and target by search in "
+        "simulation (it knows the cable; the student does not)",
+    )
+    p.add_argument(
+        "--student-noise",
+        type=float,
+        default=0.0,
+        metavar="SIGMA",
+        help="in DAgger rounds, add Gaussian noise of this standard deviation (normalised action units) to "
+        "the student's executed actions, so that the expert labels states off its path (default 0)",
+    )
+    p.add_argument(
         "--out", default=None, help="run folder (default: runs/tip-control-multi-step-distill-s<seed>)"
     )
     p.add_argument("--resume", action="store_true", help="continue the run in --out after its last round")
@@ -80,6 +101,9 @@ def run(args: argparse.Namespace) -> int:
         workers=args.workers,
         epochs=args.epochs,
         expert_speed_limit_m_s=args.expert_speed_limit,
+        cable_ranges=args.cable_ranges,
+        teacher_search=args.teacher_search,
+        student_noise=args.student_noise,
     )
     out = Path(args.out or f"runs/tip-control-multi-step-distill-s{args.seed}")
     try:

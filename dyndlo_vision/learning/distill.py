@@ -10,6 +10,9 @@ the current position and velocity.
   by bounded least squares, the action whose re-planned B-spline (from the commanded position *and velocity*
   now) stays closest to the rest of the single-step trajectory. It knows the time and the plan, which the
   multi-step observation (table II) does not contain, so it is a teacher, not a policy.
+* :class:`CableSearchTeacher` is the privileged teacher: it knows the episode's cable and target and refines
+  the single-step policy's plan for them by search in simulation (the cross-entropy method), so the expert
+  follows a plan made for *this* cable, which the student must infer from what it observes.
 * :func:`collect` runs episodes in which the student acts (with probability ``1 - beta``) or the expert does,
   and records the observation the student saw with the expert's action for it (DAgger, Ross et al. 2011).
 * :func:`fit_student` regresses the mean of a stable-baselines3 PPO policy onto the aggregated labels, so the
@@ -40,7 +43,19 @@ from scipy.optimize import least_squares
 
 from dyndlo_vision.trajectory import ActionSpec, BSplineTrajectory
 
-__all__ = ["PlanFollowingExpert", "DistillConfig", "check_teacher", "collect", "fit_student", "distill"]
+__all__ = [
+    "PlanFollowingExpert",
+    "PolicyTeacher",
+    "CableSearchTeacher",
+    "DistillConfig",
+    "check_teacher",
+    "collect",
+    "fit_student",
+    "distill",
+]
+
+#: Options added to :class:`DistillConfig` after runs were first stored, with the values those runs had.
+_LATER_OPTIONS = {"cable_ranges": None, "teacher_search": False, "student_noise": 0.0}
 
 #: The task a teacher must be a single-step policy of: the expert follows one tip-control plan from t = 0.
 TEACHER_TASK = "tip-control"
@@ -131,6 +146,109 @@ class PlanFollowingExpert:
         return np.asarray(sol.x, dtype=np.float64)
 
 
+# ---------------------------------------------------------------------------------------------- teachers
+class PolicyTeacher:
+    """The plan of a single-step policy, from the observation at t = 0 (it knows only what it observes)."""
+
+    def __init__(self, policy: Any) -> None:
+        self.policy = policy
+        self.last_rollouts = 0
+
+    def plan_for(self, env: Any, seed: int) -> NDArray[np.float32]:
+        """The policy's action for the (true) observation of ``env``'s episode, just reset."""
+        action, _ = self.policy.predict(env.observation(), deterministic=True)
+        return np.asarray(action, dtype=np.float32)
+
+
+class CableSearchTeacher:
+    """A privileged teacher: the single-step plan for *this* cable and target, found by search in simulation.
+
+    It knows what no policy observes: the episode's cable parameters and target. It starts from the
+    single-step policy's plan, rolls it out in a single-step copy of the task built with that cable, and,
+    when the plan is not good enough (see ``good_enough_m``), refines it by the cross-entropy method:
+    ``iterations`` generations of ``population`` plans drawn around the mean, the ``elite`` best re-centring
+    it. A plan
+    scores its closest tip-to-target-centre distance plus 1 m for any avoid condition or divergence; the
+    search stops at the first generation whose best plan scores below ``good_enough_m``.
+
+    Args:
+        policy: The single-step policy whose plan the search starts from.
+        task_options: The tip-control environment's options (the episode's cable is swapped in per call).
+        population, iterations, elite: The cross-entropy method's sizes.
+        sigma: Initial standard deviation of the plans drawn (normalised action units); shrinks by
+            ``sigma_decay`` per generation, to at least ``min_sigma``.
+        good_enough_m: Stop once a plan without avoid condition passes this close to the target's centre.
+    """
+
+    def __init__(
+        self,
+        policy: Any,
+        task_options: dict[str, Any] | None = None,
+        population: int = 32,
+        iterations: int = 4,
+        elite: int = 6,
+        sigma: float = 0.2,
+        sigma_decay: float = 0.6,
+        min_sigma: float = 0.05,
+        good_enough_m: float = 0.03,
+    ) -> None:
+        from dyndlo_vision.tasks.registry import make_env
+
+        if not (1 <= elite <= population) or iterations < 1 or sigma <= 0 or min_sigma <= 0:
+            raise ValueError(
+                f"need 1 <= elite <= population, iterations >= 1 and positive sigmas; got elite={elite}, "
+                f"population={population}, iterations={iterations}, sigma={sigma}, min_sigma={min_sigma}"
+            )
+        self.policy = policy
+        self.population, self.iterations, self.elite = int(population), int(iterations), int(elite)
+        self.sigma, self.sigma_decay, self.min_sigma = float(sigma), float(sigma_decay), float(min_sigma)
+        self.good_enough_m = float(good_enough_m)
+        self.env = make_env(TEACHER_TASK, multi_step=False, **(task_options or {}))
+        self.last_rollouts = 0
+        self.last_score = float("nan")
+
+    @staticmethod
+    def score(info: dict[str, Any]) -> float:
+        """Lower is better: closest tip-target distance (m), plus 1 for any avoid condition or divergence."""
+        bad = any(info["avoid"].values()) or bool(info.get("diverged", False))
+        return float(info["min_distance_m"]) + (1.0 if bad else 0.0)
+
+    def rollout(self, action: NDArray[np.floating[Any]], cable: Any, goal: NDArray[np.float64],
+                seed: int) -> dict[str, Any]:
+        """The single-step episode of ``action`` with this cable and target; its final ``info``."""
+        self.env.reset(seed=seed, options={"cable": cable, "goal": goal})
+        return self.env.step(np.asarray(action, dtype=np.float32))[4]
+
+    def search(self, start: NDArray[np.floating[Any]], cable: Any, goal: NDArray[np.float64],
+               seed: int) -> NDArray[np.float32]:
+        """The best plan found from ``start`` for this cable and goal (``start`` itself if it is good)."""
+        best = np.clip(np.asarray(start, dtype=np.float64), -1.0, 1.0)
+        info = self.rollout(best, cable, goal, seed)
+        best_score, self.last_rollouts = self.score(info), 1
+        rng = np.random.default_rng([int(seed), 0x5EA])
+        mean, sigma = best.copy(), self.sigma
+        for _ in range(self.iterations):
+            if best_score < self.good_enough_m:
+                break
+            plans = np.clip(mean + sigma * rng.standard_normal((self.population, best.size)), -1.0, 1.0)
+            scores = np.array([self.score(self.rollout(a, cable, goal, seed)) for a in plans])
+            self.last_rollouts += len(plans)
+            if scores.min() < best_score:
+                best, best_score = plans[int(np.argmin(scores))], float(scores.min())
+            mean = plans[np.argsort(scores)[: self.elite]].mean(axis=0)
+            sigma = max(self.min_sigma, sigma * self.sigma_decay)
+        self.last_score = best_score
+        return best.astype(np.float32)
+
+    def plan_for(self, env: Any, seed: int) -> NDArray[np.float32]:
+        """The searched plan for the episode ``env`` (unwrapped, just reset with ``seed``) runs."""
+        start, _ = self.policy.predict(env.observation(), deterministic=True)
+        return self.search(start, env.task.cable, env.goal, seed)
+
+    def close(self) -> None:
+        self.env.close()
+
+
 # ---------------------------------------------------------------------------------------------- episodes
 @dataclass
 class Episodes:
@@ -176,8 +294,13 @@ def run_mixed_episode(
     student: Any = None,
     beta: float = 1.0,
     rng: np.random.Generator | None = None,
+    student_noise: float = 0.0,
 ) -> dict[str, Any]:
     """One multi-step episode: the student acts with probability ``1 - beta`` per decision, else the expert.
+
+    ``student_noise`` is the standard deviation of Gaussian noise added to the student's executed action (in
+    the normalised [-1, 1] action units, then clipped): it drives the roll-in to states the noiseless student
+    would not reach, which the expert then labels. The label is never noisy.
 
     Returns:
         ``observations`` (as the student saw them), ``true_observations`` (the simulator's state) and
@@ -187,7 +310,7 @@ def run_mixed_episode(
     rng = rng or np.random.default_rng(seed)
     obs, _ = env.reset(seed=seed)
     u = env.unwrapped
-    plan, _ = teacher.predict(u.observation(), deterministic=True)  # the teacher saw true state
+    plan = teacher.plan_for(u, seed)  # the teacher sees the true state (and, if privileged, more)
     observations, true_obs, labels, rms = [], [], [], []
     done, k, info = False, 0, {}
     while not done:
@@ -200,6 +323,8 @@ def run_mixed_episode(
         action = label
         if student is not None and rng.random() >= beta:
             action, _ = student.predict(obs, deterministic=True)
+            if student_noise > 0.0:
+                action = np.clip(action + rng.normal(0.0, student_noise, np.shape(action)), -1.0, 1.0)
         observations.append(np.asarray(obs, dtype=np.float32))
         true_obs.append(u.observation())
         labels.append(label.astype(np.float32))
@@ -217,11 +342,18 @@ def run_mixed_episode(
     }
 
 
-def make_distill_env(task_options: dict[str, Any], noise_model: str | None) -> Any:
-    """The multi-step tip-control environment, under the noise model when one is given."""
+def make_distill_env(
+    task_options: dict[str, Any], noise_model: str | None, cable_ranges: str | None = None
+) -> Any:
+    """The multi-step tip-control environment, under the noise model when one is given; with
+    ``cable_ranges`` (a name of ``wrappers.CABLE_RANGES``) every episode's cable is drawn from its seed."""
     from dyndlo_vision.tasks.registry import make_env
+    from dyndlo_vision.tasks.wrappers import cable_ranges_for
 
-    return make_env("tip-control", multi_step=True, obs_noise=noise_model or None, **task_options)
+    randomise = {}
+    if cable_ranges is not None:
+        randomise = {"randomize_cable_every": 1, "cable_ranges": cable_ranges_for(TEACHER_TASK, cable_ranges)}
+    return make_env(TEACHER_TASK, multi_step=True, obs_noise=noise_model or None, **randomise, **task_options)
 
 
 def check_teacher(teacher: str, task_options: dict[str, Any] | None = None) -> None:
@@ -269,8 +401,11 @@ def _collect_chunk(job: dict[str, Any], on_episode: Callable[[int, bool], None] 
     from dyndlo_vision import policies
 
     torch.set_num_threads(1)
-    env = make_distill_env(job["task_options"], job["noise_model"])
-    teacher = policies.load(job["teacher"])
+    env = make_distill_env(job["task_options"], job["noise_model"], job.get("cable_ranges"))
+    policy = policies.load(job["teacher"])
+    teacher: Any = PolicyTeacher(policy)
+    if job.get("teacher_search"):
+        teacher = CableSearchTeacher(policy, job["task_options"])
     student = policies.load(job["student"], env=env, algo="ppo") if job["student"] else None
     expert = PlanFollowingExpert(env.unwrapped.spec_actions, speed_limit_m_s=job["speed_limit"])
     parts = []
@@ -283,6 +418,7 @@ def _collect_chunk(job: dict[str, Any], on_episode: Callable[[int, bool], None] 
             student,
             job["beta"],
             np.random.default_rng([int(seed), job["round"]]),
+            job.get("student_noise", 0.0),
         )
         if on_episode is not None:
             on_episode(int(seed), ep["success"])
@@ -301,6 +437,8 @@ def _collect_chunk(job: dict[str, Any], on_episode: Callable[[int, bool], None] 
             )
         )
     env.close()
+    if hasattr(teacher, "close"):
+        teacher.close()
     return Episodes.concatenate(parts)
 
 
@@ -315,6 +453,9 @@ def collect(
     round_index: int = 0,
     speed_limit_m_s: float | None = None,
     on_episode: Callable[[int, bool], None] | None = None,
+    student_noise: float = 0.0,
+    cable_ranges: str | None = None,
+    teacher_search: bool = False,
 ) -> Episodes:
     """Run one DAgger round's episodes (one per seed) in ``workers`` processes.
 
@@ -328,6 +469,11 @@ def collect(
         workers: Processes (each builds its own environment).
         round_index: Mixed into the per-episode random stream that picks who acts.
         speed_limit_m_s: The expert's speed penalty threshold (None: off).
+        student_noise: Standard deviation of the noise on the student's executed actions (see
+            :func:`run_mixed_episode`).
+        cable_ranges: Draw every episode's cable from these named ranges (None: the nominal cable).
+        teacher_search: The teacher's plan is refined for each episode's cable and target by search
+            (:class:`CableSearchTeacher`, privileged) instead of taken from the policy as it is.
         on_episode: Called in this process with ``(seed, success)`` of every episode as it ends, in the order
             they end (e.g. for a progress bar). The returned data do not depend on it.
     """
@@ -342,6 +488,9 @@ def collect(
             "task_options": dict(task_options or {}),
             "round": round_index,
             "speed_limit": speed_limit_m_s,
+            "student_noise": float(student_noise),
+            "cable_ranges": cable_ranges,
+            "teacher_search": bool(teacher_search),
         }
         for i in range(workers)
     ]
@@ -464,6 +613,12 @@ class DistillConfig:
         epochs: Passes over the aggregated data per round.
         expert_speed_limit_m_s: :class:`PlanFollowingExpert`'s ``speed_limit_m_s``.
         task_options: Keyword options of the tip-control environment.
+        cable_ranges: Every episode's cable is drawn from these named ranges (``wrappers.CABLE_RANGES``:
+            ``"training"`` or ``"beyond"``); None: the task's nominal cable in every episode.
+        teacher_search: The expert follows :class:`CableSearchTeacher`'s plan (the teacher's refined, with
+            the episode's cable known) instead of the teacher's own.
+        student_noise: Noise on the student's executed actions in the DAgger rounds (see
+            :func:`run_mixed_episode`).
     """
 
     teacher: str = "tip-control-single-step"
@@ -477,6 +632,9 @@ class DistillConfig:
     epochs: int = 300
     expert_speed_limit_m_s: float | None = None
     task_options: dict[str, Any] = field(default_factory=dict)
+    cable_ranges: str | None = None
+    teacher_search: bool = False
+    student_noise: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("rounds", "episodes", "first_round_episodes", "workers", "epochs"):
@@ -492,6 +650,13 @@ class DistillConfig:
         limit = self.expert_speed_limit_m_s
         if limit is not None and not (isinstance(limit, int | float) and 0 < limit < float("inf")):
             raise ValueError(f"expert_speed_limit_m_s must be a positive speed in m/s or None, got {limit!r}")
+        if self.cable_ranges is not None:
+            from dyndlo_vision.tasks.wrappers import cable_ranges_for
+
+            cable_ranges_for(TEACHER_TASK, self.cable_ranges)  # an unknown name is refused here
+        noise = self.student_noise
+        if isinstance(noise, bool) or not isinstance(noise, int | float) or not 0.0 <= noise < float("inf"):
+            raise ValueError(f"student_noise must be a finite standard deviation >= 0, got {noise!r}")
         if not self.net_arch or any(int(n) < 1 for n in self.net_arch):
             raise ValueError(f"net_arch must be positive layer sizes, got {self.net_arch!r}")
         object.__setattr__(self, "net_arch", tuple(int(n) for n in self.net_arch))
@@ -552,7 +717,7 @@ def distill(
     if resume:
         if not config_file.is_file():
             raise FileNotFoundError(f"nothing to resume: {config_file} does not exist")
-        stored = json.loads(config_file.read_text())
+        stored = {**_LATER_OPTIONS, **json.loads(config_file.read_text())}
         wanted = json.loads(json.dumps(config.to_json()))
         if {k: v for k, v in stored.items() if k != "rounds"} != {
             k: v for k, v in wanted.items() if k != "rounds"
@@ -573,7 +738,7 @@ def distill(
     # Seeded after check_teacher, whose loading of the teacher draws from torch's generator: the student's
     # initial weights stay those of the seed.
     torch.manual_seed(config.seed)
-    env = make_distill_env(config.task_options, config.noise_model)
+    env = make_distill_env(config.task_options, config.noise_model, config.cable_ranges)
     model_file = out / "model.zip"
     model = (
         policies.load(model_file, env=env, algo="ppo")
@@ -607,6 +772,9 @@ def distill(
                         r,
                         config.expert_speed_limit_m_s,
                         on_episode=_success_counter(bar),
+                        student_noise=config.student_noise if r else 0.0,
+                        cable_ranges=config.cable_ranges,
+                        teacher_search=config.teacher_search,
                     )
                 episodes.save(round_file)
             collect_s = time.monotonic() - start
@@ -695,6 +863,9 @@ def _write_metadata(out: Path, config: DistillConfig, history: list[dict[str, An
         "method": "DAgger distillation of a single-step policy (dyndlo_vision.learning.distill)",
         "teacher": config.teacher,
         "obs_noise": config.noise_model,
+        "teacher_search": config.teacher_search,
+        "cable_ranges": config.cable_ranges,
+        "student_noise": config.student_noise,
         "rounds": len(history),
         "samples": history[-1]["total_samples"] if history else 0,
         "episodes": sum(h["episodes"] for h in history),
