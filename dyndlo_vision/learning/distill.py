@@ -167,9 +167,8 @@ class CableSearchTeacher:
     single-step policy's plan, rolls it out in a single-step copy of the task built with that cable, and,
     when the plan is not good enough (see ``good_enough_m``), refines it by the cross-entropy method:
     ``iterations`` generations of ``population`` plans drawn around the mean, the ``elite`` best re-centring
-    it. A plan
-    scores its closest tip-to-target-centre distance plus 1 m for any avoid condition or divergence; the
-    search stops at the first generation whose best plan scores below ``good_enough_m``.
+    it. A plan scores its closest tip-to-target-centre distance plus 1 m for any avoid condition or
+    divergence; the search stops at the first generation whose best plan scores below ``good_enough_m``.
 
     Args:
         policy: The single-step policy whose plan the search starts from.
