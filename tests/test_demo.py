@@ -110,8 +110,8 @@ def test_demo_episodes_aggregate_and_a_full_length_miss_is_filmed_to_its_outcome
     """``--episodes 2``: top-level numbers are the run's, rows per episode; episode 0 misses and runs long.
 
     Seed 100175 misses and runs all 40 decisions (the first of the shipped policy's full-length misses in
-    seeds 100000-100299); the environment then follows the last plan for the 0.5 s settle time before it scores
-    the episode, and the video and plot go on through that time.
+    seeds 100000-100299); the environment then follows the last plan for the 0.5 s settle time before it
+    scores the episode, and the video and plot go on through that time.
     """
     seen = spy_outputs(monkeypatch)
     out = tmp_path / "demo"

@@ -69,7 +69,10 @@ class PlanFollowingExpert:
         samples: Times at which the re-plan is compared with the reference, spread over the rest of the
             reference (at least ``spec``'s shortest plan) plus ``tail_s``.
         early_s: The re-plan is executed only until the next decision; errors in the first ``early_s`` (at
-            ``early_samples`` more times) count ``early_weight`` times more.
+            ``early_samples`` more times) count ``early_weight`` times more while the reference still moves.
+            Once it has ended, every sample counts the same: holding its end point with the first 40 ms
+            weighted up is unstable (each re-plan starts from the last one's velocity, and on the vault the
+            commanded speed grew by about 20 % per decision, 0.3 to 4.6 m/s; docs/RESULTS.md).
         speed_limit_m_s: Commanded TCP speeds above this are penalised (``speed_weight`` metres of residual
             per m/s of excess), so that corrections from states off the plan stay inside v_max (1.8 m/s); None
             (default, what the shipped policy was made with) turns the penalty off.
@@ -125,7 +128,8 @@ class PlanFollowingExpert:
         horizon = max(ref.t_end - t, self.spec.num_intervals * self.spec.dt_s[0]) + self.tail_s
         early = np.linspace(0.002, self.early_s, self.early_samples)
         ts = t + np.concatenate([early, np.linspace(self.early_s, horizon, self.samples + 1)[1:]])
-        weight = np.where(ts - t <= self.early_s + 1e-9, self.early_weight, 1.0)[:, None]
+        early_weight = self.early_weight if t < ref.t_end else 1.0
+        weight = np.where(ts - t <= self.early_s + 1e-9, early_weight, 1.0)[:, None]
         target = ref.position(ts)
         p0 = np.asarray(position, dtype=np.float64)
         v0 = np.asarray(velocity, dtype=np.float64)
