@@ -1,4 +1,4 @@
-"""``dyndlo-vision distill``: a multi-step tip-control policy from a single-step one, by imitation."""
+"""``dyndlo-vision distill``: a multi-step policy from a single-step one, by imitation."""
 
 from __future__ import annotations
 
@@ -7,7 +7,8 @@ import json
 from pathlib import Path
 
 HELP = (
-    "distil a single-step tip-control policy into a multi-step (re-planning) PPO policy by imitation "
+    "distil a single-step policy (tip control or vaulting) into a multi-step (re-planning) PPO policy by "
+    "imitation "
     "(behaviour cloning, optional DAgger rounds); resumable"
 )
 
@@ -15,9 +16,16 @@ HELP = (
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``distill``."""
     p.add_argument(
+        "--task",
+        choices=("tip-control", "vaulting"),
+        default="tip-control",
+        help="the task (default tip-control)",
+    )
+    p.add_argument(
         "--teacher",
-        default="tip-control-single-step",
-        help="shipped name or .zip of a single-step tip-control policy (default: tip-control-single-step)",
+        default=None,
+        help="shipped name or .zip of a single-step policy of the task (default: tip-control-single-step, "
+        "or vaulting for --task vaulting)",
     )
     p.add_argument(
         "--rounds",
@@ -37,7 +45,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--env-option",
         action="append",
         metavar="KEY=VALUE",
-        help="task option of the tip-control environment, e.g. cable=chain (repeatable; default: the "
+        help="task option of the task's environment, e.g. cable=chain (repeatable; default: the "
         "teacher's own options, from the JSON beside it)",
     )
     p.add_argument("--seed", type=int, default=1, help="episode seeds start at SEED * 1e6 (default 1)")
@@ -74,7 +82,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "the student's executed actions, so that the expert labels states off its path (default 0)",
     )
     p.add_argument(
-        "--out", default=None, help="run folder (default: runs/tip-control-multi-step-distill-s<seed>)"
+        "--out", default=None, help="run folder (default: runs/<task>-multi-step-distill-s<seed>)"
     )
     p.add_argument("--resume", action="store_true", help="continue the run in --out after its last round")
     p.add_argument("--quiet", action="store_true", help="no progress bars on stderr")
@@ -84,14 +92,16 @@ def run(args: argparse.Namespace) -> int:
     """Resolve the options, then run the rounds."""
     from dyndlo_vision import policies
     from dyndlo_vision.commands.train import parse_assignments
-    from dyndlo_vision.learning.distill import DistillConfig, distill
+    from dyndlo_vision.learning.distill import DEFAULT_TEACHERS, DistillConfig, distill
     from dyndlo_vision.tasks.noise import resolve_noise_model_path
 
     noise = resolve_noise_model_path(args.obs_noise)
     options = parse_assignments(args.env_option, "--env-option")
-    _, teacher_meta = policies.resolve(args.teacher)
+    teacher = args.teacher or DEFAULT_TEACHERS[args.task]
+    _, teacher_meta = policies.resolve(teacher)
     config = DistillConfig(
-        teacher=args.teacher,
+        task=args.task,
+        teacher=teacher,
         task_options={**teacher_meta.get("env_options", {}), **options},
         rounds=args.rounds,
         episodes=args.episodes,
@@ -105,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
         teacher_search=args.teacher_search,
         student_noise=args.student_noise,
     )
-    out = Path(args.out or f"runs/tip-control-multi-step-distill-s{args.seed}")
+    out = Path(args.out or f"runs/{args.task}-multi-step-distill-s{args.seed}")
     try:
         history = distill(config, out, resume=args.resume, progress=not args.quiet)
     except KeyboardInterrupt:

@@ -55,10 +55,15 @@ __all__ = [
 ]
 
 #: Options added to :class:`DistillConfig` after runs were first stored, with the values those runs had.
-_LATER_OPTIONS = {"cable_ranges": None, "teacher_search": False, "student_noise": 0.0}
+_LATER_OPTIONS = {"cable_ranges": None, "teacher_search": False, "student_noise": 0.0, "task": "tip-control"}
 
-#: The task a teacher must be a single-step policy of: the expert follows one tip-control plan from t = 0.
+#: The tasks distillation runs on: single-arm tasks without a fixed final point, whose one single-step plan
+#: from t = 0 the expert can follow (task IV appends the goal to every plan; hooking is not measured).
+DISTILL_TASKS = ("tip-control", "vaulting")
+#: The default task (the one ``distill`` was first written for).
 TEACHER_TASK = "tip-control"
+#: Each task's default teacher: its shipped single-step policy.
+DEFAULT_TEACHERS = {"tip-control": "tip-control-single-step", "vaulting": "vaulting"}
 
 
 class PlanFollowingExpert:
@@ -176,7 +181,8 @@ class CableSearchTeacher:
 
     Args:
         policy: The single-step policy whose plan the search starts from.
-        task_options: The tip-control environment's options (the episode's cable is swapped in per call).
+        task_options: The task environment's options (the episode's cable is swapped in per call).
+        task: The task (see :data:`DISTILL_TASKS`).
         population, iterations, elite: The cross-entropy method's sizes.
         sigma: Initial standard deviation of the plans drawn (normalised action units); shrinks by
             ``sigma_decay`` per generation, to at least ``min_sigma``.
@@ -194,6 +200,7 @@ class CableSearchTeacher:
         sigma_decay: float = 0.6,
         min_sigma: float = 0.05,
         good_enough_m: float = 0.03,
+        task: str = TEACHER_TASK,
     ) -> None:
         from dyndlo_vision.tasks.registry import make_env
 
@@ -206,15 +213,22 @@ class CableSearchTeacher:
         self.population, self.iterations, self.elite = int(population), int(iterations), int(elite)
         self.sigma, self.sigma_decay, self.min_sigma = float(sigma), float(sigma_decay), float(min_sigma)
         self.good_enough_m = float(good_enough_m)
-        self.env = make_env(TEACHER_TASK, multi_step=False, **(task_options or {}))
+        self.env = make_env(task, multi_step=False, **(task_options or {}))
         self.last_rollouts = 0
         self.last_score = float("nan")
 
     @staticmethod
     def score(info: dict[str, Any]) -> float:
-        """Lower is better: closest tip-target distance (m), plus 1 for any avoid condition or divergence."""
+        """Lower is better: closest tip-target distance (m), plus 1 for any avoid condition or divergence.
+
+        A task without a tip-target distance (vaulting) scores 0 for a success and 1 + (1 - its progress)
+        for a failure (``vault_progress``, 0 when not reported), plus the same 1 for an avoid condition."""
         bad = any(info["avoid"].values()) or bool(info.get("diverged", False))
-        return float(info["min_distance_m"]) + (1.0 if bad else 0.0)
+        if "min_distance_m" in info:
+            closeness = float(info["min_distance_m"])
+        else:
+            closeness = 0.0 if info["is_success"] else 2.0 - float(info.get("vault_progress", 0.0))
+        return closeness + (1.0 if bad else 0.0)
 
     def rollout(self, action: NDArray[np.floating[Any]], cable: Any, goal: NDArray[np.float64],
                 seed: int) -> dict[str, Any]:
@@ -346,25 +360,28 @@ def run_mixed_episode(
 
 
 def make_distill_env(
-    task_options: dict[str, Any], noise_model: str | None, cable_ranges: str | None = None
+    task_options: dict[str, Any], noise_model: str | None, cable_ranges: str | None = None,
+    task: str = TEACHER_TASK,
 ) -> Any:
-    """The multi-step tip-control environment, under the noise model when one is given; with
-    ``cable_ranges`` (a name of ``wrappers.CABLE_RANGES``) every episode's cable is drawn from its seed."""
+    """The task's multi-step environment, under the noise model when one is given; with ``cable_ranges``
+    (a name of ``wrappers.CABLE_RANGES``) every episode's cable is drawn from its seed."""
     from dyndlo_vision.tasks.registry import make_env
     from dyndlo_vision.tasks.wrappers import cable_ranges_for
 
     randomise = {}
     if cable_ranges is not None:
-        randomise = {"randomize_cable_every": 1, "cable_ranges": cable_ranges_for(TEACHER_TASK, cable_ranges)}
-    return make_env(TEACHER_TASK, multi_step=True, obs_noise=noise_model or None, **randomise, **task_options)
+        randomise = {"randomize_cable_every": 1, "cable_ranges": cable_ranges_for(task, cable_ranges)}
+    return make_env(task, multi_step=True, obs_noise=noise_model or None, **randomise, **task_options)
 
 
-def check_teacher(teacher: str, task_options: dict[str, Any] | None = None) -> None:
+def check_teacher(
+    teacher: str, task_options: dict[str, Any] | None = None, task: str = TEACHER_TASK
+) -> None:
     """Refuse a teacher whose plans the expert cannot follow, before any work or output.
 
-    The expert re-plans *one* single-step tip-control plan (the teacher's action at t = 0 from the tip-control
-    environment's observation), so the teacher must be a single-step tip-control policy. The task and mode
-    come from its metadata; a file without metadata is only checked for the single-step tip-control spaces
+    The expert re-plans *one* single-step plan of ``task`` (the teacher's action at t = 0 from the task
+    environment's observation), so the teacher must be a single-step policy of that task. The task and mode
+    come from its metadata; a file without metadata is only checked for the task's single-step spaces
     (a policy of another single-arm task has the same shapes and cannot be told apart).
 
     Raises:
@@ -375,18 +392,21 @@ def check_teacher(teacher: str, task_options: dict[str, Any] | None = None) -> N
     from dyndlo_vision.tasks.registry import make_env
 
     _, meta = policies.resolve(teacher)
-    task = meta.get("task")
-    if task is not None and task != TEACHER_TASK:
+    if task not in DISTILL_TASKS:
+        raise ValueError(f"distill runs on the tasks {list(DISTILL_TASKS)}, got {task!r}")
+    teacher_task = meta.get("task")
+    example = DEFAULT_TEACHERS[task]
+    if teacher_task is not None and teacher_task != task:
         raise ValueError(
-            f"teacher {teacher!r} is a {task!r} policy; distill needs a single-step {TEACHER_TASK!r} policy "
-            "(e.g. tip-control-single-step): the expert follows tip-control plans"
+            f"teacher {teacher!r} is a {teacher_task!r} policy; distill needs a single-step {task!r} policy "
+            f"(e.g. {example}): the expert follows {task} plans"
         )
     if meta.get("multi_step"):
         raise ValueError(
-            f"teacher {teacher!r} is a multi-step policy; distill needs a single-step {TEACHER_TASK!r} "
-            "policy, whose one plan the expert follows (e.g. tip-control-single-step)"
+            f"teacher {teacher!r} is a multi-step policy; distill needs a single-step {task!r} "
+            f"policy, whose one plan the expert follows (e.g. {example})"
         )
-    env = make_env("tip-control", multi_step=False, **(task_options or {}))
+    env = make_env(task, multi_step=False, **(task_options or {}))
     try:
         policies.load(teacher, env=env)  # a corrupt file or other spaces: refused here, not in a worker
     finally:
@@ -404,11 +424,12 @@ def _collect_chunk(job: dict[str, Any], on_episode: Callable[[int, bool], None] 
     from dyndlo_vision import policies
 
     torch.set_num_threads(1)
-    env = make_distill_env(job["task_options"], job["noise_model"], job.get("cable_ranges"))
+    task = job.get("task", TEACHER_TASK)
+    env = make_distill_env(job["task_options"], job["noise_model"], job.get("cable_ranges"), task)
     policy = policies.load(job["teacher"])
     teacher: Any = PolicyTeacher(policy)
     if job.get("teacher_search"):
-        teacher = CableSearchTeacher(policy, job["task_options"])
+        teacher = CableSearchTeacher(policy, job["task_options"], task=task)
     student = policies.load(job["student"], env=env, algo="ppo") if job["student"] else None
     expert = PlanFollowingExpert(env.unwrapped.spec_actions, speed_limit_m_s=job["speed_limit"])
     parts = []
@@ -459,6 +480,7 @@ def collect(
     student_noise: float = 0.0,
     cable_ranges: str | None = None,
     teacher_search: bool = False,
+    task: str = TEACHER_TASK,
 ) -> Episodes:
     """Run one DAgger round's episodes (one per seed) in ``workers`` processes.
 
@@ -468,7 +490,7 @@ def collect(
         student: Path of the PPO student acting with probability ``1 - beta`` (None: the expert always acts).
         beta: Probability that the expert's action is executed at a decision.
         noise_model: Observation-noise model file the student's observations are corrupted with.
-        task_options: Keyword options of the tip-control environment.
+        task_options: Keyword options of the task environment.
         workers: Processes (each builds its own environment).
         round_index: Mixed into the per-episode random stream that picks who acts.
         speed_limit_m_s: The expert's speed penalty threshold (None: off).
@@ -477,6 +499,7 @@ def collect(
         cable_ranges: Draw every episode's cable from these named ranges (None: the nominal cable).
         teacher_search: The teacher's plan is refined for each episode's cable and target by search
             (:class:`CableSearchTeacher`, privileged) instead of taken from the policy as it is.
+        task: The task (:data:`DISTILL_TASKS`).
         on_episode: Called in this process with ``(seed, success)`` of every episode as it ends, in the order
             they end (e.g. for a progress bar). The returned data do not depend on it.
     """
@@ -494,6 +517,7 @@ def collect(
             "student_noise": float(student_noise),
             "cable_ranges": cable_ranges,
             "teacher_search": bool(teacher_search),
+            "task": task,
         }
         for i in range(workers)
     ]
@@ -602,7 +626,7 @@ class DistillConfig:
     """A distillation run, stored as ``config.json`` in its folder so that it can be resumed.
 
     Attributes:
-        teacher: Shipped name or path of the single-step tip-control policy.
+        teacher: Shipped name or path of the task's single-step policy.
         rounds: Round 0: the expert acts (behaviour cloning); rounds 1..: the student of the previous round
             acts and the expert labels (DAgger). One round is the default: more made the student worse in our
             measurements (docs/RESULTS.md).
@@ -615,13 +639,14 @@ class DistillConfig:
         net_arch: Hidden layers of the policy network.
         epochs: Passes over the aggregated data per round.
         expert_speed_limit_m_s: :class:`PlanFollowingExpert`'s ``speed_limit_m_s``.
-        task_options: Keyword options of the tip-control environment.
+        task_options: Keyword options of the task's environment.
         cable_ranges: Every episode's cable is drawn from these named ranges (``wrappers.CABLE_RANGES``:
             ``"training"`` or ``"beyond"``); None: the task's nominal cable in every episode.
         teacher_search: The expert follows :class:`CableSearchTeacher`'s plan (the teacher's refined, with
             the episode's cable known) instead of the teacher's own.
         student_noise: Noise on the student's executed actions in the DAgger rounds (see
             :func:`run_mixed_episode`).
+        task: The task (:data:`DISTILL_TASKS`).
     """
 
     teacher: str = "tip-control-single-step"
@@ -638,6 +663,7 @@ class DistillConfig:
     cable_ranges: str | None = None
     teacher_search: bool = False
     student_noise: float = 0.0
+    task: str = TEACHER_TASK
 
     def __post_init__(self) -> None:
         for name in ("rounds", "episodes", "first_round_episodes", "workers", "epochs"):
@@ -653,10 +679,12 @@ class DistillConfig:
         limit = self.expert_speed_limit_m_s
         if limit is not None and not (isinstance(limit, int | float) and 0 < limit < float("inf")):
             raise ValueError(f"expert_speed_limit_m_s must be a positive speed in m/s or None, got {limit!r}")
+        if self.task not in DISTILL_TASKS:
+            raise ValueError(f"task must be one of {list(DISTILL_TASKS)}, got {self.task!r}")
         if self.cable_ranges is not None:
             from dyndlo_vision.tasks.wrappers import cable_ranges_for
 
-            cable_ranges_for(TEACHER_TASK, self.cable_ranges)  # an unknown name is refused here
+            cable_ranges_for(self.task, self.cable_ranges)  # an unknown name is refused here
         noise = self.student_noise
         if isinstance(noise, bool) or not isinstance(noise, int | float) or not 0.0 <= noise < float("inf"):
             raise ValueError(f"student_noise must be a finite standard deviation >= 0, got {noise!r}")
@@ -736,12 +764,12 @@ def distill(
         if out.exists() and any(out.iterdir()):
             raise ValueError(f"{out} exists and is not empty; use --resume or another --out")
         history = []
-    check_teacher(config.teacher, config.task_options)
+    check_teacher(config.teacher, config.task_options, config.task)
 
     # Seeded after check_teacher, whose loading of the teacher draws from torch's generator: the student's
     # initial weights stay those of the seed.
     torch.manual_seed(config.seed)
-    env = make_distill_env(config.task_options, config.noise_model, config.cable_ranges)
+    env = make_distill_env(config.task_options, config.noise_model, config.cable_ranges, config.task)
     model_file = out / "model.zip"
     model = (
         policies.load(model_file, env=env, algo="ppo")
@@ -778,6 +806,7 @@ def distill(
                         student_noise=config.student_noise if r else 0.0,
                         cable_ranges=config.cable_ranges,
                         teacher_search=config.teacher_search,
+                        task=config.task,
                     )
                 episodes.save(round_file)
             collect_s = time.monotonic() - start
@@ -859,7 +888,7 @@ def _write_metadata(out: Path, config: DistillConfig, history: list[dict[str, An
     from dyndlo_vision._atomic import write_atomic
 
     meta = {
-        "task": "tip-control",
+        "task": config.task,
         "multi_step": True,
         "algo": "ppo",
         "env_options": config.task_options,
