@@ -60,6 +60,25 @@ _PLOT_TRUE = "black"
 _PLOT_TARGET = "#c8a000"
 
 
+def parse_push(text: str | None) -> Any:
+    """``--push T,IX,IY,IZ`` as a :class:`~dyndlo_vision.tasks.base.CablePush` (None: no push).
+
+    Raises:
+        ValueError: Not four numbers, or a negative time or non-finite value (naming what was given).
+    """
+    if text is None:
+        return None
+    from dyndlo_vision.tasks.base import CablePush
+
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 4:
+        raise ValueError(f"--push must be T,IX,IY,IZ (seconds, then an impulse in N s), got {text!r}")
+    return CablePush(values[0], (values[1], values[2], values[3]))
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``demo``."""
     from dyndlo_vision.tasks.registry import task_entry
@@ -116,6 +135,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "period is exact, other values round up to one)",
     )
     p.add_argument(
+        "--push",
+        default=None,
+        metavar="T,IX,IY,IZ",
+        help="a disturbance in every episode: an impulse (IX, IY, IZ) in N s on the cable's middle node at "
+        "T s of episode time, e.g. 0.3,0.01,0,0 (about the momentum of the whole 13 g cable of tip control "
+        "at 0.75 m/s); chain cable only (default: none)",
+    )
+    p.add_argument(
         "--segmenter",
         choices=["background", "learned"],
         default="background",
@@ -154,6 +181,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--cable-ranges {args.cable_ranges} applies with --randomize-cable")
     if args.segmenter != "background" and args.observation != "tracked":
         raise ValueError(f"--segmenter applies to the tracked observation, not to {args.observation!r}")
+    push = parse_push(args.push)
     out = Path(args.out)
     check_output_folder(out)
 
@@ -180,6 +208,10 @@ def run(args: argparse.Namespace) -> int:
                    randomize_cable_every=1 if args.randomize_cable else None,
                    cable_ranges=ranges)
     check_camera(env, args.camera)
+    if push is not None:
+        if env.unwrapped.task.cable.model != "chain":
+            raise ValueError("--push needs the chain cable; this policy's environment has the rod")
+        env.unwrapped.cable_push = push
     model = policies.load(name, env=env)
 
     episodes = []
@@ -220,6 +252,8 @@ def run(args: argparse.Namespace) -> int:
         "cable_ranges": args.cable_ranges if args.randomize_cable else None,
         "cable_range_factors": ranges if args.randomize_cable else None,
         "latency_ms": args.latency_ms,
+        "push": None if push is None else {"time_s": push.time_s, "impulse_n_s": list(push.impulse_n_s),
+                                           "node": "middle"},
         "segmenter": args.segmenter,
         **summarize(episodes),
         "cycle_ms_note": "controller time per 40 ms cycle: camera render + tracking + filter + policy + "

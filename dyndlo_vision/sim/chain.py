@@ -183,6 +183,11 @@ class ChainKinematics:
     def num_nodes(self) -> int:
         return len(self._bodies) + 1
 
+    @property
+    def bodies(self) -> NDArray[np.int64]:
+        """Body ids of the capsules, held end first (node ``i < N - 1`` is capsule ``i``'s origin)."""
+        return self._bodies.copy()
+
     def nodes(self, qpos: NDArray[np.float64]) -> NDArray[np.float64]:
         """Node positions for a batch of configurations, (K, nq) -> (K, N + 1, 3)."""
         q = np.asarray(qpos, dtype=float)

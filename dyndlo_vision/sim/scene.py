@@ -640,6 +640,34 @@ class Scene:
         q, v = np.asarray(qpos), np.asarray(qvel)
         return self._tcp_home + q[:, self._tcp_qpos], v[:, self._tcp_dof]
 
+    def push_cable(self, node: int, impulse_n_s: ArrayLike) -> None:
+        """Give cable node ``node`` (1 .. N-1; 0 is held) an impulse (N s, world frame), now.
+
+        The velocity change is the rigid-body response, ``qvel += M^-1 J^T impulse`` with ``J`` the node's
+        translational Jacobian: momentum is conserved, and the node's own velocity changes by the impulse
+        over its effective mass. Chain cable only (a push on a rod vertex is not implemented).
+
+        Raises:
+            ValueError: A rod cable, a node out of range, or an impulse that is not 3 finite numbers.
+        """
+        if self._chain is None:
+            raise ValueError("push_cable needs the chain cable (cable='chain')")
+        n = self._chain.num_nodes
+        if isinstance(node, bool) or not isinstance(node, int | np.integer) or not 1 <= node < n:
+            raise ValueError(f"node must be a cable node index 1..{n - 1} (0 is held), got {node!r}")
+        impulse = np.asarray(impulse_n_s, dtype=float)
+        if impulse.shape != (3,) or not np.all(np.isfinite(impulse)):
+            raise ValueError(f"impulse must be 3 finite numbers (N s), got {impulse_n_s!r}")
+        m, d = self.model, self.data
+        mujoco.mj_forward(m, d)  # the mass matrix and body frames of the current qpos
+        bodies = self._chain.bodies
+        body = int(bodies[min(node, len(bodies) - 1)])
+        jacp = np.zeros((3, m.nv))
+        mujoco.mj_jac(m, d, jacp, None, self.cable_nodes()[node], body)
+        dq = np.zeros((1, m.nv))
+        mujoco.mj_solveM(m, d, dq, (jacp.T @ impulse)[None])
+        d.qvel += dq[0]
+
     def step(self, nsteps: int = 1) -> None:
         """Advance the physics by ``nsteps`` steps with the current references."""
         mujoco.mj_step(self.model, self.data, nsteps)

@@ -145,6 +145,30 @@ class Task(ABC):
         return False
 
 
+@dataclass(frozen=True)
+class CablePush:
+    """A disturbance in every episode: an impulse on one cable node at one instant (issue 16).
+
+    Attributes:
+        time_s: When, in episode time; rounded up to the next monitor instant (2 ms).
+        impulse_n_s: The impulse (N s, world frame). The chain cable of task I weighs about 13 g, so
+            0.01 N s is roughly the momentum of the whole cable moving at 0.75 m/s.
+        node: The cable node pushed; None: the middle node.
+    """
+
+    time_s: float
+    impulse_n_s: tuple[float, float, float]
+    node: int | None = None
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.time_s) and self.time_s >= 0.0):
+            raise ValueError(f"push time must be a finite time >= 0 s, got {self.time_s!r}")
+        impulse = np.asarray(self.impulse_n_s, dtype=float)
+        if impulse.shape != (3,) or not np.all(np.isfinite(impulse)):
+            raise ValueError(f"push impulse must be 3 finite numbers (N s), got {self.impulse_n_s!r}")
+        object.__setattr__(self, "impulse_n_s", tuple(float(x) for x in impulse))
+
+
 class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     """A DynDLO task as a Gymnasium environment.
 
@@ -175,6 +199,9 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self.batch_monitor = True
         #: Judges every plan on a real arm's joint limits (``set_robot``); None: no arm.
         self.arm_check: PlanFeasibility | None = None
+        #: A push on the cable in every episode (a disturbance); None: none.
+        self.cable_push: CablePush | None = None
+        self._pushed = False
 
     def set_robot(self, robot: str | None) -> None:
         """Judge every plan as a real arm's driver would (``"gofa"``, ``"ur5e"``; None: no arm).
@@ -281,6 +308,7 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self._replanner.reset(self.task.final_point(self._goal))
         self._monitor = EpisodeMonitor()
         self._decisions = 0
+        self._pushed = False
         self._arm_verdict: Any = None
         if self.arm_check is not None:
             self._monitor.avoid["joints"] = False
@@ -440,6 +468,20 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
             refs = self._replanner.references(self.scene.time + self._dt * np.arange(nsteps))
         ref_p, ref_v = refs
         scene = self.scene
+        push = self.cable_push
+        if push is not None and not self._pushed:
+            # Split the span at the first monitor instant at or after the push (so the monitor keeps its 2 ms
+            # grid), push there, and go on.
+            k = int(np.ceil((push.time_s - scene.time) / self._dt - 1e-9))
+            k = max(0, -(-k // self._steps_per_monitor) * self._steps_per_monitor)
+            if k < nsteps:
+                self._simulate_span(k, (ref_p[:k], ref_v[:k]))
+                if scene.is_finite():
+                    node = scene.config.cable.num_nodes // 2 if push.node is None else push.node
+                    scene.push_cable(node, push.impulse_n_s)
+                self._pushed = True
+                self._simulate_span(nsteps - k, (ref_p[k:], ref_v[k:]))
+                return
         if self.batch_monitor:
             # The plan is open loop over these steps: run them in MuJoCo's C rollout and check the constraints
             # on the recorded states afterwards, at the same monitor instants as the loop below.
