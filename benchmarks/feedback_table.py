@@ -8,6 +8,7 @@ cables the seeds draw (the same for every row of one range: the cable is drawn f
 
     python benchmarks/feedback_table.py --out /tmp/fb [--task tip-control] [--ranges beyond,training]
         [--rows "single=tip-control-single-step:true;ms=tip-control-multi-step:true,tracked,frozen"]
+        [--extra="--push 0.2,-0.002,0,0"]
 
 Writes ``OUT/<ranges>-<row>-<observation>/`` (the demo's outputs) and ``OUT/table.json``; prints the table
 as Markdown.
@@ -56,6 +57,8 @@ def main() -> int:
     ap.add_argument("--rows", default=None, help="NAME=POLICY:OBS[,OBS];... (default: the task's)")
     ap.add_argument("--episodes", type=int, default=100)
     ap.add_argument("--seed", type=int, default=100000)
+    ap.add_argument("--extra", default="",
+                    help="more demo options for every row, given as --extra='--push 0.2,-0.002,0,0'")
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -68,7 +71,7 @@ def main() -> int:
                 cmd = [sys.executable, "-m", "dyndlo_vision", "demo", "--task", args.task, "--policy", policy,
                        "--observation", obs, "--randomize-cable", "--cable-ranges", ranges,
                        "--episodes", str(args.episodes), "--seed", str(args.seed), "--quiet",
-                       "--out", str(run)]
+                       "--out", str(run), *args.extra.split()]
                 if not (run / "metrics.json").is_file():
                     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
                 m = json.loads((run / "metrics.json").read_text())
@@ -88,7 +91,8 @@ def main() -> int:
         young = np.array(rows[0]["young_pa"])
         length = np.array(rows[0]["length_m"])
         ce, cl = np.quantile(young, [1 / 3, 2 / 3]), np.quantile(length, [1 / 3, 2 / 3])
-        print(f"\n{args.task}, --cable-ranges {ranges}, seeds {args.seed}-{args.seed + args.episodes - 1}\n")
+        print(f"\n{args.task}, --cable-ranges {ranges}, seeds {args.seed}-{args.seed + args.episodes - 1} "
+              f"{args.extra}\n")
         print(f"| policy | observation | success | 95% CI | by E tercile (< {ce[0] / 1e6:.2f} / "
               f"{ce[0] / 1e6:.2f}-{ce[1] / 1e6:.2f} / > {ce[1] / 1e6:.2f} MPa) | by length tercile (< "
               f"{cl[0]:.3f} / {cl[0]:.3f}-{cl[1]:.3f} / > {cl[1]:.3f} m) | estimate RMSE median | p95 ms |")
