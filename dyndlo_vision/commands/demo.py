@@ -139,8 +139,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         metavar="T,IX,IY,IZ",
         help="a disturbance in every episode: an impulse (IX, IY, IZ) in N s on the cable's middle node at "
-        "T s of episode time, e.g. 0.3,0.01,0,0 (about the momentum of the whole 13 g cable of tip control "
-        "at 0.75 m/s); chain cable only (default: none)",
+        "T s of episode time, e.g. 0.3,0.01,0,0 (the momentum of tip control's whole 10 g cable at 1 m/s); "
+        "chain cable only (default: none)",
     )
     p.add_argument(
         "--segmenter",

@@ -151,8 +151,8 @@ class CablePush:
 
     Attributes:
         time_s: When, in episode time; rounded up to the next monitor instant (2 ms).
-        impulse_n_s: The impulse (N s, world frame). The chain cable of task I weighs about 13 g, so
-            0.01 N s is roughly the momentum of the whole cable moving at 0.75 m/s.
+        impulse_n_s: The impulse (N s, world frame). The nominal cable of task I weighs 10 g, so 0.01 N s
+            is the momentum of the whole cable moving at 1 m/s.
         node: The cable node pushed; None: the middle node.
     """
 
