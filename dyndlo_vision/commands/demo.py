@@ -135,6 +135,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "period is exact, other values round up to one)",
     )
     p.add_argument(
+        "--actuation-latency-ms",
+        type=float,
+        default=0.0,
+        help="a disturbance: the simulated arm executes every setpoint this long after it was planned for, "
+        "while the planner goes on from the state it commanded (default 0; at most 1000)",
+    )
+    p.add_argument(
         "--push",
         default=None,
         metavar="T,IX,IY,IZ",
@@ -182,6 +189,8 @@ def run(args: argparse.Namespace) -> int:
     if args.segmenter != "background" and args.observation != "tracked":
         raise ValueError(f"--segmenter applies to the tracked observation, not to {args.observation!r}")
     push = parse_push(args.push)
+    if not 0.0 <= args.actuation_latency_ms <= 1000.0:
+        raise ValueError(f"--actuation-latency-ms must be in [0, 1000] ms, got {args.actuation_latency_ms}")
     out = Path(args.out)
     check_output_folder(out)
 
@@ -230,6 +239,7 @@ def run(args: argparse.Namespace) -> int:
                 latency_s=1e-3 * args.latency_ms,
                 segmenter=args.segmenter,
                 goal_name=GOAL_NAMES[task],
+                actuation_latency_s=1e-3 * args.actuation_latency_ms,
             )
             episodes.append(record)
             bar.update(1)
@@ -252,6 +262,7 @@ def run(args: argparse.Namespace) -> int:
         "cable_ranges": args.cable_ranges if args.randomize_cable else None,
         "cable_range_factors": ranges if args.randomize_cable else None,
         "latency_ms": args.latency_ms,
+        "actuation_latency_ms": args.actuation_latency_ms,
         "push": None if push is None else {"time_s": push.time_s, "impulse_n_s": list(push.impulse_n_s),
                                            "node": "middle"},
         "segmenter": args.segmenter,
@@ -343,6 +354,7 @@ def film_episode(
     point_filter: Any = None,
     segmenter: str = "background",
     goal_name: str = "target",
+    actuation_latency_s: float = 0.0,
 ) -> dict[str, Any]:
     """One closed-loop episode (:func:`~dyndlo_vision.control.episode.run_loop_episode`), filmed.
 
@@ -376,6 +388,7 @@ def film_episode(
         watch=film if video is not None else None,
         open_camera=video is not None,
         segmenter=segmenter,
+        actuation_latency_s=actuation_latency_s,
     )
 
 

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from dyndlo_vision.control.loop import ControlLoop, CycleRecord
 from dyndlo_vision.control.sim_env import as_sim_env
-from dyndlo_vision.control.sim_robot import SimRobot
+from dyndlo_vision.control.sim_robot import DelayedRobot, SimRobot
 from dyndlo_vision.control.state_sources import FrozenState, NoisyState, TrueState
 from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
 
@@ -72,6 +72,7 @@ def run_loop_episode(
     watch: Callable[[EpisodeMoment], None] | None = None,
     open_camera: bool = False,
     segmenter: str = "background",
+    actuation_latency_s: float = 0.0,
 ) -> dict[str, Any]:
     """One closed-loop episode from ``env.reset(seed=seed)``; returns its record.
 
@@ -91,6 +92,8 @@ def run_loop_episode(
         segmenter: Tracked observation: ``"background"`` (classical) or ``"learned"`` (the shipped CNN).
         open_camera: Give ``watch`` a camera on the scene that renders the present (the tracker's own
             camera when tracking without delay).
+        actuation_latency_s: The simulated arm executes every setpoint this long after its time
+            (:class:`~dyndlo_vision.control.sim_robot.DelayedRobot`); 0: at once.
 
     Returns:
         The record: ``seed``, ``success``, ``final_distance_m`` (the truth at the outcome),
@@ -122,7 +125,9 @@ def run_loop_episode(
         from dyndlo_vision.cameras.simulated import MujocoCamera
 
         camera = MujocoCamera(base.model, base.data, camera_name)
-    robot = SimRobot(env)
+    robot: Any = SimRobot(env)
+    if actuation_latency_s:
+        robot = DelayedRobot(robot, actuation_latency_s)
     robot.connect()
     loop = ControlLoop(
         source,

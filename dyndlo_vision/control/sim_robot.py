@@ -79,3 +79,46 @@ class SimRobot:
         """Stop."""
         self.stop()
         self.connected = False
+
+
+class DelayedRobot:
+    """A simulated robot that executes every setpoint ``latency_s`` after its time stamp: actuation latency.
+
+    ``send`` executes, over the span the new setpoints cover, the setpoints sent so far shifted by the
+    latency (sample and hold): the motion commanded for time ``t`` happens at ``t + latency_s``, while the
+    planner goes on from the state it commanded, as with a real arm whose driver delays the commands. Before
+    the first setpoint is due, the first position is held at rest. Issue 16's optional disturbance; for a
+    robot whose clock is the simulator's (:class:`SimRobot`).
+
+    Raises:
+        ValueError: A latency that is not a finite time in [0, 1] s.
+    """
+
+    def __init__(self, robot: SimRobot, latency_s: float) -> None:
+        if not (np.isfinite(latency_s) and 0.0 <= latency_s <= 1.0):
+            raise ValueError(f"actuation latency must be in [0, 1] s, got {latency_s!r}")
+        self.robot = robot
+        self.latency_s = float(latency_s)
+        self._t: list[np.ndarray] = []
+        self._p: list[np.ndarray] = []
+        self._v: list[np.ndarray] = []
+
+    def __getattr__(self, name: str) -> Any:  # connect, state, hold, stop, close, env, ...
+        return getattr(self.robot, name)
+
+    def send(self, setpoints: Setpoints) -> None:
+        """Execute what was commanded ``latency_s`` before each of these setpoints' times."""
+        if self.latency_s == 0.0:
+            self.robot.send(setpoints)
+            return
+        self._t.append(np.asarray(setpoints.t, dtype=float))
+        self._p.append(np.asarray(setpoints.position, dtype=float))
+        self._v.append(np.asarray(setpoints.velocity, dtype=float))
+        t_all, p_all, v_all = (np.concatenate(x) for x in (self._t, self._p, self._v))
+        due = setpoints.t - self.latency_s
+        index = np.searchsorted(t_all, due + 1e-9, side="right") - 1
+        early = index < 0
+        index = np.maximum(index, 0)
+        velocity = v_all[index].copy()
+        velocity[early] = 0.0
+        self.robot.send(Setpoints(setpoints.t, p_all[index], velocity))
