@@ -161,7 +161,6 @@ class PolicyTeacher:
 
     def __init__(self, policy: Any) -> None:
         self.policy = policy
-        self.last_rollouts = 0
 
     def plan_for(self, env: Any, seed: int) -> NDArray[np.float32]:
         """The policy's action for the (true) observation of ``env``'s episode, just reset."""
