@@ -31,10 +31,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--rounds",
         type=int,
         default=1,
-        help="rounds: 0 is behaviour cloning, later ones DAgger (default 1; see docs/RESULTS.md)",
+        help="rounds: the first --expert-rounds are behaviour cloning, later ones DAgger (default 1; see "
+        "docs/RESULTS.md)",
     )
-    p.add_argument("--episodes", type=int, default=200, help="episodes per round after round 0 (default 200)")
-    p.add_argument("--first-round-episodes", type=int, default=400, help="episodes of round 0 (default 400)")
+    p.add_argument(
+        "--expert-rounds",
+        type=int,
+        default=1,
+        help="rounds in which the expert acts, each on new seeds (default 1); resume a finished run with "
+        "more --rounds and --expert-rounds to add behaviour-cloning data",
+    )
+    p.add_argument("--episodes", type=int, default=200, help="episodes per DAgger round (default 200)")
+    p.add_argument(
+        "--first-round-episodes", type=int, default=400, help="episodes of every expert round (default 400)"
+    )
     p.add_argument(
         "--obs-noise",
         default=None,
@@ -82,6 +92,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "the student's executed actions, so that the expert labels states off its path (default 0)",
     )
     p.add_argument(
+        "--expert-noise",
+        type=float,
+        default=0.0,
+        metavar="SIGMA",
+        help="in expert rounds after round 0, the same noise on the expert's executed actions (DART): its "
+        "labels then show how to rejoin its plan from near it (default 0)",
+    )
+    p.add_argument(
         "--out", default=None, help="run folder (default: runs/<task>-multi-step-distill-s<seed>)"
     )
     p.add_argument("--resume", action="store_true", help="continue the run in --out after its last round")
@@ -104,6 +122,7 @@ def run(args: argparse.Namespace) -> int:
         teacher=teacher,
         task_options={**teacher_meta.get("env_options", {}), **options},
         rounds=args.rounds,
+        expert_rounds=args.expert_rounds,
         episodes=args.episodes,
         first_round_episodes=args.first_round_episodes,
         noise_model=noise,
@@ -114,6 +133,7 @@ def run(args: argparse.Namespace) -> int:
         cable_ranges=args.cable_ranges,
         teacher_search=args.teacher_search,
         student_noise=args.student_noise,
+        expert_noise=args.expert_noise,
     )
     out = Path(args.out or f"runs/{args.task}-multi-step-distill-s{args.seed}")
     try:

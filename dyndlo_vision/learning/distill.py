@@ -55,7 +55,17 @@ __all__ = [
 ]
 
 #: Options added to :class:`DistillConfig` after runs were first stored, with the values those runs had.
-_LATER_OPTIONS = {"cable_ranges": None, "teacher_search": False, "student_noise": 0.0, "task": "tip-control"}
+_LATER_OPTIONS = {
+    "cable_ranges": None,
+    "teacher_search": False,
+    "student_noise": 0.0,
+    "task": "tip-control",
+    "expert_rounds": 1,
+    "expert_noise": 0.0,
+}
+#: Options a resumed run may change: how many rounds of each kind run from here on, and how many processes
+#: collect (every episode is seeded on its own, so the data do not depend on it).
+_GROWABLE_OPTIONS = ("rounds", "expert_rounds", "workers")
 
 #: The tasks distillation runs on: single-arm tasks without a fixed final point, whose one single-step plan
 #: from t = 0 the expert can follow (task IV appends the goal to every plan; hooking is not measured).
@@ -311,12 +321,15 @@ def run_mixed_episode(
     beta: float = 1.0,
     rng: np.random.Generator | None = None,
     student_noise: float = 0.0,
+    expert_noise: float = 0.0,
 ) -> dict[str, Any]:
     """One multi-step episode: the student acts with probability ``1 - beta`` per decision, else the expert.
 
     ``student_noise`` is the standard deviation of Gaussian noise added to the student's executed action (in
     the normalised [-1, 1] action units, then clipped): it drives the roll-in to states the noiseless student
-    would not reach, which the expert then labels. The label is never noisy.
+    would not reach, which the expert then labels. ``expert_noise`` does the same to the expert's executed
+    action (DART: the expert's roll-out strays a little from its plan, and its labels show how to rejoin it).
+    The label is never noisy.
 
     Returns:
         ``observations`` (as the student saw them), ``true_observations`` (the simulator's state) and
@@ -337,6 +350,8 @@ def run_mixed_episode(
             label = expert.act(t, *u.replanner.commanded_state(t))
             rms.append(expert.last_rms_m)
         action = label
+        if expert_noise > 0.0:
+            action = np.clip(label + rng.normal(0.0, expert_noise, np.shape(label)), -1.0, 1.0)
         if student is not None and rng.random() >= beta:
             action, _ = student.predict(obs, deterministic=True)
             if student_noise > 0.0:
@@ -442,6 +457,7 @@ def _collect_chunk(job: dict[str, Any], on_episode: Callable[[int, bool], None] 
             job["beta"],
             np.random.default_rng([int(seed), job["round"]]),
             job.get("student_noise", 0.0),
+            job.get("expert_noise", 0.0),
         )
         if on_episode is not None:
             on_episode(int(seed), ep["success"])
@@ -477,6 +493,7 @@ def collect(
     speed_limit_m_s: float | None = None,
     on_episode: Callable[[int, bool], None] | None = None,
     student_noise: float = 0.0,
+    expert_noise: float = 0.0,
     cable_ranges: str | None = None,
     teacher_search: bool = False,
     task: str = TEACHER_TASK,
@@ -495,6 +512,7 @@ def collect(
         speed_limit_m_s: The expert's speed penalty threshold (None: off).
         student_noise: Standard deviation of the noise on the student's executed actions (see
             :func:`run_mixed_episode`).
+        expert_noise: The same for the expert's executed actions.
         cable_ranges: Draw every episode's cable from these named ranges (None: the nominal cable).
         teacher_search: The teacher's plan is refined for each episode's cable and target by search
             (:class:`CableSearchTeacher`, privileged) instead of taken from the policy as it is.
@@ -514,6 +532,7 @@ def collect(
             "round": round_index,
             "speed_limit": speed_limit_m_s,
             "student_noise": float(student_noise),
+            "expert_noise": float(expert_noise),
             "cable_ranges": cable_ranges,
             "teacher_search": bool(teacher_search),
             "task": task,
@@ -626,11 +645,13 @@ class DistillConfig:
 
     Attributes:
         teacher: Shipped name or path of the task's single-step policy.
-        rounds: Round 0: the expert acts (behaviour cloning); rounds 1..: the student of the previous round
-            acts and the expert labels (DAgger). One round is the default: more made the student worse in our
-            measurements (docs/RESULTS.md).
-        episodes: Episodes per round after round 0.
-        first_round_episodes: Episodes of round 0.
+        rounds: Rounds ``0 .. expert_rounds - 1``: the expert acts (behaviour cloning); later rounds: the
+            student of the previous round acts and the expert labels (DAgger). One round is the default:
+            DAgger rounds made the student worse in our measurements (docs/RESULTS.md).
+        episodes: Episodes per DAgger round.
+        first_round_episodes: Episodes of every expert round.
+        expert_rounds: Rounds in which the expert acts, each on new seeds: more behaviour-cloning data, added
+            to a finished run by resuming it with more ``rounds`` and ``expert_rounds``.
         noise_model: Observation-noise model file the student sees P_DLO through (None: true state).
         seed: Episode seeds of round ``r`` are ``seed * 1_000_000 + r * 10_000 + i`` (evaluation seeds
             100000-100099 are never used with ``seed >= 1``).
@@ -646,6 +667,8 @@ class DistillConfig:
         student_noise: Noise on the student's executed actions in the DAgger rounds (see
             :func:`run_mixed_episode`).
         task: The task (:data:`DISTILL_TASKS`).
+        expert_noise: Noise on the expert's executed actions in the expert rounds after round 0 (DART; see
+            :func:`run_mixed_episode`): round 0 shows the plan, later ones how to rejoin it.
     """
 
     teacher: str = "tip-control-single-step"
@@ -663,9 +686,11 @@ class DistillConfig:
     teacher_search: bool = False
     student_noise: float = 0.0
     task: str = TEACHER_TASK
+    expert_rounds: int = 1
+    expert_noise: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("rounds", "episodes", "first_round_episodes", "workers", "epochs"):
+        for name in ("rounds", "episodes", "first_round_episodes", "workers", "epochs", "expert_rounds"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
@@ -684,16 +709,22 @@ class DistillConfig:
             from dyndlo_vision.tasks.wrappers import cable_ranges_for
 
             cable_ranges_for(self.task, self.cable_ranges)  # an unknown name is refused here
-        noise = self.student_noise
-        if isinstance(noise, bool) or not isinstance(noise, int | float) or not 0.0 <= noise < float("inf"):
-            raise ValueError(f"student_noise must be a finite standard deviation >= 0, got {noise!r}")
+        for name in ("student_noise", "expert_noise"):
+            noise = getattr(self, name)
+            number = isinstance(noise, int | float) and not isinstance(noise, bool)
+            if not (number and 0.0 <= noise < float("inf")):
+                raise ValueError(f"{name} must be a finite standard deviation >= 0, got {noise!r}")
         if not self.net_arch or any(int(n) < 1 for n in self.net_arch):
             raise ValueError(f"net_arch must be positive layer sizes, got {self.net_arch!r}")
         object.__setattr__(self, "net_arch", tuple(int(n) for n in self.net_arch))
 
+    def expert_acts(self, r: int) -> bool:
+        """Whether the expert acts in round ``r`` (behaviour cloning) rather than the student (DAgger)."""
+        return r < self.expert_rounds
+
     def round_seeds(self, r: int) -> list[int]:
         """Episode seeds of round ``r``."""
-        n = self.first_round_episodes if r == 0 else self.episodes
+        n = self.first_round_episodes if self.expert_acts(r) else self.episodes
         return [self.seed * 1_000_000 + r * 10_000 + i for i in range(n)]
 
     def to_json(self) -> dict[str, Any]:
@@ -749,14 +780,22 @@ def distill(
             raise FileNotFoundError(f"nothing to resume: {config_file} does not exist")
         stored = {**_LATER_OPTIONS, **json.loads(config_file.read_text())}
         wanted = json.loads(json.dumps(config.to_json()))
-        if {k: v for k, v in stored.items() if k != "rounds"} != {
-            k: v for k, v in wanted.items() if k != "rounds"
+        if {k: v for k, v in stored.items() if k not in _GROWABLE_OPTIONS} != {
+            k: v for k, v in wanted.items() if k not in _GROWABLE_OPTIONS
         }:
             raise ValueError(
                 f"{config_file} holds another configuration ({stored}); resume with the same options "
-                "(only --rounds may change)"
+                "(only --rounds, --expert-rounds and --workers may change)"
             )
         history: list[dict[str, Any]] = json.loads(history_file.read_text()) if history_file.is_file() else []
+        for entry in history:  # a finished round's kind cannot be changed afterwards
+            was_expert = entry["acting"] == "expert"
+            if was_expert != config.expert_acts(int(entry["round"])):
+                raise ValueError(
+                    f"round {entry['round']} of {out} was {'an expert' if was_expert else 'a DAgger'} round; "
+                    f"expert_rounds={config.expert_rounds} would make it "
+                    f"{'a DAgger' if was_expert else 'an expert'} round"
+                )
     else:
         if out.exists() and not out.is_dir():
             raise ValueError(f"{out} is a file; expected a run folder")
@@ -789,20 +828,22 @@ def distill(
                 log(f"round {r}: reusing {round_file} ({len(episodes.successes)} episodes)")
             else:
                 seeds = config.round_seeds(r)
-                log(f"round {r}: {'expert' if r == 0 else 'student'} acts, {len(seeds)} episodes")
+                expert = config.expert_acts(r)
+                log(f"round {r}: {'expert' if expert else 'student'} acts, {len(seeds)} episodes")
                 with _bar(len(seeds), f"round {r} episodes", "episode", progress) as bar:
                     episodes = collect(
                         seeds,
                         config.teacher,
-                        str(model_file) if r else None,
-                        1.0 if r == 0 else 0.0,
+                        None if expert else str(model_file),
+                        1.0 if expert else 0.0,
                         config.noise_model,
                         config.task_options,
                         config.workers,
                         r,
                         config.expert_speed_limit_m_s,
                         on_episode=_success_counter(bar),
-                        student_noise=config.student_noise if r else 0.0,
+                        student_noise=0.0 if expert else config.student_noise,
+                        expert_noise=config.expert_noise if expert and r > 0 else 0.0,
                         cable_ranges=config.cable_ranges,
                         teacher_search=config.teacher_search,
                         task=config.task,
@@ -822,7 +863,7 @@ def distill(
             shutil.copyfile(model_file, out / f"model_round{r}.zip")  # every round's student stays selectable
             entry = {
                 "round": r,
-                "acting": "expert" if r == 0 else f"student of round {r - 1}",
+                "acting": "expert" if config.expert_acts(r) else f"student of round {r - 1}",
                 "episodes": int(len(episodes.successes)),
                 "samples": int(len(episodes.actions)),
                 "total_samples": int(sum(len(d.actions) for d in data)),
@@ -897,6 +938,8 @@ def _write_metadata(out: Path, config: DistillConfig, history: list[dict[str, An
         "teacher_search": config.teacher_search,
         "cable_ranges": config.cable_ranges,
         "student_noise": config.student_noise,
+        "expert_rounds": config.expert_rounds,
+        "expert_noise": config.expert_noise,
         "rounds": len(history),
         "samples": history[-1]["total_samples"] if history else 0,
         "episodes": sum(h["episodes"] for h in history),

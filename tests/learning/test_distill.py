@@ -20,6 +20,7 @@ from dyndlo_vision.learning.distill import (
     Episodes,
     PlanFollowingExpert,
     PolicyTeacher,
+    collect,
     distill,
     run_mixed_episode,
 )
@@ -251,6 +252,9 @@ def test_distill_rounds_resume_and_load(tmp_path) -> None:
     assert json.loads((out / "history.json").read_text()) == history
     meta = json.loads((out / "model.json").read_text())
     assert meta["multi_step"] is True and meta["algo"] == "ppo" and meta["rounds"] == 2
+    with pytest.raises(ValueError, match="round 1 .* was a DAgger round"):  # a finished round keeps its kind
+        distill(DistillConfig(**{**more.__dict__, "rounds": 3, "expert_rounds": 2}), out, resume=True,
+                log=lambda *_: None)
 
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
     model = policies.load(out / "model.zip", env=env)
@@ -279,7 +283,7 @@ def test_distill_on_random_cables_with_the_privileged_teacher(tmp_path) -> None:
     plain = DistillConfig(rounds=1, episodes=1, first_round_episodes=1, workers=1, epochs=1, seed=7)
     distill(plain, old, log=lambda *_: None)
     stored = json.loads((old / "config.json").read_text())
-    for key in ("cable_ranges", "teacher_search", "student_noise"):
+    for key in ("cable_ranges", "teacher_search", "student_noise", "expert_rounds"):
         del stored[key]
     (old / "config.json").write_text(json.dumps(stored))
     history = distill(DistillConfig(**{**plain.__dict__, "rounds": 2}), old, resume=True,
@@ -287,12 +291,46 @@ def test_distill_on_random_cables_with_the_privileged_teacher(tmp_path) -> None:
     assert len(history) == 2
 
 
+@pytest.mark.slow
+def test_distill_adds_expert_rounds_to_a_finished_run(tmp_path) -> None:
+    """Resuming with more --expert-rounds adds behaviour-cloning data on new seeds; the student never acts.
+    --expert-noise perturbs the expert's executed actions in those rounds only (round 0 stays clean), and its
+    labels stay the expert's own."""
+    out = tmp_path / "run"
+    config = DistillConfig(
+        rounds=1, episodes=5, first_round_episodes=2, workers=1, epochs=2, seed=7, expert_noise=0.3
+    )
+    distill(config, out, log=lambda *_: None)
+    more = DistillConfig(**{**config.__dict__, "rounds": 2, "expert_rounds": 2})
+    history = distill(more, out, resume=True, log=lambda *_: None)
+    assert [h["acting"] for h in history] == ["expert", "expert"]
+    assert [h["episodes"] for h in history] == [2, 2]  # first_round_episodes, not episodes
+    assert history[1]["total_samples"] == history[0]["samples"] + history[1]["samples"]
+
+    round0, round1 = Episodes.load(out / "round0.npz"), Episodes.load(out / "round1.npz")
+    assert set(np.unique(round1.seeds)) == {7_010_000, 7_010_001}
+    clean0 = collect([7_000_000, 7_000_001], config.teacher, None, 1.0, round_index=0)
+    assert np.array_equal(round0.true_observations, clean0.true_observations)  # round 0: no noise
+    # Round 1: the expert executed every decision, with the noise: its own noisy roll-out gives the same data.
+    noisy1 = collect([7_010_000, 7_010_001], config.teacher, None, 1.0, round_index=1, expert_noise=0.3)
+    assert np.array_equal(round1.true_observations, noisy1.true_observations)
+    assert np.allclose(round1.actions, noisy1.actions)
+    clean1 = collect([7_010_000, 7_010_001], config.teacher, None, 1.0, round_index=1)
+    first = np.r_[0, np.flatnonzero(np.diff(clean1.seeds)) + 1]
+    assert np.allclose(round1.actions[0], clean1.actions[0])  # the label is the expert's, never noisy
+    later = np.setdiff1d(np.arange(min(len(clean1.actions), len(round1.actions))), first)
+    assert not np.allclose(round1.true_observations[later[:3]], clean1.true_observations[later[:3]])
+
+
 def test_cli_distill_bad_input(tmp_path, capsys) -> None:
     with pytest.raises(SystemExit) as err:
         main(["distill", "--obs-noise", str(tmp_path / "missing.json"), "--out", str(tmp_path / "x")])
     assert err.value.code == 2
     assert "missing.json" in capsys.readouterr().err
-    for bad in (["--rounds", "0"], ["--expert-speed-limit", "-1"], ["--student-noise", "-1"]):
+    for bad in (
+        ["--rounds", "0"], ["--expert-speed-limit", "-1"], ["--student-noise", "-1"],
+        ["--expert-noise", "-1"], ["--expert-rounds", "0"],
+    ):
         with pytest.raises(SystemExit) as err:
             main(["distill", *bad, "--out", str(tmp_path / "y")])
         assert err.value.code == 2
