@@ -528,3 +528,31 @@ def test_vaulting_draws_beyond_the_training_ranges_only_with_cables_that_fit_its
         check_cable_lengths(0.8, "--cable-ranges beyond")
     with pytest.raises(ValueError, match="cable ranges 'wider'; expected one of"):
         cable_ranges_for("vaulting", "wider")
+
+
+def test_demo_starts_a_history_policy_afresh_in_every_episode(tmp_path: Path) -> None:
+    """A policy with a P_DLO history (``p_dlo_history`` in its JSON) runs in the demo; each episode forgets
+    the last one, so an episode scores the same whether another ran before it or not."""
+    import gymnasium as gym
+
+    from dyndlo_vision import policies
+    from dyndlo_vision.commands.demo import film_episode
+    from dyndlo_vision.learning.distill import new_student
+    from dyndlo_vision.tasks.wrappers import PDloHistoryWrapper
+
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    zip_file = tmp_path / "history.zip"
+    new_student(PDloHistoryWrapper(env, 2), (16,), seed=3).save(zip_file)
+    zip_file.with_suffix(".json").write_text(json.dumps(
+        {"task": "tip-control", "multi_step": True, "algo": "ppo", "p_dlo_history": 2}
+    ))
+    model = policies.load(zip_file, env=env)
+    film_episode(env, model, 11, "true", "tracking", None)
+    after = film_episode(env, model, 12, "true", "tracking", None)
+    alone = film_episode(env, policies.load(zip_file, env=env), 12, "true", "tracking", None)
+    assert after["final_p_dlo_m"] == pytest.approx(alone["final_p_dlo_m"], abs=1e-12)
+    env.close()
+    out = tmp_path / "demo"
+    argv = ["demo", "--policy", str(zip_file), "--observation", "tracked", "--quiet", "--out", str(out)]
+    assert main(argv) == 0
+    assert json.loads((out / "metrics.json").read_text())["episodes"][0]["cycles"] > 1

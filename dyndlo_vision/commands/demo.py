@@ -377,6 +377,8 @@ def film_episode(
             video.append(_annotate_truth(rgb, moment.t, moment.p_dlo_true, calib, moment.goal, moment.status,
                                          shown_legend))
 
+    if hasattr(model, "reset"):
+        model.reset()  # a policy with a P_DLO history starts the episode afresh
     return run_loop_episode(
         env,
         lambda obs: model.predict(obs, deterministic=True)[0],

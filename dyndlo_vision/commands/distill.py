@@ -100,6 +100,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "labels then show how to rejoin its plan from near it (default 0)",
     )
     p.add_argument(
+        "--p-dlo-history",
+        type=int,
+        default=0,
+        metavar="H",
+        help="the student also reads P_DLO's velocity over the last 1..H decisions, from which it can tell "
+        "how the cable moves (default 0: the table-II observation only)",
+    )
+    p.add_argument(
         "--out", default=None, help="run folder (default: runs/<task>-multi-step-distill-s<seed>)"
     )
     p.add_argument("--resume", action="store_true", help="continue the run in --out after its last round")
@@ -134,6 +142,7 @@ def run(args: argparse.Namespace) -> int:
         teacher_search=args.teacher_search,
         student_noise=args.student_noise,
         expert_noise=args.expert_noise,
+        p_dlo_history=args.p_dlo_history,
     )
     out = Path(args.out or f"runs/{args.task}-multi-step-distill-s{args.seed}")
     try:

@@ -482,6 +482,8 @@ def run_session(cfg: RunConfig, dry_run: bool, say: Callable[[str], None] = prin
         policy = scripted_policy(name[len(SCRIPTED_PREFIX):], base.spec_actions, reachable)
     else:
         model = policies.load(name, env=env)
+        if hasattr(model, "reset"):
+            model.reset()  # a policy with a P_DLO history (one run is one episode)
 
         def policy(obs: Any) -> Any:
             return model.predict(obs, deterministic=True)[0]

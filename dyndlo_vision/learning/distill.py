@@ -32,7 +32,7 @@ import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -62,6 +62,7 @@ _LATER_OPTIONS = {
     "task": "tip-control",
     "expert_rounds": 1,
     "expert_noise": 0.0,
+    "p_dlo_history": 0,
 }
 #: Options a resumed run may change: how many rounds of each kind run from here on, and how many processes
 #: collect (every episode is seeded on its own, so the data do not depend on it).
@@ -312,6 +313,19 @@ class Episodes:
             return Episodes(*(data[k] for k in Episodes.__dataclass_fields__))
 
 
+def with_history(data: Episodes, length: int) -> Episodes:
+    """``data`` with the P_DLO history of ``length`` periods appended to its observations (0: unchanged).
+
+    Episodes are told apart by their seeds; within one, the rows are in time order (:func:`collect`).
+    """
+    if not length:
+        return data
+    from dyndlo_vision.tasks.wrappers import PDloHistory
+
+    history = PDloHistory.for_observation_size(length, data.observations.shape[1])
+    return replace(data, observations=history.stack(data.observations, data.seeds))
+
+
 def run_mixed_episode(
     env: Any,
     teacher: Any,
@@ -338,6 +352,8 @@ def run_mixed_episode(
     """
     rng = rng or np.random.default_rng(seed)
     obs, _ = env.reset(seed=seed)
+    if student is not None and hasattr(student, "reset"):
+        student.reset()  # a student with a P_DLO history (policies.HistoryPolicy) starts afresh
     u = env.unwrapped
     plan = teacher.plan_for(u, seed)  # the teacher sees the true state (and, if privileged, more)
     observations, true_obs, labels, rms = [], [], [], []
@@ -669,6 +685,9 @@ class DistillConfig:
         task: The task (:data:`DISTILL_TASKS`).
         expert_noise: Noise on the expert's executed actions in the expert rounds after round 0 (DART; see
             :func:`run_mixed_episode`): round 0 shows the plan, later ones how to rejoin it.
+        p_dlo_history: H > 0: the student also reads how P_DLO moved over the last H decisions
+            (:class:`~dyndlo_vision.tasks.wrappers.PDloHistory`), from which it can tell the cable. The round
+            files keep the table-II observations; the history is added when the student is fitted.
     """
 
     teacher: str = "tip-control-single-step"
@@ -688,6 +707,7 @@ class DistillConfig:
     task: str = TEACHER_TASK
     expert_rounds: int = 1
     expert_noise: float = 0.0
+    p_dlo_history: int = 0
 
     def __post_init__(self) -> None:
         for name in ("rounds", "episodes", "first_round_episodes", "workers", "epochs", "expert_rounds"):
@@ -714,6 +734,9 @@ class DistillConfig:
             number = isinstance(noise, int | float) and not isinstance(noise, bool)
             if not (number and 0.0 <= noise < float("inf")):
                 raise ValueError(f"{name} must be a finite standard deviation >= 0, got {noise!r}")
+        history = self.p_dlo_history
+        if isinstance(history, bool) or not isinstance(history, int) or history < 0:
+            raise ValueError(f"p_dlo_history must be an integer >= 0 (0: no history), got {history!r}")
         if not self.net_arch or any(int(n) < 1 for n in self.net_arch):
             raise ValueError(f"net_arch must be positive layer sizes, got {self.net_arch!r}")
         object.__setattr__(self, "net_arch", tuple(int(n) for n in self.net_arch))
@@ -809,11 +832,16 @@ def distill(
     torch.manual_seed(config.seed)
     env = make_distill_env(config.task_options, config.noise_model, config.cable_ranges, config.task)
     model_file = out / "model.zip"
-    model = (
-        policies.load(model_file, env=env, algo="ppo")
-        if history
-        else new_student(env, config.net_arch, config.seed)
-    )
+    if history:
+        model = policies.load(model_file, env=env, algo="ppo")
+        model = getattr(model, "sb3_model", model)  # the network itself, fitted on observations with history
+    else:
+        student_env = env
+        if config.p_dlo_history:
+            from dyndlo_vision.tasks.wrappers import PDloHistoryWrapper
+
+            student_env = PDloHistoryWrapper(env, config.p_dlo_history)
+        model = new_student(student_env, config.net_arch, config.seed)
     made_folder = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     write_atomic(config_file, lambda tmp: Path(tmp).write_text(json.dumps(config.to_json(), indent=2)))
@@ -854,7 +882,7 @@ def distill(
             with _bar(config.epochs, f"round {r} fit", "epoch", progress) as bar:
                 losses = fit_student(
                     model,
-                    Episodes.concatenate(data),
+                    with_history(Episodes.concatenate(data), config.p_dlo_history),
                     epochs=config.epochs,
                     seed=config.seed + r,
                     on_epoch=_loss_reporter(bar),
@@ -940,6 +968,7 @@ def _write_metadata(out: Path, config: DistillConfig, history: list[dict[str, An
         "student_noise": config.student_noise,
         "expert_rounds": config.expert_rounds,
         "expert_noise": config.expert_noise,
+        "p_dlo_history": config.p_dlo_history,
         "rounds": len(history),
         "samples": history[-1]["total_samples"] if history else 0,
         "episodes": sum(h["episodes"] for h in history),

@@ -50,12 +50,30 @@ class EpisodeRecord:
 
 
 def as_action_fn(policy: Any) -> Callable[[np.ndarray], np.ndarray]:
-    """``obs -> action`` for an SB3 model (deterministic) or a callable."""
+    """``obs -> action`` for an SB3 model (deterministic) or a callable.
+
+    For a model, the function has ``reset()``, which :func:`evaluate_episode` calls at every reset (a
+    :class:`~dyndlo_vision.policies.HistoryPolicy` forgets its episode).
+    """
     if hasattr(policy, "predict"):
-        return lambda obs: policy.predict(obs, deterministic=True)[0]
+        return _Predict(policy)
     if callable(policy):
         return policy  # type: ignore[no-any-return]
     raise ValueError(f"policy {policy!r} has no predict() and is not callable")
+
+
+class _Predict:
+    """``obs -> action`` of a model's deterministic ``predict``; ``reset`` resets a model with a history."""
+
+    def __init__(self, model: Any) -> None:
+        self.model = model
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        return self.model.predict(obs, deterministic=True)[0]  # type: ignore[no-any-return]
+
+    def reset(self, *_: Any) -> None:
+        if hasattr(self.model, "reset"):
+            self.model.reset()
 
 
 def evaluate_episode(

@@ -7,6 +7,11 @@
 Each shipped policy is ``<name>.zip`` (stable-baselines3) with ``<name>.json`` beside it: the task, mode,
 algorithm, training budget and the success rate it was measured at. stable-baselines3 zip files contain
 pickled Python objects: load only files you trust.
+
+A policy whose metadata has ``p_dlo_history`` H reads, besides the table-II observation, how P_DLO moved over
+the last H decisions (:class:`~dyndlo_vision.tasks.wrappers.PDloHistory`). :func:`load` returns it as a
+:class:`HistoryPolicy`, which takes table-II observations like any other and keeps that history itself: call
+its ``reset()`` at the start of every episode.
 """
 
 from __future__ import annotations
@@ -16,6 +21,8 @@ import zipfile
 from importlib import resources
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 #: The learning algorithms: name -> stable-baselines3 class name.
 ALGORITHMS: dict[str, str] = {"ppo": "PPO", "sac": "SAC"}
@@ -78,7 +85,9 @@ def resolve(name_or_path: str | Path) -> tuple[Path, dict[str, Any]]:
     elif (path.parent / "config.json").is_file():  # a model.zip inside a training run folder
         config = json.loads((path.parent / "config.json").read_text())
         meta = {
-            k: config[k] for k in ("task", "multi_step", "algo", "timesteps", "env_options") if k in config
+            k: config[k]
+            for k in ("task", "multi_step", "algo", "timesteps", "env_options", "p_dlo_history")
+            if k in config
         }
     return path, meta
 
@@ -111,6 +120,9 @@ def load(name_or_path: str | Path, env: Any = None, algo: str | None = None) -> 
             errors.append(f"{cls.__name__}: {type(err).__name__}: {err}")
     else:
         raise ValueError(f"{path} could not be loaded as a stable-baselines3 policy: " + "; ".join(errors))
+    history = int(meta.get("p_dlo_history") or 0)
+    if history:
+        model = HistoryPolicy(model, history)
     if env is not None:
         for space in ("observation_space", "action_space"):
             theirs, ours = getattr(model, space), getattr(env, space)
@@ -119,3 +131,41 @@ def load(name_or_path: str | Path, env: Any = None, algo: str | None = None) -> 
                     f"{path}: the policy's {space} has shape {theirs.shape}, the environment's {ours.shape}"
                 )
     return model
+
+
+class HistoryPolicy:
+    """A stable-baselines3 model trained on observations with a P_DLO history, fed table-II observations.
+
+    ``predict`` appends :class:`~dyndlo_vision.tasks.wrappers.PDloHistory` to the observation it is given and
+    remembers its P_DLO; ``reset`` starts a new episode (without it, the first decision of the next episode
+    would see the jump from the last one's P_DLO as motion). Its ``observation_space`` is the table-II one.
+
+    Args:
+        model: The stable-baselines3 model, whose observation has ``3 * length`` values more than table II.
+        length: H, the history's number of periods.
+    """
+
+    def __init__(self, model: Any, length: int) -> None:
+        import gymnasium as gym
+
+        from dyndlo_vision.tasks.wrappers import PDloHistory
+
+        space = model.observation_space
+        size = int(space.shape[0]) - 3 * int(length)
+        self.sb3_model = model
+        self.history = PDloHistory.for_observation_size(length, size)
+        self.observation_space = gym.spaces.Box(space.low[:size], space.high[:size], dtype=space.dtype)
+        self.action_space = model.action_space
+
+    def reset(self, *_: Any) -> None:
+        """Forget the episode's history (extra arguments, such as an environment, are ignored)."""
+        self.history.reset()
+
+    def predict(self, observation: Any, deterministic: bool = True, **kwargs: Any) -> tuple[Any, Any]:
+        """The action for one table-II observation (not a batch), as ``model.predict`` gives it."""
+        obs = np.asarray(observation, dtype=np.float32)
+        if obs.shape != self.observation_space.shape:
+            raise ValueError(
+                f"expected one observation of shape {self.observation_space.shape}, got {obs.shape}"
+            )
+        return self.sb3_model.predict(self.history(obs), deterministic=deterministic, **kwargs)

@@ -25,7 +25,7 @@ from dyndlo_vision.sim.cable import CableParams
 from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
 from dyndlo_vision.tasks.noise import NoiseProcess, ObservationNoiseModel
 
-__all__ = ["CableRandomization", "NoisyObservation", "draw_cable"]
+__all__ = ["CableRandomization", "NoisyObservation", "PDloHistory", "PDloHistoryWrapper", "draw_cable"]
 
 # Mixed into the reset seed so that the cable draws differ from the environment's own random stream.
 _CABLE_STREAM = 0x4E6F697379 + 1
@@ -206,3 +206,121 @@ class CableRandomization(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], N
         self._episodes += 1
         obs, info = self.env.reset(seed=seed, options={**(options or {}), "cable": self.cable})
         return obs, {**info, "cable": self.cable}
+
+
+# ---------------------------------------------------------------------------------------- P_DLO history
+class PDloHistory:
+    """Appends how P_DLO moved to a table-II observation: a history for a policy that must infer the cable.
+
+    For ``length`` H it appends the finite-difference velocities of P_DLO over the last ``k`` control periods,
+    ``(p(t) - p(t - k T)) / (k T)`` for ``k = 1 .. H`` (3 values each, m/s), from the P_DLO of the
+    observations it was given, one per decision. Velocities, not past positions: they are on the scale of the
+    observation's gripper velocities, and a cable's stiffness and mass show in how P_DLO swings, not where
+    it hangs. Before ``k`` periods have passed, ``p(t - k T)`` is the episode's first P_DLO (the cable is at
+    rest at reset). Pure: the same observations give the same output, whether they come from a simulator
+    (:class:`PDloHistoryWrapper`) or from the control loop's estimate
+    (:class:`~dyndlo_vision.policies.HistoryPolicy`).
+
+    Call :meth:`reset` at the start of every episode.
+
+    Args:
+        length: H, the number of past periods (at least 1).
+        p_dlo: Where P_DLO sits in the observation.
+        control_period_s: T, the time between two observations.
+    """
+
+    def __init__(self, length: int, p_dlo: slice, control_period_s: float = CONTROL_PERIOD_S) -> None:
+        if int(length) != length or length < 1:
+            raise ValueError(f"P_DLO history length {length!r}; expected an integer of at least 1")
+        if not control_period_s > 0:
+            raise ValueError(f"control period {control_period_s!r} s; expected a positive number")
+        self.length = int(length)
+        self.p_dlo = p_dlo
+        self.period_s = float(control_period_s)
+        self._past: list[NDArray[np.float64]] = []
+
+    @staticmethod
+    def for_observation_size(
+        length: int, size: int, control_period_s: float = CONTROL_PERIOD_S
+    ) -> PDloHistory:
+        """The history of a table-II observation of ``size`` values (``6 n_g + 6``)."""
+        if size < 12 or (size - 6) % 6 != 0:
+            raise ValueError(f"expected a DynDLO observation of length 6 * n_grippers + 6, got {size}")
+        n_g = (size - 6) // 6
+        return PDloHistory(length, slice(6 * n_g, 6 * n_g + 3), control_period_s)
+
+    def reset(self) -> None:
+        """Forget the episode: the next observation is its first."""
+        self._past = []
+
+    def features(self, p_dlo: NDArray[np.floating[Any]]) -> NDArray[np.float64]:
+        """The 3 H velocities for the P_DLO observed now, which is remembered."""
+        p = np.asarray(p_dlo, dtype=np.float64).reshape(3)
+        if not self._past:
+            self._past = [p] * self.length
+        out = np.concatenate([(p - self._past[-k]) / (k * self.period_s) for k in range(1, self.length + 1)])
+        self._past = [*self._past[1 - self.length:], p] if self.length > 1 else [p]
+        return out
+
+    def __call__(self, observation: NDArray[np.floating[Any]]) -> NDArray[np.float32]:
+        """``observation`` with the history appended (length ``len(observation) + 3 H``)."""
+        obs = np.asarray(observation, dtype=np.float32)
+        return np.concatenate([obs, self.features(obs[self.p_dlo]).astype(np.float32)])
+
+    def stack(
+        self, observations: NDArray[np.floating[Any]], episode_ids: NDArray[Any]
+    ) -> NDArray[np.float32]:
+        """Each row of ``observations`` (N, n) with its history, episodes told apart by ``episode_ids`` (N,).
+
+        The rows of an episode must be consecutive and in time order, as :func:`~dyndlo_vision.learning.
+        distill.collect` stores them. The same result as calling this object on them one by one, with a
+        :meth:`reset` at the start of every episode.
+        """
+        observations = np.asarray(observations)
+        ids = np.asarray(episode_ids)
+        if observations.ndim != 2 or len(ids) != len(observations):
+            raise ValueError(f"expected (N, n) observations and N episode ids, got {observations.shape}, "
+                             f"{ids.shape}")
+        out = []
+        for i, row in enumerate(observations):
+            if i == 0 or ids[i] != ids[i - 1]:
+                self.reset()
+            out.append(self(row))
+        self.reset()
+        return np.array(out, dtype=np.float32).reshape(len(observations), -1)
+
+
+class PDloHistoryWrapper(
+    gym.ObservationWrapper[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]],
+    gym.utils.RecordConstructorArgs,
+):
+    """A DynDLO environment whose observations carry :class:`PDloHistory` (3 H more values, unbounded).
+
+    Put it outside :class:`NoisyObservation`, so that the history is of the P_DLO the policy sees.
+    """
+
+    def __init__(self, env: gym.Env[NDArray[np.float32], NDArray[np.float32]], length: int,
+                 control_period_s: float = CONTROL_PERIOD_S) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, length=length, control_period_s=control_period_s)
+        gym.ObservationWrapper.__init__(self, env)
+        shape = env.observation_space.shape
+        if shape is None or len(shape) != 1:
+            raise ValueError(f"expected a DynDLO observation vector, got observation shape {shape}")
+        self.history = PDloHistory.for_observation_size(length, shape[0], control_period_s)
+        base = env.observation_space
+        assert isinstance(base, gym.spaces.Box)
+        extra = np.full(3 * self.history.length, np.inf, dtype=np.float32)
+        self.observation_space = gym.spaces.Box(
+            np.concatenate([base.low, -extra]), np.concatenate([base.high, extra]), dtype=np.float32
+        )
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[NDArray[np.float32], dict[str, Any]]:
+        """Resets the environment and the history."""
+        self.history.reset()
+        return super().reset(seed=seed, options=options)
+
+    def observation(self, observation: NDArray[np.float32]) -> NDArray[np.float32]:
+        """The observation with the history appended."""
+        return self.history(observation)

@@ -322,6 +322,65 @@ def test_distill_adds_expert_rounds_to_a_finished_run(tmp_path) -> None:
     assert not np.allclose(round1.true_observations[later[:3]], clean1.true_observations[later[:3]])
 
 
+@pytest.mark.slow
+def test_distill_with_a_p_dlo_history(tmp_path) -> None:
+    """--p-dlo-history: the round files keep table-II observations, the student is fitted on them with the
+    history appended, and the loaded policy, fed table-II observations one by one, computes the same history
+    (so what it was fitted on is what it sees when it acts, in the DAgger round too)."""
+    from dyndlo_vision.learning.distill import with_history
+    from dyndlo_vision.learning.evaluate import evaluate
+
+    out = tmp_path / "run"
+    config = DistillConfig(rounds=2, episodes=2, first_round_episodes=2, workers=1, epochs=3, seed=7,
+                           p_dlo_history=2)
+    history = distill(config, out, log=lambda *_: None)
+    assert [h["acting"] for h in history] == ["expert", "student of round 0"]
+    assert json.loads((out / "model.json").read_text())["p_dlo_history"] == 2
+    data = Episodes.concatenate([Episodes.load(out / f"round{r}.npz") for r in range(2)])
+    assert data.observations.shape[1] == 12  # stored without the history
+    # The DAgger round's student (round 0's, selectable by its file) starts every episode afresh: its second
+    # episode is the one it acts in alone.
+    round1 = Episodes.load(out / "round1.npz")
+    second = int(round1.seeds[-1])
+    alone = collect([second], config.teacher, str(out / "model_round0.zip"), 0.0, round_index=1)
+    assert np.array_equal(round1.true_observations[round1.seeds == second], alone.true_observations)
+
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    model = policies.load(out / "model.zip", env=env)
+    assert isinstance(model, policies.HistoryPolicy)
+    assert model.observation_space.shape == (12,) and model.sb3_model.observation_space.shape == (18,)
+    fitted = with_history(data, 2)
+    first = data.seeds == data.seeds[0]
+    network = model.sb3_model
+    offline = np.array([network.predict(o, deterministic=True)[0] for o in fitted.observations[first]])
+    model.reset()
+    online = np.array([model.predict(o)[0] for o in data.observations[first]])
+    assert np.allclose(online, offline, atol=1e-6)
+    # Without a reset the next episode's first decision would see the jump from this one as motion.
+    model.predict(data.observations[~first][0])
+    stale = model.predict(data.observations[first][0])[0]
+    model.reset()
+    assert not np.allclose(stale, model.predict(data.observations[first][0])[0], atol=1e-6)
+
+    # evaluate resets the policy at every episode: seed 2 scores the same after seed 1 as on its own.
+    class Recorded:  # the policy, with every action it takes written down
+        def __init__(self) -> None:
+            self.actions: list[np.ndarray] = []
+
+        def predict(self, obs: np.ndarray, deterministic: bool = True) -> tuple[np.ndarray, None]:
+            self.actions.append(model.predict(obs, deterministic)[0])
+            return self.actions[-1], None
+
+        def reset(self) -> None:
+            model.reset()
+
+    both, alone = Recorded(), Recorded()
+    _, records = evaluate(both, env, 2, seed=1)
+    evaluate(alone, env, 1, seed=2)
+    assert np.allclose(both.actions[records[0].length:], alone.actions, atol=1e-6)
+    env.close()
+
+
 def test_cli_distill_bad_input(tmp_path, capsys) -> None:
     with pytest.raises(SystemExit) as err:
         main(["distill", "--obs-noise", str(tmp_path / "missing.json"), "--out", str(tmp_path / "x")])
@@ -329,7 +388,7 @@ def test_cli_distill_bad_input(tmp_path, capsys) -> None:
     assert "missing.json" in capsys.readouterr().err
     for bad in (
         ["--rounds", "0"], ["--expert-speed-limit", "-1"], ["--student-noise", "-1"],
-        ["--expert-noise", "-1"], ["--expert-rounds", "0"],
+        ["--expert-noise", "-1"], ["--expert-rounds", "0"], ["--p-dlo-history", "-1"],
     ):
         with pytest.raises(SystemExit) as err:
             main(["distill", *bad, "--out", str(tmp_path / "y")])
