@@ -100,6 +100,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "labels then show how to rejoin its plan from near it (default 0)",
     )
     p.add_argument(
+        "--expert-smoothing",
+        type=float,
+        default=0.0,
+        metavar="WEIGHT",
+        help="keep each of the expert's actions near its previous one, with this weight (metres of fit "
+        "residual per action unit; e.g. 0.1): smooth labels a student can fit (default 0: off)",
+    )
+    p.add_argument(
         "--p-dlo-history",
         type=int,
         default=0,
@@ -143,6 +151,7 @@ def run(args: argparse.Namespace) -> int:
         student_noise=args.student_noise,
         expert_noise=args.expert_noise,
         p_dlo_history=args.p_dlo_history,
+        expert_smoothing=args.expert_smoothing,
     )
     out = Path(args.out or f"runs/{args.task}-multi-step-distill-s{args.seed}")
     try:
