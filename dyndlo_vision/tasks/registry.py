@@ -93,7 +93,7 @@ TASKS: Mapping[str, TaskEntry] = {
             baseline="flick-vault",
             baseline_class=FlickVault,
             demonstrator=vault_demonstration,
-            shipped_policies=("vaulting",),
+            shipped_policies=("vaulting", "vaulting-multi-step"),
         ),
         TaskEntry("hooking", Hooking, shipped_policies=("hooking",)),
         TaskEntry(

@@ -165,3 +165,29 @@ def test_shipped_vaulting_policy_meets_its_published_rate_on_unseen_cables() -> 
         hits += bool(info["is_success"])
     low = meta["evaluation"]["success_ci95"][0]
     assert hits >= fewest_hits_expected(low, len(UNSEEN_SEEDS)), f"vaulting: {hits}/{len(UNSEEN_SEEDS)}"
+
+
+@pytest.mark.slow
+def test_shipped_multi_step_vaulting_policy_meets_its_published_rate_on_unseen_cables() -> None:
+    """The re-planning vault (a P_DLO-history student) on cables of issue 16's vaulting ranges drawn from
+    unseen seeds, reset before every episode as evaluate and the demo do."""
+    from dyndlo_vision.tasks import make_env
+    from dyndlo_vision.tasks.wrappers import cable_ranges_for
+
+    meta = policies.metadata("vaulting-multi-step")
+    assert meta["multi_step"] and meta["p_dlo_history"] >= 1
+    env = make_env("vaulting", multi_step=True, randomize_cable_every=1,
+                   cable_ranges=cable_ranges_for("vaulting", "beyond"), **meta["env_options"])
+    model = policies.load("vaulting-multi-step", env=env)
+    assert isinstance(model, policies.HistoryPolicy)
+    hits = 0
+    for seed in UNSEEN_SEEDS:
+        obs, _ = env.reset(seed=seed)
+        model.reset()
+        done = False
+        while not done:
+            obs, _, done, truncated, info = env.step(model.predict(obs, deterministic=True)[0])
+            done = done or truncated
+        hits += bool(info["is_success"])
+    low = meta["evaluation"]["success_ci95"][0]
+    assert hits >= fewest_hits_expected(low, len(UNSEEN_SEEDS)), f"vaulting-multi-step: {hits}/20"
