@@ -8,6 +8,10 @@ runs, during which the last value is extrapolated at constant velocity like a co
 
 :class:`CableRandomization` hands a cable drawn by the pure function :func:`draw_cable` to the environment's
 reset every few episodes.
+
+:class:`PDloHistory` appends P_DLO's finite-difference velocities over the last few decisions to an
+observation (a pure function of the observations so far); :class:`PDloHistoryWrapper` puts it on an
+environment, for a student that must tell the cable from how it moves.
 """
 
 from __future__ import annotations
