@@ -377,11 +377,13 @@ def film_episode(
             video.append(_annotate_truth(rgb, moment.t, moment.p_dlo_true, calib, moment.goal, moment.status,
                                          shown_legend))
 
-    if hasattr(model, "reset"):
-        model.reset()  # a policy with a P_DLO history starts the episode afresh
+    from dyndlo_vision.learning.evaluate import as_action_fn
+
+    act = as_action_fn(model)
+    act.reset()  # type: ignore[attr-defined]  # a policy with a P_DLO history starts the episode afresh
     return run_loop_episode(
         env,
-        lambda obs: model.predict(obs, deterministic=True)[0],
+        act,
         seed,
         observation,
         camera_name,
