@@ -377,13 +377,11 @@ def film_episode(
             video.append(_annotate_truth(rgb, moment.t, moment.p_dlo_true, calib, moment.goal, moment.status,
                                          shown_legend))
 
-    from dyndlo_vision.learning.evaluate import as_action_fn
-
-    act = as_action_fn(model)
-    act.reset()  # type: ignore[attr-defined]  # a policy with a P_DLO history starts the episode afresh
+    if hasattr(model, "reset"):
+        model.reset()  # a policy with a P_DLO history starts the episode afresh
     return run_loop_episode(
         env,
-        act,
+        lambda obs: model.predict(obs, deterministic=True)[0],
         seed,
         observation,
         camera_name,

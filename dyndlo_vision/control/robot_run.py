@@ -481,10 +481,12 @@ def run_session(cfg: RunConfig, dry_run: bool, say: Callable[[str], None] = prin
     if name.startswith(SCRIPTED_PREFIX):
         policy = scripted_policy(name[len(SCRIPTED_PREFIX):], base.spec_actions, reachable)
     else:
-        from dyndlo_vision.learning.evaluate import as_action_fn
+        model = policies.load(name, env=env)
+        if hasattr(model, "reset"):
+            model.reset()  # a policy with a P_DLO history (one run is one episode)
 
-        policy = as_action_fn(policies.load(name, env=env))
-        policy.reset()  # type: ignore[attr-defined]  # a policy with a P_DLO history (a run is one episode)
+        def policy(obs: Any) -> Any:
+            return model.predict(obs, deterministic=True)[0]
 
     fake = None
     if dry_run:
