@@ -259,6 +259,9 @@ def test_demo_rejects_bad_input_and_writes_nothing(tmp_path: Path) -> None:
         ["--latency-ms", "nan"],
         ["--latency-ms", "300"],
         ["--latency-ms", "40", "--observation", "true"],
+        ["--views", "2"],  # tip control's scene has one tracking camera
+        ["--views", "3"],
+        ["--views", "2", "--task", "vaulting", "--observation", "true"],
     ):
         with pytest.raises(SystemExit) as exc:
             main(["demo", "--out", str(out), *argv])

@@ -156,6 +156,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="tracked observation: the classical background segmenter (default) or the shipped "
         "full-resolution CNN (cable-segmenter-fine)",
     )
+    p.add_argument(
+        "--views",
+        type=int,
+        choices=[1, 2],
+        default=None,
+        help="tracked observation: cameras the cable is tracked in. 1: the --camera view, the cable lifted "
+        "onto the motion plane; 2: also the scene's second camera, the cable triangulated (vaulting, whose "
+        "cable leaves the plane). Default: as many as the task's scene has (tip control 1, vaulting 2)",
+    )
     p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     p.add_argument(
         "--quiet", action="store_true", help="no progress bar on stderr (shown for --episodes > 1)"
@@ -188,6 +197,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--cable-ranges {args.cable_ranges} applies with --randomize-cable")
     if args.segmenter != "background" and args.observation != "tracked":
         raise ValueError(f"--segmenter applies to the tracked observation, not to {args.observation!r}")
+    if args.views is not None and args.observation != "tracked":
+        raise ValueError(f"--views applies to the tracked observation, not to {args.observation!r}")
     push = parse_push(args.push)
     if not 0.0 <= args.actuation_latency_ms <= 1000.0:
         raise ValueError(f"--actuation-latency-ms must be in [0, 1000] ms, got {args.actuation_latency_ms}")
@@ -217,6 +228,13 @@ def run(args: argparse.Namespace) -> int:
                    randomize_cable_every=1 if args.randomize_cable else None,
                    cable_ranges=ranges)
     check_camera(env, args.camera)
+    views = None
+    if args.observation == "tracked":
+        from dyndlo_vision.control.sim_perception import scene_views
+
+        views = scene_views(env) if args.views is None else args.views
+        if views > scene_views(env):
+            raise ValueError(f"--views {views}: the {task} scene has one tracking camera; expected --views 1")
     if push is not None:
         if env.unwrapped.task.cable.model != "chain":
             raise ValueError("--push needs the chain cable; this policy's environment has the rod")
@@ -238,6 +256,7 @@ def run(args: argparse.Namespace) -> int:
                 video if i == 0 else None,
                 latency_s=1e-3 * args.latency_ms,
                 segmenter=args.segmenter,
+                views=views,
                 goal_name=GOAL_NAMES[task],
                 actuation_latency_s=1e-3 * args.actuation_latency_ms,
             )
@@ -266,6 +285,7 @@ def run(args: argparse.Namespace) -> int:
         "push": None if push is None else {"time_s": push.time_s, "impulse_n_s": list(push.impulse_n_s),
                                            "node": "middle"},
         "segmenter": args.segmenter,
+        "views": views,
         **summarize(episodes),
         "cycle_ms_note": "controller time per 40 ms cycle: camera render + tracking + filter + policy + "
         "planning (the simulated robot's physics is timed apart as send_ms); percentiles over the cycles of "
@@ -355,6 +375,7 @@ def film_episode(
     segmenter: str = "background",
     goal_name: str = "target",
     actuation_latency_s: float = 0.0,
+    views: int | None = None,
 ) -> dict[str, Any]:
     """One closed-loop episode (:func:`~dyndlo_vision.control.episode.run_loop_episode`), filmed.
 
@@ -391,6 +412,7 @@ def film_episode(
         open_camera=video is not None,
         segmenter=segmenter,
         actuation_latency_s=actuation_latency_s,
+        views=views,
     )
 
 

@@ -73,6 +73,7 @@ def run_loop_episode(
     open_camera: bool = False,
     segmenter: str = "background",
     actuation_latency_s: float = 0.0,
+    views: int | None = None,
 ) -> dict[str, Any]:
     """One closed-loop episode from ``env.reset(seed=seed)``; returns its record.
 
@@ -94,6 +95,8 @@ def run_loop_episode(
             camera when tracking without delay).
         actuation_latency_s: The simulated arm executes every setpoint this long after its time
             (:class:`~dyndlo_vision.control.sim_robot.DelayedRobot`); 0: at once.
+        views: Tracked observation: the cameras tracked (1, or 2 to triangulate; None: as many as the scene
+            has, :func:`~dyndlo_vision.control.sim_perception.scene_views`).
 
     Returns:
         The record: ``seed``, ``success``, ``final_distance_m`` (the truth at the outcome),
@@ -114,7 +117,7 @@ def run_loop_episode(
         from dyndlo_vision.control.sim_perception import tracked_state
 
         source, camera = tracked_state(env, camera_name, point_filter=point_filter, latency_s=latency_s,
-                                       segmenter=segmenter)
+                                       segmenter=segmenter, views=views)
     elif observation == "noisy":
         source = NoisyState(env, seed=seed)
     elif observation == "frozen":

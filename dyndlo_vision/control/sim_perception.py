@@ -18,8 +18,9 @@ from numpy.typing import NDArray
 
 from dyndlo_vision.cameras.simulated import DelayedCamera, MujocoCamera, checked_latency_s
 from dyndlo_vision.control.sim_env import as_sim_env
-from dyndlo_vision.control.state_sources import TrackedState
+from dyndlo_vision.control.state_sources import StereoTrackedState, TrackedState
 from dyndlo_vision.sim.cable_look import CableLook
+from dyndlo_vision.sim.scene import SECOND_TRACKING_CAMERA_NAME
 from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
 from dyndlo_vision.tracking import (
     LATENT_LOOP_FILTER,
@@ -75,22 +76,10 @@ def pixels_per_metre(camera: Any, point: NDArray[np.float64], plane: Plane = MOT
     return float(np.linalg.norm(uv[1] - uv[0]) / 0.1)
 
 
-def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFilter | None = None,
-                  width: int = 640, height: int = 480,
-                  latency_s: float = 0.0, segmenter: str = "background") -> tuple[TrackedState, MujocoCamera]:
-    """A :class:`TrackedState` on a MuJoCo camera of ``env`` (call after ``env.reset``).
-
-    The background image is rendered now, with the cable hidden, so call it at the start of an episode. With
-    ``latency_s`` > 0 the tracker sees each frame that long after it was rendered (:class:`DelayedCamera`)
-    and the filter predicts across the delay. The camera returned renders the present (for videos).
-    ``segmenter`` is one of :data:`LOOP_SEGMENTERS`; either way the gripper is masked by its projected pose.
-    """
-    if segmenter not in LOOP_SEGMENTERS:
-        raise ValueError(f"segmenter={segmenter!r}; expected one of {list(LOOP_SEGMENTERS)}")
-    if checked_latency_s(latency_s) > MAX_LATENCY_S:
-        raise ValueError(f"latency_s must be at most {MAX_LATENCY_S} s, got {latency_s!r}")
-    base = as_sim_env(env)
-    mujoco.mj_forward(base.model, base.data)
+def _camera_tracker(base: Any, camera_name: str, width: int, height: int,
+                    segmenter: str) -> tuple[MujocoCamera, CableTracker, Any]:
+    """A loop camera of the scene, its 2D-and-plane tracker (gripper masked), and the map from a world point
+    to its pixel that also moves the gripper mask there."""
     camera = MujocoCamera(base.model, base.data, camera_name, width=width, height=height)
     calib = camera.calibration
     home = base.scene.gripper_home[0]
@@ -118,6 +107,44 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
         masked.center_uv = uv
         return uv
 
+    return camera, tracker, project
+
+
+def scene_views(env: Any) -> int:
+    """The loop cameras ``env``'s scene has: 2 with a second tracking camera (vaulting), else 1."""
+    model = as_sim_env(env).model
+    return 2 if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, SECOND_TRACKING_CAMERA_NAME) >= 0 else 1
+
+
+def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFilter | None = None,
+                  width: int = 640, height: int = 480,
+                  latency_s: float = 0.0, segmenter: str = "background",
+                  views: int | None = None) -> tuple[TrackedState, MujocoCamera]:
+    """A :class:`TrackedState` on a MuJoCo camera of ``env`` (call after ``env.reset``).
+
+    The background image is rendered now, with the cable hidden, so call it at the start of an episode. With
+    ``latency_s`` > 0 the tracker sees each frame that long after it was rendered (:class:`DelayedCamera`)
+    and the filter predicts across the delay. The camera returned renders the present (for videos).
+    ``segmenter`` is one of :data:`LOOP_SEGMENTERS`; either way the gripper is masked by its projected pose.
+    ``views``: 1 lifts the cable onto the motion plane from ``camera_name``; 2 also tracks it in the scene's
+    second tracking camera and triangulates (:class:`StereoTrackedState`). None: as many as the scene has
+    (:func:`scene_views`).
+    """
+    if segmenter not in LOOP_SEGMENTERS:
+        raise ValueError(f"segmenter={segmenter!r}; expected one of {list(LOOP_SEGMENTERS)}")
+    available = scene_views(env)
+    views = available if views is None else views
+    if views not in (1, 2):
+        raise ValueError(f"views={views!r}; expected 1 or 2")
+    if views > available:
+        raise ValueError(f"views=2 needs a scene with a {SECOND_TRACKING_CAMERA_NAME!r} camera; this one has "
+                         "only one loop camera")
+    if checked_latency_s(latency_s) > MAX_LATENCY_S:
+        raise ValueError(f"latency_s must be at most {MAX_LATENCY_S} s, got {latency_s!r}")
+    base = as_sim_env(env)
+    mujoco.mj_forward(base.model, base.data)
+    camera, tracker, project = _camera_tracker(base, camera_name, width, height, segmenter)
+
     # The newest measurement is always at least the latency old, so the filter's coasting limit and the
     # frames the camera may miss in a row (the first ones have not arrived yet) grow with it.
     params = LOOP_FILTER if latency_s == 0 else LATENT_LOOP_FILTER
@@ -130,7 +157,15 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
     # (vaulting's middle), the same fraction along the observed centreline as along the cable.
     node = base.task.p_dlo_node(base.scene)
     point_index = -1 if node == base.scene.config.cable.num_nodes - 1 else node
-    source = TrackedState(frames, tracker, point_filter, point_index=point_index, project=project,
-                          max_missing_frames=3 + not_yet_arrived,
-                          cable_length_m=base.scene.config.cable.length_m)
-    return source, camera
+    missing = 3 + not_yet_arrived
+    length = base.scene.config.cable.length_m
+    if views == 1:
+        source = TrackedState(frames, tracker, point_filter, point_index=point_index, project=project,
+                              max_missing_frames=missing, cable_length_m=length)
+        return source, camera
+    camera2, tracker2, project2 = _camera_tracker(base, SECOND_TRACKING_CAMERA_NAME, width, height, segmenter)
+    frames2 = DelayedCamera(camera2, latency_s) if latency_s > 0 else camera2
+    stereo = StereoTrackedState(frames, frames2, tracker, tracker2, point_filter, point_index=point_index,
+                                project=project, second_project=project2, max_missing_frames=missing,
+                                cable_length_m=length)
+    return stereo, camera

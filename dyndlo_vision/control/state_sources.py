@@ -226,6 +226,15 @@ class TrackedState:
         w = (t - times[k - 1]) / (times[k] - times[k - 1])
         return (1.0 - w) * self._tcp_history[k - 1][1] + w * self._tcp_history[k][1]
 
+    def _grab(self) -> Any:
+        """The next frame (None if the camera delivered none)."""
+        return self.camera.read()
+
+    def _measure(self, frame: Any, t_capture: float, held: NDArray[np.float64]) -> Any:
+        """The tracker's measurement of ``frame``, the held end at ``held`` (world) anchoring it."""
+        anchor = None if self.project is None else self.project(held)
+        return self.tracker.process(frame.rgb, t_capture, depth=frame.depth, anchor_uv=anchor)
+
     def read(self, t_now: float, tcp: TcpState) -> PDloReading:
         """Grab a frame, track, update the filter at the capture time, and predict to ``t_now``."""
         stage: dict[str, float] = {}
@@ -235,7 +244,7 @@ class TrackedState:
         if self.clock_sync is not None:
             self.clock_sync.observe(float(tcp.t))
         t0 = time.perf_counter()
-        frame = self.camera.read()
+        frame = self._grab()
         stage["camera"] = 1e3 * (time.perf_counter() - t0)
         pixel = polyline = None
         measured = continued = False
@@ -252,8 +261,7 @@ class TrackedState:
             if self.clock_sync is not None:
                 t_capture = self.clock_sync.to_robot(t_capture)
             held = self._tcp_position_at(t_capture)
-            anchor = None if self.project is None else self.project(held)
-            meas = self.tracker.process(frame.rgb, t_capture, depth=frame.depth, anchor_uv=anchor)
+            meas = self._measure(frame, t_capture, held)
             point = meas.point(self.point_index)
             if point is not None:
                 pixel = meas.nodes_uv[self.point_index]
@@ -284,3 +292,60 @@ class TrackedState:
         lost = bool(est.lost or self.missing_frames > self.max_missing_frames)
         return PDloReading(est.position, t_now, measured, lost, stage, pixel, polyline, frame,
                            continued=measured and continued)
+
+
+class StereoTrackedState(TrackedState):
+    """:class:`TrackedState` on two synchronised cameras: the cable's 3D centreline by triangulation.
+
+    One camera lifts the cable onto a known plane; a cable that leaves it (vaulting's middle swings sideways)
+    is misplaced by as much as it leaves it. Here both views are tracked, each anchored at the gripper's
+    projection into it, and :func:`~dyndlo_vision.tracking.stereo.stereo_measurement` matches the two
+    centrelines along epipolar lines and triangulates them. The nodes are spaced by arc length along the 3D
+    centreline from the gripper, with the known cable length when given, so an inner node is the same
+    material point in every frame. Drawing (``pixel``, ``polyline_uv``) is in the first camera.
+
+    Args:
+        camera, second_camera: Frame sources whose frames are taken at the same time (the simulated cameras of
+            one scene, or two hardware-synchronised cameras).
+        tracker, second_tracker: A 2D tracker per camera (their ``camera`` is the calibration used).
+        project, second_project: ``world (3,) -> pixel (2,)`` per camera (the gripper's anchor pixel; see
+            :class:`TrackedState`).
+        stereo_params: Tuning of the matching.
+        Others: as :class:`TrackedState`.
+    """
+
+    def __init__(self, camera: Camera, second_camera: Camera, tracker: Any, second_tracker: Any,
+                 point_filter: Any, point_index: int = -1, project: Any = None, second_project: Any = None,
+                 max_missing_frames: int = 3, clock_sync: ClockSync | str | None = "auto",
+                 cable_length_m: float | None = None, stereo_params: Any = None) -> None:
+        super().__init__(camera, tracker, point_filter, point_index=point_index, project=project,
+                         max_missing_frames=max_missing_frames, clock_sync=clock_sync,
+                         cable_length_m=cable_length_m)
+        for name, trk in (("tracker", tracker), ("second_tracker", second_tracker)):
+            if getattr(trk, "camera", None) is None:
+                raise ValueError(f"{name} has no camera calibration: two views need both")
+        self.second_camera = second_camera
+        self.second_tracker = second_tracker
+        self.second_project = second_project
+        self.stereo_params = stereo_params
+        self.second_frame: Any = None
+
+    def reset(self) -> None:
+        """Forget the cable in both views and the filter state."""
+        super().reset()
+        self.second_tracker.reset()
+
+    def _grab(self) -> Any:
+        """Both cameras' frames; None unless both delivered one."""
+        frame = self.camera.read()
+        self.second_frame = self.second_camera.read()
+        return None if frame is None or self.second_frame is None else frame
+
+    def _measure(self, frame: Any, t_capture: float, held: NDArray[np.float64]) -> Any:
+        from dyndlo_vision.tracking.stereo import stereo_measurement
+
+        first = super()._measure(frame, t_capture, held)
+        anchor = None if self.second_project is None else self.second_project(held)
+        second = self.second_tracker.process(self.second_frame.rgb, t_capture, anchor_uv=anchor)
+        return stereo_measurement(first, self.tracker.camera, second, self.second_tracker.camera, held,
+                                  self.cable_length_m, self.stereo_params)

@@ -91,6 +91,9 @@ class CameraPose:
         return cls(tuple(float(v) for v in pos), (*map(float, x), *map(float, y)), fovy_deg)  # type: ignore[arg-type]
 
 
+#: Name of the second loop camera (:attr:`SceneConfig.second_tracking_camera`).
+SECOND_TRACKING_CAMERA_NAME = "tracking2"
+
 #: The loop's camera for the planar tasks: 1.45 m in front of the x-z plane, looking along +y.
 TRACKING_CAMERA = CameraPose((0.65, -1.45, 0.575), (1.0, 0.0, 0.0, 0.0, 0.0, 1.0))
 
@@ -120,6 +123,9 @@ class SceneConfig:
             position and ``xyaxes`` (MuJoCo's camera x and y axes in world coordinates). The default looks
             along +y at the x-z plane the planar tasks move in; a task whose cable lies lower or farther out
             places it to see that.
+        second_tracking_camera: Pose of a second loop camera, "tracking2", for a task whose cable leaves any
+            one plane (vaulting): the loop then triangulates the cable from the two views. None: no such
+            camera.
     """
 
     cable: CableParams = field(default_factory=CableParams)
@@ -136,6 +142,7 @@ class SceneConfig:
     gains: GripperGains = field(default_factory=GripperGains)
     image_size: tuple[int, int] = (640, 480)
     tracking_camera: CameraPose = field(default_factory=lambda: TRACKING_CAMERA)
+    second_tracking_camera: CameraPose | None = None
 
     def __post_init__(self) -> None:
         if len(self.grippers_m) not in (1, 2):
@@ -281,6 +288,11 @@ def build_mjcf(config: SceneConfig) -> str:
         equality = f'\n    <connect name="far_end" body1="support" body2="{last}" anchor="0 0 0"/>'
     world_bodies = "".join(bodies) + flex + "".join(props)
     tc = config.tracking_camera
+    second = ""
+    if config.second_tracking_camera is not None:
+        t2 = config.second_tracking_camera
+        second = (f'\n    <camera name="{SECOND_TRACKING_CAMERA_NAME}" pos="{_fmt(t2.pos_m)}"'
+                  f' xyaxes="{_fmt(t2.xyaxes)}" fovy="{t2.fovy_deg:g}"/>')
     return f"""<mujoco model="dyndlo">
   <compiler autolimits="true"/>
   <option {config.physics.to_mjcf(cable.model)}/>
@@ -298,7 +310,7 @@ def build_mjcf(config: SceneConfig) -> str:
     <light name="key" pos="0.5 -1 2.5" dir="0 0.4 -1" diffuse="0.6 0.6 0.6"/>
     <geom name="{FLOOR_NAME}" type="plane" size="3 3 0.1" material="floor"/>
     <camera name="front" pos="0.55 -1.7 0.45" xyaxes="1 0 0 0 0 1" fovy="45"/>
-    <camera name="tracking" pos="{_fmt(tc.pos_m)}" xyaxes="{_fmt(tc.xyaxes)}" fovy="{tc.fovy_deg:g}"/>
+    <camera name="tracking" pos="{_fmt(tc.pos_m)}" xyaxes="{_fmt(tc.xyaxes)}" fovy="{tc.fovy_deg:g}"/>{second}
     <camera name="oblique" pos="1.6 -1.4 1.1" xyaxes="0.7 0.71 0 -0.25 0.25 0.93" fovy="45"/>{world_bodies}
   </worldbody>
   <equality>{equality}

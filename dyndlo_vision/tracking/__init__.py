@@ -1,5 +1,6 @@
 """Camera-based cable tracking: camera model, segmentation, ordered centreline, 3D lifting
-and Kalman filtering of cable points (pure computation, no MuJoCo needed).
+and Kalman filtering of cable points, and two-view triangulation of the centreline (pure computation, no
+MuJoCo needed).
 
 Typical use, per camera frame (RGB uint8)::
 
@@ -48,6 +49,12 @@ _EXPORTS = {
     "clean_mask": "segmentation",
     "dice": "segmentation",
     "segment_hsv": "segmentation",
+    "StereoParams": "stereo",
+    "essential_matrix": "stereo",
+    "match_centerlines": "stereo",
+    "nodes_by_arc_length": "stereo",
+    "stereo_measurement": "stereo",
+    "triangulate": "stereo",
     "CableTracker": "tracker",
     "Measurement": "tracker",
     "Plane": "tracker",
@@ -87,4 +94,12 @@ if TYPE_CHECKING:  # the same names for type checkers (tests/tracking/test_packa
     from .filter import Estimate, MultiEstimate, MultiPointFilter, PointFilter
     from .params import LATENT_LOOP_FILTER, LOOP_FILTER, FilterParams
     from .segmentation import BackgroundSegmenter, clean_mask, dice, segment_hsv
+    from .stereo import (
+        StereoParams,
+        essential_matrix,
+        match_centerlines,
+        nodes_by_arc_length,
+        stereo_measurement,
+        triangulate,
+    )
     from .tracker import CableTracker, Measurement, Plane, lift_with_depth, lift_with_plane
