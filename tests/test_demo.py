@@ -559,3 +559,24 @@ def test_demo_starts_a_history_policy_afresh_in_every_episode(tmp_path: Path) ->
     argv = ["demo", "--policy", str(zip_file), "--observation", "tracked", "--quiet", "--out", str(out)]
     assert main(argv) == 0
     assert json.loads((out / "metrics.json").read_text())["episodes"][0]["cycles"] > 1
+
+
+def test_the_second_cameras_view_is_inset_top_right_with_its_cable_and_the_estimate() -> None:
+    from types import SimpleNamespace
+
+    from dyndlo_vision.control.episode import SecondView
+    from tests.tracking.helpers import look_at_camera
+
+    calib = look_at_camera(eye=(1.3, -0.9, 1.8), target=(0.7, 0.0, 0.35))
+    estimate = np.array([0.7, 0.0, 0.35])  # the image centre
+    polyline = np.array([[100.0, 100.0], [500.0, 400.0], [np.nan, np.nan]])
+    view = SecondView(np.full((480, 640, 3), 128, np.uint8), polyline, calib)
+    frame = np.zeros((480, 640, 3), np.uint8)
+    demo._draw_second_view(frame, view, SimpleNamespace(p_dlo_true=None, p_dlo_estimate=estimate))
+    inset = frame[:160, 640 - 213:]
+    assert np.all(frame[170:, :] == 0) and np.all(frame[:, :400] == 0)  # only the corner is drawn on
+    cyan_bgr = np.array(demo.CABLE_RGB[::-1])
+    magenta_bgr = np.array(demo.ESTIMATE_RGB[::-1])
+    assert np.any(np.all(np.abs(inset.astype(int) - cyan_bgr) < 40, axis=2))
+    centre = inset[70:90, 96:116].astype(int)  # the estimate, drawn at the image centre, scaled by a third
+    assert np.any(np.all(np.abs(centre - magenta_bgr) < 60, axis=2))

@@ -394,6 +394,8 @@ def film_episode(
         rgb = moment.frame.rgb if moment.frame is not None else moment.camera.read().rgb
         if moment.cycle is not None:
             video.append(_annotate(rgb, moment.cycle, calib, moment.goal, shown_legend))
+            if moment.second_view is not None:
+                _draw_second_view(video[-1], moment.second_view, moment.cycle)
         else:
             video.append(_annotate_truth(rgb, moment.t, moment.p_dlo_true, calib, moment.goal, moment.status,
                                          shown_legend))
@@ -490,6 +492,34 @@ def _annotate(
                          status=f"{estimate_state(record)}  ctrl {record.controller_ms:.1f} ms")
     _draw_truth_and_target(img, record.p_dlo_true, calib, goal, legend)
     return cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
+
+
+#: The second tracking camera's inset: this share of the frame's width, in its top-right corner.
+INSET_FRACTION = 1 / 3
+
+
+def _draw_second_view(bgr: np.ndarray, view: Any, record: Any) -> None:
+    """Inset (in place, top right) the second tracking camera's frame: the cable its tracker found (cyan),
+    and the triangulated estimate (magenta) and true P_DLO (white) drawn into it."""
+    import cv2
+
+    img = np.ascontiguousarray(view.rgb).copy()
+    pts = np.asarray(view.polyline_uv, dtype=float)
+    for a, b in zip(pts[:-1], pts[1:], strict=True):
+        if np.all(np.isfinite(a)) and np.all(np.isfinite(b)):
+            cv2.line(img, tuple(np.round(a).astype(int)), tuple(np.round(b).astype(int)), CABLE_RGB, 3,
+                     cv2.LINE_AA)
+    for p, color, radius in ((record.p_dlo_true, TRUE_RGB, 9), (record.p_dlo_estimate, ESTIMATE_RGB, 5)):
+        uv = _pixel(view.calibration, p)
+        if uv is not None:
+            cv2.circle(img, uv, radius, color, 3, cv2.LINE_AA)
+    h, w = bgr.shape[:2]
+    iw = int(round(w * INSET_FRACTION))
+    ih = int(round(iw * img.shape[0] / img.shape[1]))
+    small = cv2.cvtColor(cv2.resize(img, (iw, ih), interpolation=cv2.INTER_AREA), cv2.COLOR_RGB2BGR)
+    cv2.putText(small, "second camera", (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    bgr[0:ih, w - iw:w] = small
+    cv2.rectangle(bgr, (w - iw, 0), (w - 1, ih), (255, 255, 255), 1)
 
 
 def _annotate_truth(rgb: np.ndarray, t: float, true_p: np.ndarray, calib: Any, goal: np.ndarray,

@@ -50,6 +50,8 @@ class EpisodeMoment:
         frame: The frame the tracker used in this cycle (None without the tracker or a new frame).
         status: What happens at an instant without a cycle (``"following the last plan"``, the outcome).
         camera: A camera on the scene that renders the present (None unless a camera was asked for).
+        second_view: With two tracking cameras, the second one's frame in this cycle and the cable its
+            tracker found there (None otherwise, and with a camera delay).
     """
 
     t: float
@@ -59,6 +61,31 @@ class EpisodeMoment:
     frame: Any = None
     status: str | None = None
     camera: Any = None
+    second_view: SecondView | None = None
+
+
+@dataclass
+class SecondView:
+    """The second tracking camera's frame of a cycle, for drawing.
+
+    Attributes:
+        rgb: The frame.
+        polyline_uv: (N, 2) the cable its tracker found in it (NaN where not seen).
+        calibration: The camera's calibration (to draw world points into the frame).
+    """
+
+    rgb: NDArray[np.uint8]
+    polyline_uv: NDArray[np.float64]
+    calibration: Any
+
+
+def _second_view(source: Any) -> SecondView | None:
+    """A two-camera source's second frame and 2D cable (None for any other source, or before a frame)."""
+    frame, meas = getattr(source, "second_frame", None), getattr(source, "second_measurement", None)
+    if frame is None or meas is None:
+        return None
+    polyline = np.where(meas.visible[:, None], meas.nodes_uv, np.nan)
+    return SecondView(frame.rgb, polyline, source.second_tracker.camera)
 
 
 def run_loop_episode(
@@ -152,7 +179,9 @@ def run_loop_episode(
         if watch is not None:
             # With a delay the cycle's frame is old; the watcher's camera shows the present.
             fresh = None if latency_s else frame
-            watch(EpisodeMoment(truth_t[-1], truth[-1], goal, cycle=record, frame=fresh, camera=shown))
+            second = None if latency_s else _second_view(source)
+            watch(EpisodeMoment(truth_t[-1], truth[-1], goal, cycle=record, frame=fresh, camera=shown,
+                                second_view=second))
 
     def snapshot(status: str) -> None:
         # The truth (and a moment to watch) where no cycle records one: after the last plan, and at the end.

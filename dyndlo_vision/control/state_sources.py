@@ -328,12 +328,15 @@ class StereoTrackedState(TrackedState):
         self.second_tracker = second_tracker
         self.second_project = second_project
         self.stereo_params = stereo_params
+        #: The second camera's latest frame and its tracker's 2D measurement (for drawing).
         self.second_frame: Any = None
+        self.second_measurement: Any = None
 
     def reset(self) -> None:
         """Forget the cable in both views and the filter state."""
         super().reset()
         self.second_tracker.reset()
+        self.second_frame = self.second_measurement = None
 
     def _grab(self) -> Any:
         """Both cameras' frames; None unless both delivered one."""
@@ -347,5 +350,6 @@ class StereoTrackedState(TrackedState):
         first = super()._measure(frame, t_capture, held)
         anchor = None if self.second_project is None else self.second_project(held)
         second = self.second_tracker.process(self.second_frame.rgb, t_capture, anchor_uv=anchor)
+        self.second_measurement = second
         return stereo_measurement(first, self.tracker.camera, second, self.second_tracker.camera, held,
                                   self.cable_length_m, self.stereo_params)
