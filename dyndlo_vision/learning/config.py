@@ -61,7 +61,8 @@ class RunConfig:
         policy: stable-baselines3 policy name.
         hyperparams: Keyword arguments of the algorithm (from the YAML file, then ``--hp`` overrides).
         env_options: Task options passed to ``gym.make`` (e.g. ``{"target": "down"}``).
-        obs_noise: Path of an observation-noise model file (``dyndlo_vision.tasks.noise``), or None.
+        obs_noise: Path of an observation-noise model file (``dyndlo_vision.tasks.noise``), ``"packaged"`` for
+            the shipped one, or None.
         randomize_cable: Draw a new cable (length, mass, E, damping) every 10 training episodes
             (``dyndlo_vision.tasks.wrappers.CableRandomization``; evaluation keeps the nominal cable).
         eval_freq: Evaluate every this many environment steps.

@@ -686,7 +686,8 @@ class DistillConfig:
         first_round_episodes: Episodes of every expert round.
         expert_rounds: Rounds in which the expert acts, each on new seeds: more behaviour-cloning data, added
             to a finished run by resuming it with more ``rounds`` and ``expert_rounds``.
-        noise_model: Observation-noise model file the student sees P_DLO through (None: true state).
+        noise_model: Observation-noise model file the student sees P_DLO through, ``"packaged"`` for the
+            shipped one (None: true state).
         seed: Episode seeds of round ``r`` are ``seed * 1_000_000 + r * 10_000 + i`` (evaluation seeds
             100000-100099 are never used with ``seed >= 1``).
         workers: Processes collecting episodes.
@@ -814,6 +815,7 @@ def distill(
 
     from dyndlo_vision import policies
     from dyndlo_vision._atomic import write_atomic
+    from dyndlo_vision.tasks.noise import portable_noise_model
 
     out = Path(out)
     config_file, history_file = out / "config.json", out / "history.json"
@@ -822,6 +824,8 @@ def distill(
         if not config_file.is_file():
             raise FileNotFoundError(f"nothing to resume: {config_file} does not exist")
         stored = {**_LATER_OPTIONS, **json.loads(config_file.read_text())}
+        # A run stored before "packaged" was kept as the word holds the shipped model's path in its install.
+        stored["noise_model"] = portable_noise_model(stored.get("noise_model"))
         wanted = json.loads(json.dumps(config.to_json()))
         if {k: v for k, v in stored.items() if k not in _GROWABLE_OPTIONS} != {
             k: v for k, v in wanted.items() if k not in _GROWABLE_OPTIONS

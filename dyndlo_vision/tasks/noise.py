@@ -45,6 +45,7 @@ NOISE_MODEL_FORMAT = "dyndlo_vision.observation_noise"
 NOISE_MODEL_VERSION = 1
 #: The model fitted by ``benchmarks/tracking_accuracy.py`` on rendered tip-control episodes (package data).
 PACKAGED_MODEL_NAME = "noise_model_tracking.json"
+PACKAGE = "dyndlo_vision"
 #: Latencies above this are not a tracking pipeline that can run at 25 Hz.
 MAX_LATENCY_S = 1.0
 
@@ -70,7 +71,11 @@ def packaged_noise_model_path() -> Path:
 
 
 def resolve_noise_model_path(value: str | None, option: str = "--obs-noise") -> str | None:
-    """Absolute path of a noise-model file given on the command line; ``"packaged"`` names the shipped one.
+    """Absolute path of a noise-model file given on the command line, or ``"packaged"`` for the shipped one.
+
+    ``"packaged"`` stays that word, not the file's path in this install: a run's stored configuration then
+    names the shipped model of whichever install resumes it (a path into one copy of the package made the run
+    unresumable from another). :func:`~dyndlo_vision.tasks.registry.make_env` reads the word.
 
     Raises:
         FileNotFoundError: If ``value`` names no file.
@@ -78,10 +83,21 @@ def resolve_noise_model_path(value: str | None, option: str = "--obs-noise") -> 
     if value is None:
         return None
     if value == "packaged":
-        return str(packaged_noise_model_path())
+        return "packaged"
     if not Path(value).is_file():
         raise FileNotFoundError(f"{option} {value}: no such file (expected a noise-model JSON or 'packaged')")
     return str(Path(value).resolve())
+
+
+def portable_noise_model(value: str | None) -> str | None:
+    """``"packaged"`` for a path to the shipped model in any install (``.../dyndlo_vision/data/`` plus its
+    name), as runs stored before the word was kept; any other value as it is."""
+    if value is None or value == "packaged":
+        return value
+    path = Path(value)
+    if path.name == PACKAGED_MODEL_NAME and path.parent.name == "data" and path.parent.parent.name == PACKAGE:
+        return "packaged"
+    return value
 
 
 def _vector3(value: Any, name: str, nonnegative: bool = False) -> tuple[float, float, float]:

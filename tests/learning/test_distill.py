@@ -307,7 +307,8 @@ def test_distill_rounds_resume_and_load(tmp_path) -> None:
 @pytest.mark.slow
 def test_distill_on_random_cables_with_the_privileged_teacher(tmp_path) -> None:
     """--cable-ranges draws every episode's cable (the hanging tip shows its length in the observation),
-    --teacher-search is recorded, and a run stored before these options existed still resumes."""
+    --teacher-search is recorded, and a run stored before these options existed still resumes, also from
+    another install when it stored the shipped noise model's path in its own (before "packaged" was kept)."""
     out = tmp_path / "run"
     config = DistillConfig(
         rounds=1, first_round_episodes=2, workers=1, epochs=2, seed=7, cable_ranges="beyond",
@@ -321,9 +322,12 @@ def test_distill_on_random_cables_with_the_privileged_teacher(tmp_path) -> None:
     assert meta["cable_ranges"] == "beyond" and meta["teacher_search"] is True
 
     old = tmp_path / "old"
-    plain = DistillConfig(rounds=1, episodes=1, first_round_episodes=1, workers=1, epochs=1, seed=7)
+    plain = DistillConfig(rounds=1, episodes=1, first_round_episodes=1, workers=1, epochs=1, seed=7,
+                          noise_model="packaged")
     distill(plain, old, log=lambda *_: None)
     stored = json.loads((old / "config.json").read_text())
+    assert stored["noise_model"] == "packaged"
+    stored["noise_model"] = "/tmp/another-copy/dyndlo_vision/data/noise_model_tracking.json"
     for key in ("cable_ranges", "teacher_search", "student_noise", "expert_rounds"):
         del stored[key]
     (old / "config.json").write_text(json.dumps(stored))

@@ -381,10 +381,10 @@ def test_latency_in_the_real_environment_is_whole_control_steps() -> None:
 
 
 def test_noise_model_paths_from_the_command_line(tmp_path) -> None:
-    from dyndlo_vision.tasks.noise import packaged_noise_model_path, resolve_noise_model_path
+    from dyndlo_vision.tasks.noise import resolve_noise_model_path
 
     assert resolve_noise_model_path(None) is None
-    assert resolve_noise_model_path("packaged") == str(packaged_noise_model_path())
+    assert resolve_noise_model_path("packaged") == "packaged"  # the word: any install's shipped model
     ObservationNoiseModel().save(tmp_path / "m.json")
     assert resolve_noise_model_path(str(tmp_path / "m.json")) == str((tmp_path / "m.json").resolve())
     with pytest.raises(FileNotFoundError, match="missing.json: no such file"):
@@ -408,3 +408,13 @@ def test_noise_process_delays_multi_step_observations_and_not_single_step_ones()
         now, _ = single.corrupt(p)
         np.testing.assert_allclose(now, p)
         assert measured
+
+
+def test_a_path_to_the_shipped_model_in_any_install_is_the_packaged_model(tmp_path) -> None:
+    from dyndlo_vision.tasks.noise import packaged_noise_model_path, portable_noise_model
+
+    assert portable_noise_model(str(packaged_noise_model_path())) == "packaged"
+    assert portable_noise_model("/tmp/tt17/dyndlo_vision/data/noise_model_tracking.json") == "packaged"
+    assert portable_noise_model("packaged") == "packaged" and portable_noise_model(None) is None
+    mine = str(tmp_path / "data" / "noise_model_tracking.json")  # the same name, not in a package
+    assert portable_noise_model(mine) == mine
