@@ -192,28 +192,33 @@ def match_centerlines(
     sense_a = np.sign(_wrapped(np.gradient(np.unwrap(pencil_a))))
     sense_b = np.sign(_wrapped(np.diff(pencil_b)))
     min_sin = np.sin(np.radians(params.min_crossing_deg))
+    # Every (sample, segment) crossing at once, then the usable ones triangulated in one call.
+    f0, f1 = side[:, :-1], side[:, 1:]
+    with np.errstate(invalid="ignore"):
+        crosses = (f0 == 0) | (f0 * f1 < 0)
+    rows, segs = np.nonzero(crosses)
+    # How steeply each crossed segment cuts the line: |sin| of the angle between them.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        steep = np.abs(f1[rows, segs] - f0[rows, segs]) / seg_len[segs]
+        usable = (steep >= min_sin) & (sense_b[segs] == sense_a[rows]) & seen_b[segs]
+    rows, segs = rows[usable], segs[usable]
+    w = f0[rows, segs] / (f0[rows, segs] - f1[rows, segs])
+    uv_b = pb[segs] + w[:, None] * (pb[segs + 1] - pb[segs])
+    points, gaps = triangulate(cam_a, samples[rows], cam_b, uv_b)
+    good = np.isfinite(gaps) & (gaps <= params.max_ray_gap_m)
+    rows, points = rows[good], points[good]
+    starts = np.searchsorted(rows, np.arange(len(samples) + 1))  # rows are sorted: candidates per sample
     out: list[NDArray[np.float64]] = []
     previous = np.asarray(held_xyz, dtype=np.float64).reshape(3)
     for i in range(len(samples)):
-        f = side[i]
-        crossing = np.flatnonzero((f[:-1] == 0) | (f[:-1] * f[1:] < 0))
-        if crossing.size == 0:
+        candidates = points[starts[i] : starts[i + 1]]
+        if len(candidates) == 0:
             continue
-        # How steeply each crossed segment cuts the line: |sin| of the angle between them.
-        with np.errstate(divide="ignore", invalid="ignore"):
-            steep = np.abs(f[crossing + 1] - f[crossing]) / seg_len[crossing]
-        crossing = crossing[(steep >= min_sin) & (sense_b[crossing] == sense_a[i]) & seen_b[crossing]]
-        if crossing.size == 0:
+        step = np.linalg.norm(candidates - previous, axis=1)
+        best = int(np.argmin(step))
+        if step[best] > params.max_step_m:
             continue
-        w = f[crossing] / (f[crossing] - f[crossing + 1])
-        uv_b = pb[crossing] + w[:, None] * (pb[crossing + 1] - pb[crossing])
-        points, gaps = triangulate(cam_a, np.repeat(samples[i : i + 1], len(crossing), axis=0), cam_b, uv_b)
-        step = np.linalg.norm(points - previous, axis=1)
-        ok = np.isfinite(step) & (gaps <= params.max_ray_gap_m) & (step <= params.max_step_m)
-        if not np.any(ok):
-            continue
-        best = int(np.flatnonzero(ok)[np.argmin(step[ok])])
-        previous = points[best]
+        previous = candidates[best]
         out.append(previous)
     return _moving_average(np.asarray(out, dtype=np.float64).reshape(-1, 3), params.smooth)
 
