@@ -220,6 +220,9 @@ def run_loop_episode(
     finally:
         if camera is not None:
             camera.close()
+        close_source = getattr(source, "close", None)  # a two-camera source's second camera
+        if close_source is not None:
+            close_source()
     errors = report.estimate_errors()
     controller = report.controller_ms()
     # Tip control reports the closest approach on the swept path; other tasks the monitor's 2 ms samples.

@@ -154,7 +154,8 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
     # The known cable: a polyline shorter than it ends where the cable disappears (behind the target sphere,
     # say), so its end is not the tip; the tip is placed by continuing it (tracker.tip_from_polyline).
     # P_DLO's node: the free tip (-1, continued past where the tracked cable disappears), or an inner node
-    # (vaulting's middle), the same fraction along the observed centreline as along the cable.
+    # (vaulting's middle): with one view the same fraction along the observed centreline as along the cable,
+    # with two the point that far along the triangulated cable from the gripper.
     node = base.task.p_dlo_node(base.scene)
     point_index = -1 if node == base.scene.config.cable.num_nodes - 1 else node
     missing = 3 + not_yet_arrived

@@ -9,7 +9,7 @@ from __future__ import annotations
 import logging
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -311,13 +311,18 @@ class StereoTrackedState(TrackedState):
         project, second_project: ``world (3,) -> pixel (2,)`` per camera (the gripper's anchor pixel; see
             :class:`TrackedState`).
         stereo_params: Tuning of the matching.
+        max_sync_s: Largest difference between the two frames' capture times for them to be matched; a pair
+            further apart is not measured (the filter predicts): the cable moves centimetres in 10 ms.
         Others: as :class:`TrackedState`.
     """
 
     def __init__(self, camera: Camera, second_camera: Camera, tracker: Any, second_tracker: Any,
                  point_filter: Any, point_index: int = -1, project: Any = None, second_project: Any = None,
                  max_missing_frames: int = 3, clock_sync: ClockSync | str | None = "auto",
-                 cable_length_m: float | None = None, stereo_params: Any = None) -> None:
+                 cable_length_m: float | None = None, stereo_params: Any = None,
+                 max_sync_s: float = 0.002) -> None:
+        if not max_sync_s >= 0:
+            raise ValueError(f"max_sync_s must be >= 0, got {max_sync_s!r}")
         super().__init__(camera, tracker, point_filter, point_index=point_index, project=project,
                          max_missing_frames=max_missing_frames, clock_sync=clock_sync,
                          cable_length_m=cable_length_m)
@@ -328,6 +333,9 @@ class StereoTrackedState(TrackedState):
         self.second_tracker = second_tracker
         self.second_project = second_project
         self.stereo_params = stereo_params
+        self.max_sync_s = float(max_sync_s)
+        #: Frame pairs left unmatched because their capture times were too far apart (diagnostics).
+        self.unsynchronised_pairs = 0
         #: The second camera's latest frame and its tracker's 2D measurement (for drawing).
         self.second_frame: Any = None
         self.second_measurement: Any = None
@@ -337,6 +345,12 @@ class StereoTrackedState(TrackedState):
         super().reset()
         self.second_tracker.reset()
         self.second_frame = self.second_measurement = None
+
+    def close(self) -> None:
+        """Close the second camera (the first is the caller's, as with :class:`TrackedState`)."""
+        close = getattr(self.second_camera, "close", None)
+        if close is not None:
+            close()
 
     def _grab(self) -> Any:
         """Both cameras' frames; None unless both delivered one."""
@@ -348,6 +362,13 @@ class StereoTrackedState(TrackedState):
         from dyndlo_vision.tracking.stereo import stereo_measurement
 
         first = super()._measure(frame, t_capture, held)
+        gap = abs(float(self.second_frame.t_capture) - float(frame.t_capture))
+        if gap > self.max_sync_s:
+            self.unsynchronised_pairs += 1
+            log.warning("the two cameras' frames are %.1f ms apart (at most %.1f ms): not matched",
+                        1e3 * gap, 1e3 * self.max_sync_s)
+            n = len(first.visible)
+            return replace(first, nodes_xyz=np.full((n, 3), np.nan), visible=np.zeros(n, dtype=bool))
         anchor = None if self.second_project is None else self.second_project(held)
         second = self.second_tracker.process(self.second_frame.rgb, t_capture, anchor_uv=anchor)
         self.second_measurement = second

@@ -67,7 +67,7 @@ def test_without_the_second_frame_there_is_no_measurement() -> None:
         vault.close()
 
 
-def test_the_vault_loop_estimates_the_lifted_middle_within_millimetres() -> None:
+def test_the_vault_loop_estimates_the_lifted_middle_within_mm(monkeypatch: pytest.MonkeyPatch) -> None:
     """One camera lifting onto the motion plane was 46 mm off on this episode (RESULTS, session 17): the
     middle swings 0.1 m off the plane as it is thrown. Two views triangulate it."""
     env = make_env("vaulting", multi_step=True)
@@ -75,9 +75,49 @@ def test_the_vault_loop_estimates_the_lifted_middle_within_millimetres() -> None
         policy = policies.load("vaulting-multi-step", env)
         policy.reset()
         act: Any = lambda obs: policy.predict(obs, deterministic=True)[0]  # noqa: E731
+        closed: list[Any] = []
+        close = StereoTrackedState.close
+        monkeypatch.setattr(StereoTrackedState, "close", lambda self: closed.append(close(self)))
         record = run_loop_episode(env, act, 100003, "tracked")
+        assert len(closed) == 1  # the second camera's renderer is released with the episode
         assert record["estimate_rmse_m"] < 0.01, record["estimate_rmse_m"]
         swing = np.ptp([p[1] for p in record["trace"]["truth"]])
         assert swing > 0.1  # the middle did leave the plane
     finally:
         env.close()
+
+
+class _Late:
+    """The second camera, its frames stamped ``lag_s`` after the first camera's."""
+
+    clock = "simulated"
+
+    def __init__(self, camera: Any, lag_s: float) -> None:
+        self.camera, self.lag_s = camera, lag_s
+
+    def read(self) -> Any:
+        from dataclasses import replace
+
+        frame = self.camera.read()
+        return replace(frame, t_capture=frame.t_capture + self.lag_s)
+
+
+def test_frames_taken_too_far_apart_are_not_matched() -> None:
+    vault = make_env("vaulting", multi_step=True)
+    try:
+        vault.reset(seed=0)
+        source, camera = tracked_state(vault)
+        assert isinstance(source, StereoTrackedState)
+        tcp = TcpState(np.array([[0.4, 0.0, 0.2]]), np.zeros((1, 3)), 0.0)
+        second = source.second_camera
+        source.second_camera = _Late(second, 0.001)  # within max_sync_s: matched
+        assert source.read(0.0, tcp).measured
+        source.reset()
+        source.second_camera = _Late(second, 0.02)
+        assert not source.read(0.0, tcp).measured and source.unsynchronised_pairs == 1
+        with pytest.raises(ValueError, match="max_sync_s"):
+            StereoTrackedState(camera, camera, source.tracker, source.second_tracker, source.filter,
+                               max_sync_s=-1.0)
+        camera.close()
+    finally:
+        vault.close()
