@@ -92,6 +92,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "the student's executed actions, so that the expert labels states off its path (default 0)",
     )
     p.add_argument(
+        "--dagger-beta",
+        type=float,
+        default=0.0,
+        metavar="BETA",
+        help="in DAgger rounds, execute the expert's action instead of the student's at each decision with "
+        "this probability, so the roll-in stays near the expert's plan (default 0: the student acts)",
+    )
+    p.add_argument(
         "--expert-noise",
         type=float,
         default=0.0,
@@ -149,6 +157,7 @@ def run(args: argparse.Namespace) -> int:
         cable_ranges=args.cable_ranges,
         teacher_search=args.teacher_search,
         student_noise=args.student_noise,
+        dagger_beta=args.dagger_beta,
         expert_noise=args.expert_noise,
         p_dlo_history=args.p_dlo_history,
         expert_smoothing=args.expert_smoothing,

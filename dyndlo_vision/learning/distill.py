@@ -64,6 +64,7 @@ _LATER_OPTIONS = {
     "expert_noise": 0.0,
     "p_dlo_history": 0,
     "expert_smoothing": 0.0,
+    "dagger_beta": 0.0,
 }
 #: Options a resumed run may change: how many rounds of each kind run from here on, and how many processes
 #: collect (every episode is seeded on its own, so the data do not depend on it).
@@ -708,6 +709,10 @@ class DistillConfig:
             (:class:`~dyndlo_vision.tasks.wrappers.PDloHistory`), from which it can tell the cable. The round
             files keep the table-II observations; the history is added when the student is fitted.
         expert_smoothing: :class:`PlanFollowingExpert`'s ``smoothing`` (0: off).
+        dagger_beta: In DAgger rounds, the probability that the expert's action, not the student's, is
+            executed at a decision (DAgger's beta; 0: the student acts throughout). The expert's
+            plan-following labels are only good near its plan; with some of its own actions executed, the
+            roll-in stays nearer to it.
     """
 
     teacher: str = "tip-control-single-step"
@@ -729,6 +734,7 @@ class DistillConfig:
     expert_noise: float = 0.0
     p_dlo_history: int = 0
     expert_smoothing: float = 0.0
+    dagger_beta: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("rounds", "episodes", "first_round_episodes", "workers", "epochs", "expert_rounds"):
@@ -755,6 +761,9 @@ class DistillConfig:
             number = isinstance(noise, int | float) and not isinstance(noise, bool)
             if not (number and 0.0 <= noise < float("inf")):
                 raise ValueError(f"{name} must be finite and >= 0, got {noise!r}")
+        beta = self.dagger_beta
+        if isinstance(beta, bool) or not isinstance(beta, int | float) or not 0.0 <= beta < 1.0:
+            raise ValueError(f"dagger_beta must be in [0, 1) (1: the student would never act), got {beta!r}")
         history = self.p_dlo_history
         if isinstance(history, bool) or not isinstance(history, int) or history < 0:
             raise ValueError(f"p_dlo_history must be an integer >= 0 (0: no history), got {history!r}")
@@ -887,7 +896,7 @@ def distill(
                         seeds,
                         config.teacher,
                         None if expert else str(model_file),
-                        1.0 if expert else 0.0,
+                        1.0 if expert else config.dagger_beta,
                         config.noise_model,
                         config.task_options,
                         config.workers,
@@ -991,6 +1000,7 @@ def _write_metadata(out: Path, config: DistillConfig, history: list[dict[str, An
         "teacher_search": config.teacher_search,
         "cable_ranges": config.cable_ranges,
         "student_noise": config.student_noise,
+        "dagger_beta": config.dagger_beta,
         "expert_rounds": config.expert_rounds,
         "expert_noise": config.expert_noise,
         "p_dlo_history": config.p_dlo_history,

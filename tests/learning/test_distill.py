@@ -200,6 +200,28 @@ def test_config_rejects_bad_values() -> None:
         DistillConfig(cable_ranges="wide")
     with pytest.raises(ValueError, match="student_noise"):
         DistillConfig(student_noise=-0.1)
+    for beta in (-0.1, 1.0, True):
+        with pytest.raises(ValueError, match="dagger_beta"):
+            DistillConfig(dagger_beta=beta)
+
+
+def test_dagger_rounds_execute_the_experts_action_with_probability_beta(tmp_path, monkeypatch) -> None:
+    """--dagger-beta reaches the DAgger round's episodes (the expert round always executes the expert's)."""
+    import dyndlo_vision.learning.distill as distill_module
+
+    betas: list[float] = []
+    real_collect = distill_module.collect
+
+    def recording(seeds: Any, teacher: Any, student: Any, beta: float, *args: Any, **kwargs: Any) -> Any:
+        betas.append(beta)
+        return real_collect(seeds, teacher, student, beta, *args, **kwargs)
+
+    monkeypatch.setattr(distill_module, "collect", recording)
+    config = DistillConfig(rounds=2, episodes=1, first_round_episodes=1, workers=1, epochs=1, seed=7,
+                           dagger_beta=0.5)
+    distill(config, tmp_path / "run", log=lambda *_: None)
+    assert betas == [1.0, 0.5]
+    assert json.loads((tmp_path / "run" / "model.json").read_text())["dagger_beta"] == 0.5
 
 
 def _beyond_episode(seed: int) -> tuple[Any, Any, np.ndarray]:
