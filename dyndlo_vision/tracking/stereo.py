@@ -50,7 +50,8 @@ class StereoParams:
             be used; below it a pixel of error moves the match far along the cable. (In the vault loop, 0, 12
             and 20 degrees gave 4.6, 4.6 and 4.9 mm: docs/RESULTS.md, session 18.)
         max_step_m: Largest 3D distance from the previous matched point (or the held end) for a crossing to be
-            taken as the same cable (a wrong crossing lands on another part of it, or off it).
+            taken as the same cable (a wrong crossing lands on another part of it, or off it), per sample
+            since that match: after unmatched samples the cable may have gone on that much farther.
         max_ray_gap_m: Largest distance between the two rays at a match (the views' calibration error).
         smooth: Width (in matched points) of the moving average taken along the matched points (1: none).
             Depth from two views is noisier than the image position, and a zig-zag lengthens the polyline:
@@ -211,15 +212,18 @@ def match_centerlines(
     starts = np.searchsorted(rows, np.arange(len(samples) + 1))  # rows are sorted: candidates per sample
     out: list[NDArray[np.float64]] = []
     previous = np.asarray(held_xyz, dtype=np.float64).reshape(3)
+    last = -1  # the sample of the previous match (-1: the held end)
     for i in range(len(samples)):
         candidates = points[starts[i] : starts[i + 1]]
         if len(candidates) == 0:
             continue
         step = np.linalg.norm(candidates - previous, axis=1)
         best = int(np.argmin(step))
-        if step[best] > params.max_step_m:
+        # After samples that could not be matched (a stretch in an epipolar plane, a gap), the cable may be
+        # that much farther on: the bound grows with the samples skipped.
+        if step[best] > params.max_step_m * (i - last):
             continue
-        previous = candidates[best]
+        previous, last = candidates[best], i
         out.append(previous)
     return _moving_average(np.asarray(out, dtype=np.float64).reshape(-1, 3), params.smooth)
 

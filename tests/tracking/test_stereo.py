@@ -196,3 +196,23 @@ def test_a_world_point_has_the_same_epipolar_plane_angle_in_both_views() -> None
     curve = arch()
     np.testing.assert_allclose(_pencil_angle(FRONT, ABOVE, FRONT.project(curve)),
                                _pencil_angle(FRONT, ABOVE, ABOVE.project(curve), second=True), atol=1e-9)
+
+
+def test_matching_resumes_past_a_stretch_the_second_view_does_not_see() -> None:
+    """A third of the cable is a bridged gap in the second view (an occluder): nothing is matched there, and
+    past it the cable goes on farther than one step from the last match; the bound grows with the samples
+    skipped, so the rest is matched (with a fixed bound nothing after the gap was)."""
+    curve = arch()
+    seen = curve[8:]
+    ub = ABOVE.project(seen)
+    hidden = np.zeros(len(seen) - 1, dtype=bool)
+    hidden[len(seen) // 3 : 2 * len(seen) // 3] = True
+    params = StereoParams(max_step_m=0.05)
+    points = match_centerlines(FRONT, FRONT.project(seen), ABOVE, ub, curve[0], params,
+                               path_b_visible=~hidden)
+    nodes, visible = nodes_by_arc_length(np.vstack([curve[0], points]), 41, length(curve))
+    truth, _ = nodes_by_arc_length(curve, 41, length(curve))
+    assert visible[:40].all()
+    errors = np.linalg.norm(nodes - truth, axis=1)
+    # Before the gap exact; past it about 1 cm, the gap having been bridged straight.
+    assert errors[:11].max() < 0.003 and errors[28:40].max() < 0.02, errors.round(4)
