@@ -32,6 +32,7 @@ def test_each_scene_says_how_many_loop_cameras_it_has_and_tracked_state_uses_the
             tracked_state(vault, views=3)
         source, camera = tracked_state(vault)
         assert isinstance(source, StereoTrackedState)
+        source.close()
         camera.close()
         source, camera = tracked_state(vault, views=1)
         assert type(source) is TrackedState
@@ -59,6 +60,7 @@ def test_without_the_second_frame_there_is_no_measurement() -> None:
         tcp = TcpState(np.array([[0.4, 0.0, 0.2]]), np.zeros((1, 3)), 0.0)
         assert source.read(0.0, tcp).measured  # both views: measured
         source.reset()
+        source.close()  # the second camera's renderer
         source.second_camera = _Blind()
         reading = source.read(0.0, tcp)
         assert not reading.measured
@@ -118,6 +120,7 @@ def test_frames_taken_too_far_apart_are_not_matched() -> None:
         with pytest.raises(ValueError, match="max_sync_s"):
             StereoTrackedState(camera, camera, source.tracker, source.second_tracker, source.filter,
                                max_sync_s=-1.0)
+        second.close()
         camera.close()
     finally:
         vault.close()
