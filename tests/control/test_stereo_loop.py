@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from typing import Any
 
 import gymnasium as gym
@@ -42,6 +43,26 @@ def test_each_scene_says_how_many_loop_cameras_it_has_and_tracked_state_uses_the
         vault.close()
 
 
+#: A TCP state at the vault's start (the loop reads one with every frame).
+START_TCP = TcpState(np.array([[0.4, 0.0, 0.2]]), np.zeros((1, 3)), 0.0)
+
+
+@pytest.fixture
+def vault_source() -> Iterator[StereoTrackedState]:
+    """The vault loop's two-camera source at the start of an episode; its cameras closed afterwards."""
+    vault = make_env("vaulting", multi_step=True)
+    vault.reset(seed=0)
+    source, camera = tracked_state(vault)
+    assert isinstance(source, StereoTrackedState)
+    second = source.second_camera
+    try:
+        yield source
+    finally:
+        second.close()
+        camera.close()
+        vault.close()
+
+
 class _Blind:
     """A camera that delivers nothing."""
 
@@ -51,22 +72,11 @@ class _Blind:
         return None
 
 
-def test_without_the_second_frame_there_is_no_measurement() -> None:
-    vault = make_env("vaulting", multi_step=True)
-    try:
-        vault.reset(seed=0)
-        source, camera = tracked_state(vault)
-        assert isinstance(source, StereoTrackedState)
-        tcp = TcpState(np.array([[0.4, 0.0, 0.2]]), np.zeros((1, 3)), 0.0)
-        assert source.read(0.0, tcp).measured  # both views: measured
-        source.reset()
-        source.close()  # the second camera's renderer
-        source.second_camera = _Blind()
-        reading = source.read(0.0, tcp)
-        assert not reading.measured
-        camera.close()
-    finally:
-        vault.close()
+def test_without_the_second_frame_there_is_no_measurement(vault_source: StereoTrackedState) -> None:
+    assert vault_source.read(0.0, START_TCP).measured  # both views: measured
+    vault_source.reset()
+    vault_source.second_camera = _Blind()
+    assert not vault_source.read(0.0, START_TCP).measured
 
 
 def test_the_vault_loop_estimates_the_lifted_middle_within_mm(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -104,23 +114,13 @@ class _Late:
         return replace(frame, t_capture=frame.t_capture + self.lag_s)
 
 
-def test_frames_taken_too_far_apart_are_not_matched() -> None:
-    vault = make_env("vaulting", multi_step=True)
-    try:
-        vault.reset(seed=0)
-        source, camera = tracked_state(vault)
-        assert isinstance(source, StereoTrackedState)
-        tcp = TcpState(np.array([[0.4, 0.0, 0.2]]), np.zeros((1, 3)), 0.0)
-        second = source.second_camera
-        source.second_camera = _Late(second, 0.001)  # within max_sync_s: matched
-        assert source.read(0.0, tcp).measured
-        source.reset()
-        source.second_camera = _Late(second, 0.02)
-        assert not source.read(0.0, tcp).measured and source.unsynchronised_pairs == 1
-        with pytest.raises(ValueError, match="max_sync_s"):
-            StereoTrackedState(camera, camera, source.tracker, source.second_tracker, source.filter,
-                               max_sync_s=-1.0)
-        second.close()
-        camera.close()
-    finally:
-        vault.close()
+def test_frames_taken_too_far_apart_are_not_matched(vault_source: StereoTrackedState) -> None:
+    second = vault_source.second_camera
+    vault_source.second_camera = _Late(second, 0.001)  # within max_sync_s: matched
+    assert vault_source.read(0.0, START_TCP).measured
+    vault_source.reset()
+    vault_source.second_camera = _Late(second, 0.02)
+    assert not vault_source.read(0.0, START_TCP).measured and vault_source.unsynchronised_pairs == 1
+    with pytest.raises(ValueError, match="max_sync_s"):
+        StereoTrackedState(second, second, vault_source.tracker, vault_source.second_tracker,
+                           vault_source.filter, max_sync_s=-1.0)
