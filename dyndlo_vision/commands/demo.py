@@ -232,8 +232,9 @@ def run(args: argparse.Namespace) -> int:
     if args.observation == "tracked":
         from dyndlo_vision.control.sim_perception import scene_views
 
-        views = scene_views(env) if args.views is None else args.views
-        if views > scene_views(env):
+        available = scene_views(env)
+        views = available if args.views is None else args.views
+        if views > available:
             raise ValueError(f"--views {views}: the {task} scene has one tracking camera; expected --views 1")
     if push is not None:
         if env.unwrapped.task.cable.model != "chain":
