@@ -134,8 +134,13 @@ class RunConfig:
         """Read ``config.json`` of a run folder, with a clear error for a missing or malformed file."""
         if not path.is_file():
             raise FileNotFoundError(f"{path} not found: not a run folder made by `dyndlo-vision train`")
+        from dyndlo_vision.tasks.noise import portable_noise_model
+
         try:
             data = json.loads(path.read_text())
+            if isinstance(data, dict) and isinstance(data.get("obs_noise"), str):
+                # Stored before "packaged" was kept as the word: the shipped model's path in that install.
+                data["obs_noise"] = portable_noise_model(data["obs_noise"])
             return cls(**data)
         except (json.JSONDecodeError, TypeError) as err:
             raise ValueError(f"{path} is not a valid run configuration: {err}") from err

@@ -267,6 +267,17 @@ def test_training_with_the_fitted_observation_noise_and_cable_randomization(tmp_
     assert exc.value.code == 2 and not (tmp_path / "y").exists()
 
 
+def test_a_run_stored_with_the_shipped_noise_models_path_in_another_install_resumes_on_this_one(
+    tmp_path: Path,
+) -> None:
+    config = _config("sac", 32, obs_noise="/tmp/another-copy/dyndlo_vision/data/noise_model_tracking.json")
+    (tmp_path / "config.json").write_text(config.to_json())
+    assert RunConfig.from_json(tmp_path / "config.json").obs_noise == "packaged"
+    mine = str(tmp_path / "my_noise.json")
+    (tmp_path / "config.json").write_text(_config("sac", 32, obs_noise=mine).to_json())
+    assert RunConfig.from_json(tmp_path / "config.json").obs_noise == mine
+
+
 def test_demonstrations_seed_the_replay_buffer_with_baseline_episodes(tmp_path: Path) -> None:
     from stable_baselines3 import SAC
 
