@@ -11,6 +11,11 @@ Three parts, all on data the learned segmenter was not trained on:
 * ``loopcam``: the control loop's own camera view (tip control, 640x480, a 1.6 px red cable): mask DICE
   and time of the learned segmenter at network short sides 240, 360 and 480, and of the classical one.
 * ``speed``: one-core timings (see ``part_speed``).
+* ``loopspeed``: the loop's configuration (issue 14's 5 ms rule): tip control's camera, frames from episodes
+  of the shipped multi-step policy, and the loop's own tracker (``control.sim_perception.tracked_state``:
+  gripper masked, centreline from the gripper, lifted to the motion plane). Median ms per frame of the
+  segmenter alone and of ``CableTracker.process`` (segment + centreline + lift), learned (the loop's
+  ``cable-segmenter-fine``) and classical (the rendered background image), interleaved frame by frame.
 * ``whip``: rendered whip videos (640x480, 25 fps) of a dark cable 2-3 px wide held by a dark spherical
   gripper, in styles the generator never produced: ``plain`` (a plain light wall), ``textured-blur`` (a
   wood-grain wall, orange cable, motion blur: the mean of 8 renders over the 40 ms frame), ``occluded`` (a
@@ -394,6 +399,52 @@ def part_loopcam(model: str | None, episodes: int = 3) -> dict:
     return out
 
 
+def part_loopspeed(episodes: int = 3, repeats: int = 5) -> dict:
+    """Median ms per 640x480 loop frame: segmenter alone and tracker (segment + centreline + lift), per loop
+    segmenter; the two trackers are timed on the same frames, interleaved, so both see the same load."""
+    from dyndlo_vision.control.sim_perception import tracked_state
+    from dyndlo_vision.policies import load
+    from dyndlo_vision.tasks.registry import make_env
+
+    env = make_env("tip-control", multi_step=True)
+    policy = load("tip-control-multi-step")
+    frames: list = []
+    sources = {}
+    for ep in range(episodes):
+        obs, _ = env.reset(seed=100_000 + ep)
+        getattr(policy, "reset", lambda: None)()
+        for name in ("learned", "background"):
+            if ep:  # a new background image for the new episode's cable
+                sources[name][1].close()
+            sources[name] = tracked_state(env, segmenter=name)
+        cam = sources["background"][1]
+        done = False
+        while not done:
+            frames.append((cam.read().rgb, np.asarray(env.unwrapped.scene.tcp_positions())[0].copy()))
+            obs, _, term, trunc, _ = env.step(policy.predict(obs)[0])
+            done = term or trunc
+    out: dict = {"frames": len(frames)}
+    times: dict = {f"{n}_{part}": [] for n in sources for part in ("segmenter", "tracker")}
+    for _ in range(repeats):
+        for k, (rgb, tcp) in enumerate(frames):
+            for name, (src, _) in sources.items():
+                src.project(tcp)  # moves the gripper mask to the TCP, as the loop does
+                seg = src.tracker.segmenter
+                t = time.perf_counter()
+                seg(rgb)
+                times[f"{name}_segmenter"].append(time.perf_counter() - t)
+                t = time.perf_counter()
+                src.tracker.process(rgb, 0.04 * k, anchor_uv=src.project(tcp))
+                times[f"{name}_tracker"].append(time.perf_counter() - t)
+    for key, ts in times.items():
+        out[f"{key}_ms_median"] = float(np.median(ts) * 1e3)
+        out[f"{key}_ms_p95"] = float(np.percentile(ts, 95) * 1e3)
+    for _, cam in sources.values():
+        cam.close()
+    env.close()
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--model", help="ONNX file (default: the shipped segmenter)")
@@ -438,6 +489,9 @@ def main() -> int:
     if "loopcam" in parts:
         report["loopcam"] = part_loopcam(args.model)
         print(json.dumps(report["loopcam"], indent=1))
+    if "loopspeed" in parts:
+        report["loopspeed"] = part_loopspeed()
+        print(json.dumps(report["loopspeed"], indent=1))
     if "speed" in parts:
         report["speed"] = part_speed(seg, args.checkpoint, args.whip_seed)
         print(json.dumps(report["speed"], indent=1))
