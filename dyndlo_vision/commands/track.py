@@ -23,6 +23,16 @@ mode, the tip) a polyline shorter than the cable ends where the cable disappears
 continuing it straight by the missing length (``u,v`` is that point's pixel), and with under half the cable in
 view it is not measured (:func:`~dyndlo_vision.tracking.tracker.tip_from_polyline`).
 
+**Two cameras** (``--second-video`` with ``--second-calib``): a cable that leaves any one plane (thrown,
+vaulted, whipped out of plane) cannot be placed by one camera. With a second camera's video of the same
+motion, recorded in sync (frame k of both videos at the same time), the cable is tracked in both and its
+centreline is triangulated (:func:`~dyndlo_vision.tracking.stereo.stereo_measurement`): no ``--plane`` is
+needed. The held end is the logged gripper (``--tcp-log``) or else triangulated from where the two centrelines
+start. Without ``--cable-length`` a point past the held end is measured only when the triangulated cable
+reaches the far end of the cable in both images (one view may hide the tip); with it, the tip is placed from
+the triangulated polyline as in one view. ``u,v`` stay in the first video's pixels; the annotated video
+insets the second.
+
 Outputs are written to temporary files beside their destinations and renamed at the end, so after any error
 neither the CSV nor the video exists.
 """
@@ -39,7 +49,7 @@ import warnings
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -56,6 +66,7 @@ from dyndlo_vision.tracking.params import FilterParams
 if TYPE_CHECKING:
     from dyndlo_vision.cameras.protocol import Frame
     from dyndlo_vision.tracking.camera_model import PinholeCamera
+    from dyndlo_vision.tracking.tracker import Measurement
 
 T = TypeVar("T")
 
@@ -93,6 +104,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="NX,NY,NZ,D",
         help="world plane n.x + d = 0 the cable moves in, e.g. 0,1,0,0 for y = 0; needs --calib",
     )
+    p.add_argument(
+        "--second-video",
+        metavar="VIDEO2",
+        help="a second camera's video (or image folder) of the same motion, recorded in sync: frame k of "
+        "both at the same time, at the same frame rate. The cable is tracked in both and triangulated, so it "
+        "may move in 3D; needs --calib and --second-calib, and replaces --plane",
+    )
+    p.add_argument("--second-calib", metavar="CALIB2.json", help="the second camera's calibration, in the "
+                   "same world frame as --calib (e.g. both from `dyndlo-vision calibrate` on one board)")
+    p.add_argument("--second-anchor", metavar="U,V", help="--anchor for the second video")
     p.add_argument(
         "--segmenter",
         choices=("background", "learned"),
@@ -315,6 +336,9 @@ class _Settings:
     video: Path
     out: Path
     annotated: Path | None
+    second_video: Path | None
+    second_calib: Path | None
+    second_anchor: NDArray[np.float64] | None
     fraction: float
     plane: tuple[NDArray[np.float64], float] | None
     hsv: tuple[NDArray[np.int64], NDArray[np.int64]] | None
@@ -341,11 +365,31 @@ def _positive(value: float | None, option: str) -> float | None:
 
 def _settings(args: argparse.Namespace) -> _Settings:
     """Validates every argument that needs no file (raises ValueError naming the bad one)."""
-    if (args.calib is None) != (args.plane is None):
-        raise ValueError(
-            "--calib and --plane go together: world positions come from intersecting the camera rays with "
-            "the motion plane (a video has no depth); give both, or neither to track in pixels"
-        )
+    second_video = None if args.second_video is None else Path(args.second_video)
+    if second_video is None:
+        for option, value in (("--second-calib", args.second_calib), ("--second-anchor", args.second_anchor)):
+            if value is not None:
+                raise ValueError(f"{option} is for the second camera; it needs --second-video")
+        if (args.calib is None) != (args.plane is None):
+            raise ValueError(
+                "--calib and --plane go together: world positions come from intersecting the camera rays "
+                "with the motion plane (a video has no depth); give both, or neither to track in pixels (or "
+                "a second camera, --second-video, to triangulate)"
+            )
+    else:
+        if args.calib is None or args.second_calib is None:
+            raise ValueError(
+                "--second-video needs --calib and --second-calib: the cable is triangulated from the two "
+                "calibrated cameras"
+            )
+        if args.plane is not None:
+            raise ValueError(
+                "--plane is for one camera; with --second-video the cable is triangulated from the two views "
+                "and may leave any plane: drop --plane"
+            )
+        if second_video.exists() and second_video.resolve() == Path(args.video).resolve():
+            raise ValueError(f"--second-video {second_video} is the first video; the two views must differ")
+    world = args.calib is not None
     plane = None
     if args.plane is not None:
         values = parse_floats(args.plane, 4, "--plane")
@@ -383,17 +427,24 @@ def _settings(args: argparse.Namespace) -> _Settings:
     if args.nodes < 2:
         raise ValueError(f"--nodes must be at least 2, got {args.nodes}")
     cable_length = _positive(args.cable_length, "--cable-length")
-    if cable_length is not None and plane is None:
-        raise ValueError("--cable-length needs --calib and --plane: the cable's length is measured in metres")
+    if cable_length is not None and not world:
+        raise ValueError(
+            "--cable-length needs --calib and --plane (or a second camera): the cable's length is measured "
+            "in metres"
+        )
     if cable_length is not None and parse_point(args.point) != 1.0:
         raise ValueError(f"--cable-length places the free tip; it cannot be used with --point {args.point}")
     tcp_log = None if args.tcp_log is None else Path(args.tcp_log)
-    if tcp_log is not None and plane is None:
+    if tcp_log is not None and not world:
         raise ValueError(
-            "--tcp-log needs --calib and --plane: the gripper's positions are in the world frame"
+            "--tcp-log needs --calib and --plane (or a second camera): the gripper's positions are in the "
+            "world frame"
         )
-    if tcp_log is not None and args.anchor is not None:
-        raise ValueError("--tcp-log gives the held end in every frame (the projected gripper); drop --anchor")
+    for option, value in (("--anchor", args.anchor), ("--second-anchor", args.second_anchor)):
+        if tcp_log is not None and value is not None:
+            raise ValueError(
+                f"--tcp-log gives the held end in every frame (the projected gripper); drop {option}"
+            )
     gripper_radius = _positive(args.gripper_radius, "--gripper-radius")
     if gripper_radius is not None and tcp_log is None:
         raise ValueError("--gripper-radius is masked around the logged gripper; it needs --tcp-log")
@@ -401,7 +452,7 @@ def _settings(args: argparse.Namespace) -> _Settings:
         raise ValueError(
             f"--max-width-ratio must be 0 (off) or a number above 1, got {args.max_width_ratio!r}"
         )
-    defaults = _WORLD_FILTER if plane is not None else _PIXEL_FILTER
+    defaults = _WORLD_FILTER if world else _PIXEL_FILTER
     filter_params = replace(
         defaults,
         sigma_accel=_positive(args.sigma_accel, "--sigma-accel") or defaults.sigma_accel,
@@ -417,8 +468,9 @@ def _settings(args: argparse.Namespace) -> _Settings:
             raise ValueError(f"{option}: folder {path.parent} does not exist")
         if path.is_dir():
             raise ValueError(f"{option}: {path} is a folder, expected a file name")
-        if video.exists() and path.resolve() == video.resolve():
-            raise ValueError(f"{option} {path} is the input video; refusing to overwrite it")
+        for source in (video, second_video):
+            if source is not None and source.exists() and path.resolve() == source.resolve():
+                raise ValueError(f"{option} {path} is an input video; refusing to overwrite it")
     if annotated is not None:
         if annotated.suffix.lower() != ".mp4":
             raise ValueError(f"--annotated must be an .mp4 file name, got {annotated}")
@@ -428,6 +480,10 @@ def _settings(args: argparse.Namespace) -> _Settings:
         video=video,
         out=out,
         annotated=annotated,
+        second_video=second_video,
+        second_calib=None if args.second_calib is None else Path(args.second_calib),
+        second_anchor=None if args.second_anchor is None else parse_floats(
+            args.second_anchor, 2, "--second-anchor"),
         fraction=parse_point(args.point),
         plane=plane,
         hsv=hsv,
@@ -486,10 +542,10 @@ def sample_evenly(items: Iterable[T], max_items: int) -> list[T]:
     return kept
 
 
-def _segmenter(cfg: _Settings) -> tuple[Callable[[NDArray[np.uint8]], NDArray[np.bool_]], str]:
+def _segmenter(cfg: _Settings, video: Path) -> tuple[Callable[[NDArray[np.uint8]], NDArray[np.bool_]], str]:
     """The frame -> mask function the settings ask for, and its kind: 'median', 'frame', 'hsv' or 'learned'.
 
-    Learns the median background when asked ('median', or 'auto' on a video long enough).
+    Learns ``video``'s median background when asked ('median', or 'auto' on a video long enough).
     """
     from dyndlo_vision.cameras.files import VideoFileCamera
     from dyndlo_vision.tracking.segmentation import BackgroundSegmenter, segment_hsv
@@ -505,11 +561,11 @@ def _segmenter(cfg: _Settings) -> tuple[Callable[[NDArray[np.uint8]], NDArray[np
     segmenter = BackgroundSegmenter(open_radius=cfg.open_radius)
     if cfg.background == "frame":
         return segmenter, "frame"
-    with VideoFileCamera(cfg.video, fps=cfg.fps) as first_pass:
+    with VideoFileCamera(video, fps=cfg.fps) as first_pass:
         samples = sample_evenly((f.rgb for f in first_pass), _MEDIAN_FRAMES)
     if cfg.background == "auto" and len(samples) < _AUTO_MIN_FRAMES:
         print(
-            f"note: {cfg.video} has {len(samples)} frames, too few to learn its background from "
+            f"note: {video} has {len(samples)} frames, too few to learn its background from "
             f"(--background auto needs {_AUTO_MIN_FRAMES}); estimating one background colour per frame",
             file=sys.stderr,
         )
@@ -559,84 +615,73 @@ def _fmt(value: float, digits: int) -> str:
     return f"{round(value, digits) + 0.0:.{digits}f}" if math.isfinite(value) else ""
 
 
-class _PointTracker:
-    """One frame at a time: cable tracker -> tracked point -> Kalman filter -> CSV row and overlay."""
+#: Two views: a point past the held end is measured only if the triangulated cable's far end lies this close
+#: to the far end of the cable in each image (px), plus two of the matching's sample spacings along the longer
+#: of the two centrelines: else one view hides part of the cable and the far end is not the cable's.
+_STEREO_END_TOL_PX = 3.0
 
-    def __init__(self, cfg: _Settings, calib: PinholeCamera | None) -> None:
-        from dyndlo_vision.tracking.filter import PointFilter
+
+class _View:
+    """One camera's part of a run: its segmenter stack (gripper mask, shape test), tracker and held end."""
+
+    def __init__(self, cfg: _Settings, video: Path, calib: PinholeCamera | None,
+                 anchor: NDArray[np.float64] | None, anchor_option: str = "--anchor") -> None:
         from dyndlo_vision.tracking.tracker import CableTracker, Plane
 
-        self.cfg = cfg
+        self.video = video
+        self.anchor_option = anchor_option
         self.calib = calib
-        self.world = calib is not None
-        segment, self.background = _segmenter(cfg)
+        self.anchor = anchor
+        segment, self.background = _segmenter(cfg, video)
         #: With --tcp-log: the gripper's disk is cleared before the shape test (it is no cable either way).
-        self.tcp_log = None if cfg.tcp_log is None else read_tcp_log(cfg.tcp_log)
-        self.gripper_mask = None
-        if self.tcp_log is not None:
+        self.gripper_mask: GripperMaskedSegmenter | None = None
+        if cfg.tcp_log is not None:
             self.gripper_mask = GripperMaskedSegmenter(segment, 0.0)
             segment = self.gripper_mask
         self.shape_filter = CableShapedMask(segment, _MAX_CABLE_WIDTH_SHARE, cfg.max_width_ratio)
+        # One view lifts the nodes onto the plane; two views triangulate the 2D centrelines instead.
         self.tracker = CableTracker(
             camera=calib,
             segmenter=self.shape_filter,
             n_nodes=cfg.nodes,
             plane=None if cfg.plane is None else Plane(cfg.plane[0], cfg.plane[1]),
         )
-        self.filter = PointFilter(cfg.filter)
-        #: The video's frame rate (set by the run; how far outside the TCP log a frame may lie).
-        self.fps = 25.0
         self.held_end_found = False
-        self.n_frames = 0
-        self.n_measured = 0
         #: Frames whose point was not measured because the cable ran into a region too thick to be cable.
         self.n_cut_by_zone = 0
-        #: With --cable-length: frames whose tip was continued past the polyline's end, and frames with too
-        #: little of the cable in view to place the tip.
-        self.n_continued = 0
-        self.n_too_short = 0
-        #: With --tcp-log: frames outside the log's time span (no gripper mask, no held end there).
-        self.n_without_tcp = 0
 
-    def _gripper(self, t: float) -> NDArray[np.float64] | None:
-        """With --tcp-log: the TCP at ``t``, its disk set in the gripper mask (None: no log or outside it)."""
-        if self.tcp_log is None:
-            return None
-        assert self.gripper_mask is not None and self.calib is not None
-        # Frames up to half a period outside the log still get its end row.
-        tcp = tcp_at(*self.tcp_log, t, tolerance_s=0.5 / max(self.fps, 1e-9))
+    def mask_gripper(self, tcp: NDArray[np.float64] | None, t: float, radius_m: float) -> None:
+        """Moves the gripper mask to the TCP's projection (None: no mask this frame)."""
+        if self.gripper_mask is None:
+            return
         if tcp is None:
             self.gripper_mask.center_uv = None
-            self.n_without_tcp += 1
-            return None
+            return
+        assert self.calib is not None
         depth = float(self.calib.world_to_camera(tcp[None])[0, 2])
         if depth <= 0:
             raise ValueError(f"--tcp-log: the gripper at {np.round(tcp, 3).tolist()} m (t = {t:.3f} s) is "
-                             "behind the camera; is the log in the calibration's world frame?")
+                             f"behind the camera of {self.video}; is the log in the calibration's world "
+                             "frame?")
         self.gripper_mask.center_uv = self.calib.project(tcp[None])[0]
-        self.gripper_mask.radius_px = self.cfg.gripper_radius_m * float(self.calib.K[0, 0]) / depth
-        return tcp
+        self.gripper_mask.radius_px = radius_m * float(self.calib.K[0, 0]) / depth
 
-    def step(self, frame: Frame, video: Path, draw: bool) -> tuple[list[object], NDArray[np.uint8] | None]:
-        """Tracks one frame; returns its CSV row and, when ``draw``, the annotated RGB image."""
-        from dyndlo_vision.tracking.annotate import annotate_frame, project_point_covariance
-
-        cfg = self.cfg
+    def measure(self, frame: Frame) -> Measurement:
+        """The tracker's measurement of one frame, with the held end chosen as the options say."""
         # The anchor picks the held end until the cable is first seen; from then on the tracker follows node 0
         # from frame to frame, because a held end that moves (a robot's gripper) can come closer to a fixed
         # anchor pixel than the swinging tip does.
-        anchor = None if self.held_end_found else cfg.anchor
-        tcp = self._gripper(frame.t_capture)
-        if tcp is not None:
-            anchor = self.gripper_mask.center_uv  # type: ignore[union-attr]
+        anchor = None if self.held_end_found else self.anchor
+        if self.gripper_mask is not None and self.gripper_mask.center_uv is not None:
+            anchor = self.gripper_mask.center_uv
         try:
             meas = self.tracker.process(frame.rgb, frame.t_capture, anchor_uv=anchor)
         except ValueError as exc:
-            raise ValueError(f"{video} frame {frame.index}: {exc}") from exc
+            raise ValueError(f"{self.video} frame {frame.index}: {exc}") from exc
         cl = meas.centerline
         if not self.held_end_found and cl is not None and cl.any_visible:
             self.held_end_found = True
-            if cfg.anchor is None and self.tcp_log is None:
+            if self.anchor is None and self.gripper_mask is None:
                 # Either end could be node 0 (the walk's start), and a tip taken for the held end is a
                 # confident wrong answer: take the upper end, a hanging cable's held end.
                 if cl.path_uv[-1, 1] < cl.path_uv[0, 1]:
@@ -644,22 +689,169 @@ class _PointTracker:
                     cl = meas.centerline
                 u0, v0 = meas.nodes_uv[0]
                 print(
-                    f"note: no --anchor; took the upper cable end, at pixel ({u0:.0f}, {v0:.0f}) in frame "
-                    f"{frame.index}, as the held end",
+                    f"note: no {self.anchor_option}; took the upper cable end, at pixel ({u0:.0f}, "
+                    f"{v0:.0f}) in frame {frame.index} of {self.video}, as the held end",
                     file=sys.stderr,
                 )
-        # Arc-length fractions mean nothing where the cable runs out of the image, or into a region too thick
-        # to be cable, at the end they are counted from: the last pixel before it is not the tip.
-        cut = False
-        if cl is not None and cl.any_visible:
-            start_in_zone, end_in_zone = self.shape_filter.ends_in_zone(
-                cl.path_uv, cl.width_px, self.tracker.last_mask
+        return meas
+
+    def cut(self, meas: Measurement, fraction: float) -> bool:
+        """Whether arc-length fractions mean nothing in this frame: the cable runs out of the image, or into
+        a region too thick to be cable, at the end they are counted from (the last pixel there is not the
+        tip)."""
+        cl = meas.centerline
+        if cl is None or not cl.any_visible:
+            return False
+        start_in_zone, end_in_zone = self.shape_filter.ends_in_zone(cl.path_uv, cl.width_px,
+                                                                    self.tracker.last_mask)
+        ends = ((cl.end_at_border, end_in_zone), (cl.start_at_border, start_in_zone))
+        need = (fraction > 0, fraction < 1)
+        cut_border = any(n and e[0] for n, e in zip(need, ends, strict=True))
+        cut = cut_border or any(n and e[1] for n, e in zip(need, ends, strict=True))
+        self.n_cut_by_zone += int(cut and not cut_border)
+        return cut
+
+
+def _path_end(cl: Any, last: bool = True) -> NDArray[np.float64] | None:
+    """The last (or first) finite pixel of a centreline's path; None if it has none."""
+    path = np.asarray(cl.path_uv, dtype=np.float64).reshape(-1, 2)
+    finite = np.flatnonzero(np.all(np.isfinite(path), axis=1))
+    if not finite.size:
+        return None
+    return path[finite[-1] if last else finite[0]]
+
+
+def _overlay_masks(rgb: NDArray[np.uint8], view: _View) -> NDArray[np.uint8]:
+    """The frame with the regions too thick to be cable tinted and the masked gripper outlined."""
+    import cv2
+
+    zone = view.shape_filter.zone
+    if zone is not None:  # shows where the cable cannot be seen: regions too thick to be cable
+        rgb = rgb.copy()
+        rgb[zone] = (0.6 * rgb[zone] + np.array([0.0, 0.0, 100.0])).astype(np.uint8)
+    mask = view.gripper_mask
+    if mask is not None and mask.center_uv is not None:  # the masked gripper, outlined
+        u, v = mask.center_uv
+        rgb = cv2.circle(rgb.copy(), (int(round(u)), int(round(v))), int(round(mask.radius_px)), (0, 0, 255),
+                         1, cv2.LINE_AA)
+    return rgb
+
+
+def _reaches_far_ends(nodes_xyz: NDArray[np.float64], views: list[_View], measurements: list[Measurement],
+                      samples: int) -> bool:
+    """Whether the triangulated cable's last node projects onto the far end of the cable in every view."""
+    last = nodes_xyz[np.all(np.isfinite(nodes_xyz), axis=1)]
+    if len(last) == 0:
+        return False
+    lengths = [float(np.nansum(np.linalg.norm(np.diff(m.centerline.path_uv, axis=0), axis=1)))
+               for m in measurements]
+    tol = _STEREO_END_TOL_PX + 2.0 * max(lengths) / max(samples - 1, 1)
+    for view, m in zip(views, measurements, strict=True):
+        end = _path_end(m.centerline)
+        assert view.calib is not None
+        if end is None or float(np.linalg.norm(view.calib.project(last[-1:])[0] - end)) > tol:
+            return False
+    return True
+
+
+class _PointTracker:
+    """One frame (or one pair) at a time: cable tracker(s) -> tracked point -> Kalman filter -> CSV row and
+    overlay."""
+
+    def __init__(self, cfg: _Settings, calib: PinholeCamera | None,
+                 second_calib: PinholeCamera | None = None) -> None:
+        from dyndlo_vision.tracking.filter import PointFilter
+
+        self.cfg = cfg
+        self.calib = calib
+        self.world = calib is not None
+        self.views = [_View(cfg, cfg.video, calib, cfg.anchor)]
+        if cfg.second_video is not None:
+            self.views.append(
+                _View(cfg, cfg.second_video, second_calib, cfg.second_anchor, anchor_option="--second-anchor")
             )
-            ends = ((cl.end_at_border, end_in_zone), (cl.start_at_border, start_in_zone))
-            need = (cfg.fraction > 0, cfg.fraction < 1)
-            cut_border = any(n and e[0] for n, e in zip(need, ends, strict=True))
-            cut = cut_border or any(n and e[1] for n, e in zip(need, ends, strict=True))
-            self.n_cut_by_zone += int(cut and not cut_border)
+        self.stereo = len(self.views) == 2
+        self.background = self.views[0].background
+        self.shape_filter = self.views[0].shape_filter
+        self.tcp_log = None if cfg.tcp_log is None else read_tcp_log(cfg.tcp_log)
+        self.filter = PointFilter(cfg.filter)
+        #: The video's frame rate (set by the run; how far outside the TCP log a frame may lie).
+        self.fps = 25.0
+        self.n_frames = 0
+        self.n_measured = 0
+        #: With --cable-length: frames whose tip was continued past the polyline's end, and frames with too
+        #: little of the cable in view to place the tip.
+        self.n_continued = 0
+        self.n_too_short = 0
+        #: With --tcp-log: frames outside the log's time span (no gripper mask, no held end there).
+        self.n_without_tcp = 0
+        #: Two views: frames whose triangulated cable did not reach the far end in both images.
+        self.n_not_both = 0
+
+    @property
+    def n_cut_by_zone(self) -> int:
+        return sum(v.n_cut_by_zone for v in self.views)
+
+    @property
+    def frames_with_zone(self) -> int:
+        return max(v.shape_filter.frames_with_zone for v in self.views)
+
+    def _gripper(self, t: float) -> NDArray[np.float64] | None:
+        """With --tcp-log: the TCP at ``t``, its disk set in every view's gripper mask (None: no log, or
+        outside it)."""
+        if self.tcp_log is None:
+            return None
+        # Frames up to half a period outside the log still get its end row.
+        tcp = tcp_at(*self.tcp_log, t, tolerance_s=0.5 / max(self.fps, 1e-9))
+        self.n_without_tcp += int(tcp is None)
+        for view in self.views:
+            view.mask_gripper(tcp, t, self.cfg.gripper_radius_m)
+        return tcp
+
+    def _triangulated(self, measurements: list[Measurement],
+                      tcp: NDArray[np.float64] | None) -> tuple[Measurement, NDArray[np.float64]] | None:
+        """Two views: the 3D measurement (nodes spread over the triangulated cable) and the held end, or None
+        when the views give no cable."""
+        from dyndlo_vision.tracking.stereo import StereoParams, stereo_measurement, triangulate
+
+        first, second = measurements
+        cams = [v.calib for v in self.views]
+        assert cams[0] is not None and cams[1] is not None
+        starts = [None if m.centerline is None else _path_end(m.centerline, last=False) for m in measurements]
+        if starts[0] is None or starts[1] is None:
+            return None
+        held = tcp
+        if held is None:  # where the two centrelines start
+            held = triangulate(cams[0], starts[0][None], cams[1], starts[1][None])[0][0]
+            if not np.all(np.isfinite(held)):
+                return None
+        meas = stereo_measurement(first, cams[0], second, cams[1], held, None, StereoParams())
+        return meas, held
+
+    def step(self, frames: list[Frame], draw: bool) -> tuple[list[object], NDArray[np.uint8] | None]:
+        """Tracks one frame (one per view); returns its CSV row and, when ``draw``, the annotated RGB
+        image."""
+        from dyndlo_vision.tracking.annotate import annotate_frame, project_point_covariance
+        from dyndlo_vision.tracking.stereo import StereoParams
+
+        cfg = self.cfg
+        frame = frames[0]
+        tcp = self._gripper(frame.t_capture)
+        measurements = [view.measure(f) for view, f in zip(self.views, frames, strict=True)]
+        cut = any([view.cut(m, cfg.fraction) for view, m in zip(self.views, measurements, strict=True)])
+        meas, held = measurements[0], tcp
+        if self.stereo and not cut:
+            found = self._triangulated(measurements, tcp)
+            if found is None:
+                cut = True
+            else:
+                meas, held = found
+                # Without the cable's length, the nodes spread over what both views saw: only if that reaches
+                # the cable's far end in both images are fractions of it fractions of the cable.
+                if cfg.cable_length_m is None and cfg.fraction > 0 and not _reaches_far_ends(
+                        meas.nodes_xyz, self.views, measurements, StereoParams().samples):
+                    cut = True
+                    self.n_not_both += 1
         uv = None if cut else point_on_nodes(meas.nodes_uv, meas.visible, cfg.fraction)
         z = None  # what the filter measures: world metres, or (u, v, 0) pixels without a calibration
         if uv is not None:
@@ -673,7 +865,8 @@ class _PointTracker:
             # disappears there (behind something) and goes on, or too little of it is seen to place the tip.
             from dyndlo_vision.tracking.tracker import tip_from_polyline
 
-            held = tcp if tcp is not None else meas.nodes_xyz[np.flatnonzero(meas.lifted)[0]]
+            if held is None:
+                held = meas.nodes_xyz[np.flatnonzero(meas.lifted)[0]]
             tip = tip_from_polyline(meas, held, cfg.cable_length_m)
             if tip is None:
                 uv = z = None
@@ -694,35 +887,33 @@ class _PointTracker:
         self.n_measured += int(measured)
         if not draw:
             return row, None
-        point_uv = cov_uv = None
-        if not est.lost:
-            if self.calib is not None:
-                point_uv, cov_uv = project_point_covariance(self.calib, est.position, est.covariance[:3, :3])
-            else:
-                point_uv, cov_uv = est.position[:2], est.covariance[:2, :2]
         state = "measured" if measured else ("lost" if est.lost else "predicted")
-        rgb = frame.rgb
-        zone = self.shape_filter.zone
-        if zone is not None:  # shows where the cable cannot be seen: regions too thick to be cable
-            rgb = rgb.copy()
-            rgb[zone] = (0.6 * rgb[zone] + np.array([0.0, 0.0, 100.0])).astype(np.uint8)
-        if tcp is not None:  # the masked gripper, outlined
-            import cv2
+        images = []
+        for k, (view, f, m) in enumerate(zip(self.views, frames, measurements, strict=True)):
+            point_uv = cov_uv = None
+            if not est.lost:
+                if view.calib is not None:
+                    point_uv, cov_uv = project_point_covariance(view.calib, est.position,
+                                                                est.covariance[:3, :3])
+                else:
+                    point_uv, cov_uv = est.position[:2], est.covariance[:2, :2]
+            nodes = meas if k == 0 else m
+            images.append(annotate_frame(
+                _overlay_masks(f.rgb, view),
+                nodes.nodes_uv,
+                nodes.visible,
+                point_uv=point_uv,
+                point_cov_uv=cov_uv,
+                point_measured=measured,
+                t=f.t_capture if k == 0 else None,
+                status=f"frame {frame.index}  point {state}  nodes {int(meas.visible.sum())}/{cfg.nodes}"
+                if k == 0 else "",
+            ))
+        image = images[0]
+        if self.stereo:
+            from dyndlo_vision.tracking.annotate import inset_view
 
-            assert self.gripper_mask is not None and self.gripper_mask.center_uv is not None
-            u, v = self.gripper_mask.center_uv
-            radius = int(round(self.gripper_mask.radius_px))
-            rgb = cv2.circle(rgb.copy(), (int(round(u)), int(round(v))), radius, (0, 0, 255), 1, cv2.LINE_AA)
-        image = annotate_frame(
-            rgb,
-            meas.nodes_uv,
-            meas.visible,
-            point_uv=point_uv,
-            point_cov_uv=cov_uv,
-            point_measured=measured,
-            t=frame.t_capture,
-            status=f"frame {frame.index}  point {state}  nodes {int(meas.visible.sum())}/{cfg.nodes}",
-        )
+            image = inset_view(image, images[1])
         return row, image
 
 
@@ -739,7 +930,52 @@ def run(args: argparse.Namespace) -> int:
         return _run(args)
 
 
+def _check_calibration(calib: PinholeCamera, option: str, path: str, source: Any, video: Path) -> None:
+    if (calib.width, calib.height) != (source.width, source.height):
+        raise ValueError(
+            f"{option} {path} is for {calib.width}x{calib.height} images, but {video} has "
+            f"{source.width}x{source.height} frames"
+        )
+
+
+def _check_anchor(anchor: NDArray[np.float64] | None, option: str, text: str, source: Any) -> None:
+    if anchor is not None and not (
+        -0.5 <= anchor[0] <= source.width - 0.5 and -0.5 <= anchor[1] <= source.height - 0.5
+    ):
+        raise ValueError(f"{option} {text} is outside the {source.width}x{source.height} image")
+
+
+def _frame_pairs(first: Any, second: Any, cfg: _Settings) -> Iterable[list[Frame]]:
+    """Frames of one video (lists of one), or frame k of both (the views are recorded in sync).
+
+    Raises:
+        ValueError: When one video ends before the other: the two were not recorded frame for frame.
+    """
+    if second is None:
+        for frame in first:
+            yield [frame]
+        return
+    frames2 = iter(second)
+    n = 0
+    for frame in first:
+        frame2 = next(frames2, None)
+        if frame2 is None:
+            raise ValueError(
+                f"--second-video {cfg.second_video} ended after {n} frames, but {cfg.video} goes on: the two "
+                "views must be recorded in sync, frame for frame"
+            )
+        n += 1
+        yield [frame, frame2]
+    if next(frames2, None) is not None:
+        raise ValueError(
+            f"{cfg.video} ended after {n} frames, but --second-video {cfg.second_video} goes on: the two "
+            "views must be recorded in sync, frame for frame"
+        )
+
+
 def _run(args: argparse.Namespace) -> int:
+    import contextlib
+
     import cv2
     from tqdm import tqdm
 
@@ -748,20 +984,35 @@ def _run(args: argparse.Namespace) -> int:
 
     cfg = _settings(args)
     calib = None if args.calib is None else PinholeCamera.from_json(args.calib)
-    with VideoFileCamera(cfg.video, fps=cfg.fps) as source:
-        if calib is not None:
-            if (calib.width, calib.height) != (source.width, source.height):
+    second_calib = None if cfg.second_calib is None else PinholeCamera.from_json(cfg.second_calib)
+    with contextlib.ExitStack() as stack:
+        source = stack.enter_context(VideoFileCamera(cfg.video, fps=cfg.fps))
+        second = None
+        if cfg.second_video is not None:
+            second = stack.enter_context(VideoFileCamera(cfg.second_video, fps=cfg.fps))
+            assert second_calib is not None
+            _check_calibration(second_calib, "--second-calib", args.second_calib, second, cfg.second_video)
+            if abs(second.fps - source.fps) > 1e-3 * source.fps:
                 raise ValueError(
-                    f"calibration {args.calib} is for {calib.width}x{calib.height} images, but {cfg.video} "
-                    f"has {source.width}x{source.height} frames"
+                    f"--second-video {cfg.second_video} runs at {second.fps:g} fps and {cfg.video} at "
+                    f"{source.fps:g} fps: the two views must be recorded in sync, frame for frame"
                 )
-            assert cfg.plane is not None
-            _check_plane_visible(calib, cfg.plane, args.plane)
-        if cfg.anchor is not None and not (
-            -0.5 <= cfg.anchor[0] <= source.width - 0.5 and -0.5 <= cfg.anchor[1] <= source.height - 0.5
-        ):
-            raise ValueError(f"--anchor {args.anchor} is outside the {source.width}x{source.height} image")
-        pipeline = _PointTracker(cfg, calib)
+            _check_anchor(cfg.second_anchor, "--second-anchor", args.second_anchor, second)
+            from dyndlo_vision.tracking.stereo import essential_matrix
+
+            assert calib is not None
+            try:
+                essential_matrix(calib, second_calib)
+            except ValueError as exc:
+                raise ValueError(
+                    f"--calib {args.calib} and --second-calib {args.second_calib}: {exc}"
+                ) from exc
+        if calib is not None:
+            _check_calibration(calib, "calibration", args.calib, source, cfg.video)
+            if cfg.plane is not None:
+                _check_plane_visible(calib, cfg.plane, args.plane)
+        _check_anchor(cfg.anchor, "--anchor", args.anchor, source)
+        pipeline = _PointTracker(cfg, calib, second_calib)
         pipeline.fps = source.fps
         destinations = [cfg.out] + ([cfg.annotated] if cfg.annotated is not None else [])
         outputs = _AtomicOutputs(destinations)
@@ -785,8 +1036,8 @@ def _run(args: argparse.Namespace) -> int:
                 ):
                     rows = csv.writer(f)
                     rows.writerow(CSV_COLUMNS)
-                    for frame in source:
-                        row, image = pipeline.step(frame, cfg.video, draw=writer is not None)
+                    for frames in _frame_pairs(source, second, cfg):
+                        row, image = pipeline.step(frames, draw=writer is not None)
                         rows.writerow(row)
                         if writer is not None and image is not None:
                             writer.write(cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
@@ -798,7 +1049,7 @@ def _run(args: argparse.Namespace) -> int:
                 raise ValueError(f"{cfg.video} has no frames that OpenCV can decode")
             outputs.commit()
     share = 100.0 * pipeline.n_measured / pipeline.n_frames
-    zone_frames = pipeline.shape_filter.frames_with_zone
+    zone_frames = pipeline.frames_with_zone
     shape_rule = (
         "" if cfg.max_width_ratio is None
         else f", or than {cfg.max_width_ratio:g} times the cable's width (--max-width-ratio)"
@@ -829,14 +1080,21 @@ def _run(args: argparse.Namespace) -> int:
             "showed less than half the cable",
             file=sys.stderr,
         )
+    if pipeline.stereo and pipeline.n_not_both:
+        print(
+            f"note: two views: in {pipeline.n_not_both} frames the triangulated cable did not reach the "
+            "cable's far end in both images (one view hid part of it), so the point was not measured there",
+            file=sys.stderr,
+        )
     if pipeline.n_measured == 0 and pipeline.background == "median":
         print(
             "note: the point was never measured; a cable that hardly moves is part of the median background "
             "(try --background frame on a uniform background, or an HSV range)",
             file=sys.stderr,
         )
+    mode = "world, m, two views" if pipeline.stereo else "world, m" if calib is not None else "pixels"
     print(
-        f"tracked {pipeline.n_frames} frames ({'world, m' if calib is not None else 'pixels'}); point "
+        f"tracked {pipeline.n_frames} {'frame pairs' if pipeline.stereo else 'frames'} ({mode}); point "
         f"measured in {pipeline.n_measured} ({share:.1f}%); wrote {', '.join(str(p) for p in destinations)}"
     )
     return 0

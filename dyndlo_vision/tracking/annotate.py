@@ -19,7 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .camera_model import PinholeCamera
 
-__all__ = ["annotate_frame", "project_point_covariance", "covariance_ellipse"]
+__all__ = ["annotate_frame", "project_point_covariance", "covariance_ellipse", "inset_view"]
 
 _SHIFT = 4  # sub-pixel bits for cv2 drawing
 _SCALE = 1 << _SHIFT
@@ -188,4 +188,38 @@ def annotate_frame(
         cv2.putText(
             out, text, (pad, pad + th), cv2.FONT_HERSHEY_SIMPLEX, scale, color(_TEXT_RGB), unit, cv2.LINE_AA
         )
+    return out
+
+
+def inset_view(image: NDArray[np.uint8], view: NDArray[np.uint8], fraction: float = 1 / 3,
+               label: str = "second camera", corner: str = "bottom-right") -> NDArray[np.uint8]:
+    """A copy of ``image`` with ``view`` shrunk to ``fraction`` of its width in a corner (``"bottom-right"``,
+    clear of :func:`annotate_frame`'s status line, or ``"top-right"``), framed and labelled (both images in
+    the same channel order).
+
+    Raises:
+        ValueError: On images that are not (H, W, 3) uint8, ``fraction`` outside (0, 1], or another corner.
+    """
+    import cv2
+
+    for name, img in (("image", image), ("view", view)):
+        if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
+            raise ValueError(f"{name} must be (H, W, 3) uint8, got shape {img.shape} dtype {img.dtype}")
+    if not 0 < fraction <= 1:
+        raise ValueError(f"fraction must be in (0, 1], got {fraction!r}")
+    if corner not in ("bottom-right", "top-right"):
+        raise ValueError(f"corner must be 'bottom-right' or 'top-right', got {corner!r}")
+    out = np.ascontiguousarray(image).copy()
+    h, w = out.shape[:2]
+    iw = max(1, int(round(w * fraction)))
+    ih = min(h, max(1, int(round(iw * view.shape[0] / view.shape[1]))))
+    small = np.ascontiguousarray(cv2.resize(view, (iw, ih), interpolation=cv2.INTER_AREA))
+    if label:  # white on a dark box, readable on any background
+        (tw, th), base = cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1)
+        cv2.rectangle(small, (0, 0), (min(iw - 1, tw + 8), th + base + 6), (0, 0, 0), -1)
+        white = (255, 255, 255)
+        cv2.putText(small, label, (4, th + 3), cv2.FONT_HERSHEY_SIMPLEX, 0.45, white, 1, cv2.LINE_AA)
+    top = 0 if corner == "top-right" else h - ih
+    out[top:top + ih, w - iw:w] = small
+    cv2.rectangle(out, (w - iw, top), (w - 1, top + ih - 1), (255, 255, 255), 1)
     return out

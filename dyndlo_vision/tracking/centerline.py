@@ -829,6 +829,11 @@ def extract_centerline(
     path, seg_vis = _assemble(g, walk, width, prm)
     if path.shape[0] < 2:
         return empty_centerline(n_nodes)
+    if anchor_uv is not None and np.hypot(*(path[-1] - hint)) < np.hypot(*(path[0] - hint)):
+        # No free end near the anchor to start from (a pinhole in the mask near the held end closes a small
+        # loop there), so the walk started at the far end and ended at the held end: node 0 is the held end
+        # all the same. Else the tip would be reported at the hand.
+        path, seg_vis = path[::-1].copy(), seg_vis[::-1].copy()
     # Smooth each run of pixel steps separately: averaging across a long bridge (gap or
     # junction) would smear the bridge over its neighbours and shift node visibility.
     jumps = np.flatnonzero(np.hypot(*np.diff(path, axis=0).T) > 2.0) + 1

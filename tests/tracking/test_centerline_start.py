@@ -90,3 +90,19 @@ def test_t_junction_anchored_at_the_stem_walks_only_the_stem() -> None:
     cl = extract_centerline(_mask(BAR, STEM), n_nodes=10, anchor_uv=STEM[1])
     assert cl.length_px == pytest.approx(260.0, abs=15.0)
     assert np.all(np.abs(cl.nodes_uv[:, 0] - 300.0) < 3.0)
+
+
+@pytest.mark.parametrize("hole_px", [8, 12, 15])
+def test_a_pinhole_near_the_held_end_does_not_make_the_tip_node_0(hole_px: int) -> None:
+    """A pinhole in a thick cable's mask near the held end (noise, a gripper mask's ragged cut) closes a small
+    loop in the skeleton, so there is no free end there to start the walk from: the walk starts at the tip.
+    Node 0 must still be the end nearest the anchor (found on a two-camera clip's frame, where the tip was
+    taken for the held end)."""
+    m = np.zeros((H, W), np.uint8)
+    cv2.line(m, (160, 40), (180, 200), 255, 7)
+    y = 40 + hole_px
+    x = int(160 + 20 * hole_px / 160)
+    m[y : y + 2, x : x + 2] = 0
+    cl = extract_centerline(m > 0, 20, anchor_uv=(160, 30))
+    assert cl.nodes_uv[0, 1] < 70 and cl.nodes_uv[-1, 1] > 190, (cl.nodes_uv[0], cl.nodes_uv[-1])
+    assert cl.path_uv[0, 1] < cl.path_uv[-1, 1]
