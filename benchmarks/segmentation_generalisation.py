@@ -152,12 +152,21 @@ def part_renders(seg, seed: int, n: int) -> dict:
     }
 
 
-def _whip_video(style: str, seed: int, seconds: float = 3.0):
-    """Frames, true masks, true tips and TCPs (world), and the calibration of a whip video in ``style``."""
+#: ``_whip_video(..., views=2)``: the second camera, right of the first and higher, aimed at the hanging
+#: cable. Its baseline with the first camera is not in the plane of the whip, so the cable seldom lies in an
+#: epipolar plane (docs/RESULTS.md, session 18). Adding it to the model changes neither the physics nor the
+#: first camera's frames.
+WHIP_SECOND_CAMERA = ((1.55, -1.2, 1.1), (0.65, 0.0, 0.3))
+
+
+def _whip_video(style: str, seed: int, seconds: float = 3.0, views: int = 1):
+    """Frames, true masks, true tips and TCPs (world), and the calibration of a whip video in ``style``; with
+    ``views=2`` also the second camera's frames and calibration (same styles, same instants)."""
     import mujoco
 
     from dyndlo_vision.cameras.simulated import MujocoCamera
     from dyndlo_vision.sim import CableParams, CapsuleProp, Scene, SceneConfig
+    from dyndlo_vision.sim.scene import SECOND_TRACKING_CAMERA_NAME, CameraPose
 
     rng = np.random.default_rng(seed)
     f_px = 240 / math.tan(math.radians(22.5))
@@ -167,13 +176,16 @@ def _whip_video(style: str, seed: int, seconds: float = 3.0):
     caps = ()
     if style == "occluded":
         caps = (CapsuleProp("pole", (0.42, -0.25, 0.0), (0.42, -0.25, 1.2), 0.02, (0.5, 0.5, 0.5, 1.0)),)
-    sc = Scene(SceneConfig(cable=CableParams(radius_m=radius, rgba=rgba), capsules=caps, settle_s=0.5))
+    second = CameraPose.looking_at(*WHIP_SECOND_CAMERA) if views == 2 else None
+    sc = Scene(SceneConfig(cable=CableParams(radius_m=radius, rgba=rgba), capsules=caps, settle_s=0.5,
+                           second_tracking_camera=second))
     m, d = sc.model, sc.data
     tcp_geom = int(m.geom("tcp_0_geom").id)
     m.geom_size[tcp_geom, 0] = 0.03
     m.geom_rgba[tcp_geom] = (0.12, 0.12, 0.12, 1.0)
     floor = int(m.geom("floor").id)
-    cam = MujocoCamera(m, d, "tracking", 640, 480)
+    names = ["tracking", SECOND_TRACKING_CAMERA_NAME][:views]
+    cams = [MujocoCamera(m, d, name, 640, 480) for name in names]
     yy, xx = np.mgrid[0:480, 0:640].astype(np.float32)
     if style == "textured-blur":  # a wood-like grain, which the generator draws with other statistics
         grain = 0.5 + 0.5 * np.sin(xx / 7.0 + 3 * np.sin(yy / 40.0))
@@ -182,6 +194,7 @@ def _whip_video(style: str, seed: int, seconds: float = 3.0):
         wall = np.repeat((200 - 30 * yy / 480)[..., None], 3, -1).astype(np.uint8)
     home = sc.gripper_home[0]
     frames, truths, tips, tcps = [], [], [], []
+    frames2 = []
     steps_per_frame = int(round(0.04 / m.opt.timestep))
     sub = 8 if style == "textured-blur" else 1
     from dyndlo_vision.sim.rendering import make_renderer
@@ -190,7 +203,7 @@ def _whip_video(style: str, seed: int, seconds: float = 3.0):
     seg_r.enable_segmentation_rendering()
     phase = float(rng.uniform(0, 2 * math.pi))
     for _ in range(int(seconds * 25)):
-        acc = None
+        acc: list = [None] * views
         for _ in range(sub):
             n = steps_per_frame // sub
             for _ in range(n):
@@ -200,13 +213,16 @@ def _whip_video(style: str, seed: int, seconds: float = 3.0):
                 vel = np.array([0.18 * w1 * math.cos(w1 * t + phase), 0.0, 0.16 * w1 * math.cos(2 * w1 * t)])
                 sc.set_tcp_reference(pos[None], vel[None])
                 sc.step(1)
-            img = cam.read().rgb.astype(np.float32)
-            seg_r.update_scene(d, camera="tracking")
-            s = seg_r.render()
-            bg = (s[..., 1] == -1) | ((s[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)) & (s[..., 0] == floor))
-            img[bg] = wall[bg]
-            acc = img if acc is None else acc + img
-        rgb = np.clip(acc / sub + 0.5, 0, 255).astype(np.uint8)
+            for v, (cam, name) in enumerate(zip(cams, names, strict=True)):
+                img = cam.read().rgb.astype(np.float32)
+                seg_r.update_scene(d, camera=name)
+                s = seg_r.render()
+                bg = (s[..., 1] == -1) | ((s[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)) & (s[..., 0] == floor))
+                img[bg] = wall[bg]
+                acc[v] = img if acc[v] is None else acc[v] + img
+        rgb = np.clip(acc[0] / sub + 0.5, 0, 255).astype(np.uint8)
+        if views == 2:
+            frames2.append(np.clip(acc[1] / sub + 0.5, 0, 255).astype(np.uint8))
         seg_r.update_scene(d, camera="tracking")
         s = seg_r.render()
         truth = CableLook.of(sc.model).mask(s)
@@ -214,10 +230,12 @@ def _whip_video(style: str, seed: int, seconds: float = 3.0):
         truths.append(truth)
         tips.append(sc.cable_nodes()[-1].copy())
         tcps.append(sc.tcp_positions()[0].copy())
-    calib = cam.calibration
-    cam.close()
+    calibs = [cam.calibration for cam in cams]
+    for cam in cams:
+        cam.close()
     seg_r.close()
-    return frames, truths, np.array(tips), np.array(tcps), calib, sc.config.cable.length_m
+    out = (frames, truths, np.array(tips), np.array(tcps), calibs[0], sc.config.cable.length_m)
+    return out + (frames2, calibs[1]) if views == 2 else out
 
 
 def part_whip(seg, seed: int) -> dict:

@@ -12,12 +12,16 @@ gripper, a box; :class:`~dyndlo_vision.tracking.masks.CableShapedMask`) are igno
 into one is not taken for the tip: the tool reports the point unmeasured rather than following such a region.
 With ``--tcp-log`` the gripper's logged pose masks it in every frame and gives the held end.
 
-CSV columns ``frame,time_s,visible,u,v,x,y,z``: ``visible`` is 1 when the tracked point was measured in that
-frame; ``u,v`` is the measured pixel (raw, unfiltered; empty when not measured); ``x,y,z`` is the filtered
-world position (m) at the frame's time, empty without ``--calib``, before the first measurement and while the
-filter is lost (no measurement for longer than its coasting limit). The tracked point is not measured where
-the centreline cannot place it: the point's nodes are invisible, or the cable runs out of the image (or into a
-region too thick to be cable) at the end the point is measured from. Without a calibration the filter runs in
+CSV columns ``frame,time_s,visible,u,v,x,y,z,x_meas,y_meas,z_meas``: ``visible`` is 1 when the tracked
+point was measured in that frame; ``u,v`` is the measured pixel (raw, unfiltered; empty when not measured);
+``x,y,z`` is the filtered world position (m) at the frame's time, empty without ``--calib``, before the first
+measurement and while the filter is lost (no measurement for longer than its coasting limit);
+``x_meas,y_meas,z_meas`` is this frame's measured world position, unfiltered (empty when not measured or
+without ``--calib``). A whipped tip accelerates at hundreds of m/s^2, which the filter's default smoothing
+(``--sigma-accel``) lags behind: there the measured position is the closer one (docs/RESULTS.md, session 19).
+The tracked point is not measured where the centreline cannot place it: the point's nodes are invisible, or
+the cable runs out of the image (or into a region too thick to be cable) at the end the point is measured
+from. Without a calibration the filter runs in
 pixels and only draws the annotated video's point and uncertainty ellipse. With ``--cable-length`` (world
 mode, the tip) a polyline shorter than the cable ends where the cable disappears: the tip is placed by
 continuing it straight by the missing length (``u,v`` is that point's pixel), and with under half the cable in
@@ -89,7 +93,7 @@ _AUTO_MIN_FRAMES = 8
 _MAX_CABLE_WIDTH_SHARE = 0.1
 #: ``--gripper-radius`` default: the simulator's 2 cm gripper sphere plus a margin (the loop masks the same).
 _GRIPPER_RADIUS_M = 0.03
-CSV_COLUMNS = ("frame", "time_s", "visible", "u", "v", "x", "y", "z")
+CSV_COLUMNS = ("frame", "time_s", "visible", "u", "v", "x", "y", "z", "x_meas", "y_meas", "z_meas")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -881,8 +885,9 @@ class _PointTracker:
         est = self.filter.estimate(frame.t_capture)
         uv_out = uv if (measured and uv is not None) else np.full(2, np.nan)
         xyz_out = est.position if (self.world and not est.lost) else np.full(3, np.nan)
+        meas_out = z if (measured and self.world) else np.full(3, np.nan)
         row: list[object] = [frame.index, f"{frame.t_capture:.6f}", int(measured)]
-        row += [_fmt(float(c), 3) for c in uv_out] + [_fmt(float(c), 6) for c in xyz_out]
+        row += [_fmt(float(c), 3) for c in uv_out] + [_fmt(float(c), 6) for c in (*xyz_out, *meas_out)]
         self.n_frames += 1
         self.n_measured += int(measured)
         if not draw:

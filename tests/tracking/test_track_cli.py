@@ -132,7 +132,7 @@ def test_world_tracking_matches_ground_truth(
     assert main(["track", *args, "--out", str(out), "--annotated", str(annotated)]) == 0
     assert "point measured in 33" in capsys.readouterr().out
     columns, rows = _read_csv(out)
-    assert columns == ["frame", "time_s", "visible", "u", "v", "x", "y", "z"]
+    assert columns == ["frame", "time_s", "visible", "u", "v", "x", "y", "z", "x_meas", "y_meas", "z_meas"]
     assert [int(r["frame"]) for r in rows] == list(range(N_FRAMES))
     np.testing.assert_allclose(_column(rows, "time_s")[:, 0], np.arange(N_FRAMES) / FPS, atol=1e-3)
     visible = np.array([int(r["visible"]) for r in rows], dtype=bool)
@@ -142,6 +142,12 @@ def test_world_tracking_matches_ground_truth(
     err_m = np.linalg.norm(xyz[visible] - clip.tip_world[visible], axis=1)
     assert err_m.max() < TIP_TOL_M, err_m
     np.testing.assert_allclose(xyz[:, 1], 0.0, atol=1e-9)  # on the plane
+    # The unfiltered measurement: on the plane, at the tip, and only where the tip was measured.
+    raw = _column(rows, "x_meas,y_meas,z_meas")
+    assert np.all(np.isnan(raw[~visible])) and np.all(np.isfinite(raw[visible]))
+    np.testing.assert_allclose(raw[visible, 1], 0.0, atol=1e-9)
+    assert np.linalg.norm(raw[visible] - clip.tip_world[visible], axis=1).max() < TIP_TOL_M
+    assert not np.allclose(raw[visible], xyz[visible], atol=1e-5)  # the filter's estimate is another thing
     err_px = np.linalg.norm(uv[visible] - clip.camera.project(clip.tip_world[visible]), axis=1)
     assert err_px.max() < TIP_TOL_PX, err_px
     # Blank frames: no pixel, but the filter predicts (0.12 s is within its 0.3 s coasting limit).

@@ -108,11 +108,11 @@ def _stereo_args(clip: StereoClip) -> list[str]:
             "--second-anchor", _anchor(clip.cam_b, clip.held[0]), "--background", "frame", "--quiet"]
 
 
-def _read(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _read(path: Path, xyz_columns: tuple[str, ...] = ("x", "y", "z")) -> tuple[np.ndarray, ...]:
     with open(path, newline="", encoding="utf-8") as f:
         rows = list(csv.DictReader(f))
     visible = np.array([r["visible"] == "1" for r in rows])
-    xyz = np.array([[float(r[c]) if r[c] else np.nan for c in "xyz"] for r in rows])
+    xyz = np.array([[float(r[c]) if r[c] else np.nan for c in xyz_columns] for r in rows])
     uv = np.array([[float(r[c]) if r[c] else np.nan for c in "uv"] for r in rows])
     return visible, xyz, uv
 
@@ -138,6 +138,11 @@ def test_two_views_triangulate_the_tip(clip: StereoClip, tmp_path: Path,
     assert visible[others].all()
     err = np.linalg.norm(xyz[visible] - clip.tips[visible], axis=1)
     assert err.max() < TIP_TOL_M and np.median(err) < MEDIAN_TOL_M, err
+    # The unfiltered triangulated tip (measured on this clip: 6.6 mm median, 12.2 at most).
+    _, raw, _ = _read(out, ("x_meas", "y_meas", "z_meas"))
+    err = np.linalg.norm(raw[visible] - clip.tips[visible], axis=1)
+    assert err.max() < TIP_TOL_M and np.median(err) < MEDIAN_TOL_M, err
+    assert np.all(np.isnan(raw[~visible]))
     # u,v is the measured tip's pixel in the first view.
     err_px = np.linalg.norm(uv[visible] - clip.cam_a.project(clip.tips[visible]), axis=1)
     assert err_px.max() < 8.0, err_px
