@@ -162,6 +162,9 @@ class CenterlineParams:
     #: spread over it): skeletons stop short of the mask ends, and a rendered 2 px cable measured 2.7 px
     #: (median) / 6.4 px (p95) short of its 200 px (benchmarks/tracking_accuracy.py).
     length_tolerance: float = 0.035
+    #: A path shorter than this many widths is no cable: a blob (a gripper, a box, a knot of noise) thins into
+    #: a skeleton about as long as it is wide, while a cable is many times longer than wide.
+    min_length_widths: float = 2.5
     #: A skeleton with more end/junction pixels than this is clutter (noise, a big blob),
     #: not a cable: nothing is reported, and the cost stays bounded.
     max_graph_nodes: int = 300
@@ -838,6 +841,8 @@ def extract_centerline(
     # junction) would smear the bridge over its neighbours and shift node visibility.
     jumps = np.flatnonzero(np.hypot(*np.diff(path, axis=0).T) > 2.0) + 1
     path = np.vstack([_smooth_path(piece, prm.smooth_half_window) for piece in np.split(path, jumps)])
+    if float(_arclength(path)[-1]) < prm.min_length_widths * width:
+        return empty_centerline(n_nodes)
     return nodes_from_path(path, seg_vis, n_nodes, expected_length_px, m.shape, width, prm)
 
 
