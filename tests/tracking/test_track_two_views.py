@@ -138,7 +138,8 @@ def test_two_views_triangulate_the_tip(clip: StereoClip, tmp_path: Path,
     assert visible[others].all()
     err = np.linalg.norm(xyz[visible] - clip.tips[visible], axis=1)
     assert err.max() < TIP_TOL_M and np.median(err) < MEDIAN_TOL_M, err
-    # The unfiltered triangulated tip (measured on this clip: 6.6 mm median, 12.2 at most).
+    # The unfiltered triangulated tip (measured on this clip: 10.1 mm median, 15.8 at most; the line's
+    # skeleton stops short of its rounded end in both views).
     _, raw, _ = _read(out, ("x_meas", "y_meas", "z_meas"))
     err = np.linalg.norm(raw[visible] - clip.tips[visible], axis=1)
     assert err.max() < TIP_TOL_M and np.median(err) < MEDIAN_TOL_M, err
