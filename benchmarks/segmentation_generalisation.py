@@ -344,7 +344,7 @@ def part_speed(seg, checkpoint: str | None, seed: int, repeats: int = 200) -> di
         torch.set_num_threads(1)
         ck = torch.load(checkpoint, weights_only=False)
         arch = ck["config"].get("arch", "cablenet")
-        net = build_net(arch)
+        net = build_net(arch, *ck["config"].get("widths", (8, 16, 32)))
         net.load_state_dict(ck["net"])
         net.eval()
         w, h = seg.input_size(480, 640)

@@ -60,6 +60,10 @@ ARCHITECTURES = ("cablenet", "cablenet-s2d4")
 S2D_BLOCK = 4
 
 
+#: :func:`build_net`'s default channels (c1, c2, c3): those of both shipped networks.
+DEFAULT_WIDTHS = (8, 16, 32)
+
+
 def build_net(arch: str = "cablenet", c1: int = 8, c2: int = 16, c3: int = 32) -> Any:
     """The network of architecture ``arch`` (see :data:`ARCHITECTURES`; torch is imported only here).
 
@@ -258,9 +262,16 @@ class TrainConfig:
     seed: int = 0
     #: Network architecture (:data:`ARCHITECTURES`).
     arch: str = "cablenet-s2d4"
+    #: Channels (c1, c2, c3) of :func:`build_net`'s levels.
+    widths: tuple[int, int, int] = DEFAULT_WIDTHS
     #: Share of each batch drawn from the external train split (0: synthetic only).
     external_share: float = 0.0
     checkpoint_every: int = 250
+
+
+def _with_widths(config: dict[str, Any]) -> dict[str, Any]:
+    """A stored training config with ``widths`` as a tuple (the default where it predates the option)."""
+    return {**config, "widths": tuple(config.get("widths", DEFAULT_WIDTHS))}
 
 
 def _atomic_save(obj: Any, path: Path) -> None:
@@ -299,6 +310,8 @@ def train(
         raise ValueError("external_share > 0 needs --external DIR")
     if config.arch not in ARCHITECTURES:
         raise ValueError(f"arch must be one of {ARCHITECTURES}, got {config.arch!r}")
+    if len(config.widths) != 3 or not all(isinstance(c, int) and c >= 1 for c in config.widths):
+        raise ValueError(f"widths must be three positive ints (c1, c2, c3), got {config.widths!r}")
     if config.arch == "cablenet-s2d4" and (config.crop_h % 16 or config.crop_w % 16):
         raise ValueError(
             f"cablenet-s2d4 needs crops in multiples of 16 px, got {config.crop_h}x{config.crop_w}"
@@ -309,6 +322,10 @@ def train(
         init_arch = init_state.get("config", {}).get("arch", "cablenet")  # before the choice: cablenet
         if init_arch != config.arch:
             raise ValueError(f"--init {init} holds a {init_arch} network; train it with --arch {init_arch}")
+        init_widths = tuple(init_state.get("config", {}).get("widths", DEFAULT_WIDTHS))
+        if init_widths != tuple(config.widths):
+            raise ValueError(f"--init {init} holds a network of widths {init_widths}; train it with --widths "
+                             f"{','.join(map(str, init_widths))}")
     images, masks = load_dataset(Path(data))
     ext_images: list[Any] = []
     ext_masks: list[Any] = []
@@ -317,14 +334,15 @@ def train(
         if not ext_images:
             raise ValueError(f"no labelled images found under {external}")
     out.mkdir(parents=True, exist_ok=True)
-    net = build_net(config.arch)
+    net = build_net(config.arch, *config.widths)
     opt = torch.optim.Adam(net.parameters(), lr=config.lr)
     step = 0
     history: list[dict[str, float]] = []
     rng = np.random.default_rng(config.seed)
     if resume:
         ck = torch.load(ckpt_path, weights_only=False)
-        if ck["config"] != asdict(config):
+        # Checkpoints from before the widths option hold the default ones.
+        if _with_widths(ck["config"]) != _with_widths(asdict(config)):
             raise ValueError(
                 f"--resume with other settings than the checkpoint's: {ck['config']} vs {asdict(config)}"
             )
@@ -396,7 +414,7 @@ def train(
     onnx = export_onnx(net)
     (out / "cable_segmenter.onnx").write_bytes(onnx)
     meta = {
-        "architecture": f"{config.arch}(c1=8, c2=16, c3=32)",
+        "architecture": f"{config.arch}(c1={config.widths[0]}, c2={config.widths[1]}, c3={config.widths[2]})",
         "parameters": int(sum(p.numel() for p in net.parameters())),
         "input": _LAYOUTS[config.arch],
         "train_config": asdict(config),

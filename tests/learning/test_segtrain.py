@@ -129,3 +129,36 @@ def test_command_rejects_bad_options(
     with pytest.raises(SystemExit):
         main(["seg-train", "--data", str(tmp_path), "--out", str(tmp_path / "r2"), "--quiet", "--steps", "1"])
     assert "no dataset.json" in capsys.readouterr().err
+
+
+def test_widths_build_train_and_guard_init(dataset: Path, tmp_path: Path,
+                                           capsys: pytest.CaptureFixture[str]) -> None:
+    """``--widths`` builds a narrower network (fewer parameters, recorded in the JSON); ``--init`` from other
+    widths, and widths that are not three positive integers, are refused before anything is written."""
+    assert main(["seg-train", "--data", str(dataset), "--out", str(tmp_path / "n"), "--quiet", "--steps", "1",
+                 "--batch", "1", "--widths", "4,16,32"]) == 0
+    meta = json.loads((tmp_path / "n" / "cable_segmenter.json").read_text())
+    assert meta["architecture"] == "cablenet-s2d4(c1=4, c2=16, c3=32)"
+    assert meta["parameters"] < sum(p.numel() for p in build_net("cablenet-s2d4").parameters())
+    assert LearnedSegmenter((tmp_path / "n" / "cable_segmenter.onnx").read_bytes()).blocks
+    with pytest.raises(ValueError, match="--widths 4,16,32"):
+        train(dataset, tmp_path / "d", TrainConfig(steps=1, batch=1, crop_h=64, crop_w=64), progress=False,
+              init=tmp_path / "n" / "checkpoint.pt")
+    assert not (tmp_path / "d").exists()
+    for bad in ("4,16", "4,0,32", "a,b,c"):
+        with pytest.raises(SystemExit) as exc:
+            main(["seg-train", "--data", str(dataset), "--out", str(tmp_path / "b"), "--quiet",
+                  "--widths", bad])
+        assert exc.value.code == 2 and "--widths" in capsys.readouterr().err
+    assert not (tmp_path / "b").exists()
+    # A checkpoint from before the option (no "widths" in its config) resumes as the default widths.
+    import torch
+
+    run = tmp_path / "old"
+    cfg = TrainConfig(steps=2, batch=1, crop_h=64, crop_w=64, checkpoint_every=1)
+    train(dataset, run, cfg, progress=False)
+    ck = torch.load(run / "checkpoint.pt", weights_only=False)
+    del ck["config"]["widths"]
+    ck["step"] = 1
+    torch.save(ck, run / "checkpoint.pt")
+    train(dataset, run, cfg, resume=True, progress=False)
