@@ -417,9 +417,10 @@ def part_loopcam(model: str | None, episodes: int = 3) -> dict:
     return out
 
 
-def part_loopspeed(episodes: int = 3, repeats: int = 5) -> dict:
+def part_loopspeed(model: str | None = None, episodes: int = 3, repeats: int = 5) -> dict:
     """Median ms per 640x480 loop frame: segmenter alone and tracker (segment + centreline + lift), per loop
-    segmenter; the two trackers are timed on the same frames, interleaved, so both see the same load."""
+    segmenter; the two trackers are timed on the same frames, interleaved, so both see the same load.
+    ``model`` (an ONNX file or shipped name) replaces the loop's learned network."""
     from dyndlo_vision.control.sim_perception import tracked_state
     from dyndlo_vision.policies import load
     from dyndlo_vision.tasks.registry import make_env
@@ -435,6 +436,8 @@ def part_loopspeed(episodes: int = 3, repeats: int = 5) -> dict:
             if ep:  # a new background image for the new episode's cable
                 sources[name][1].close()
             sources[name] = tracked_state(env, segmenter=name)
+            if name == "learned" and model is not None:  # the gripper mask's inner segmenter
+                sources[name][0].tracker.segmenter.base = LearnedSegmenter(onnx_bytes(model))
         cam = sources["background"][1]
         done = False
         while not done:
@@ -508,7 +511,7 @@ def main() -> int:
         report["loopcam"] = part_loopcam(args.model)
         print(json.dumps(report["loopcam"], indent=1))
     if "loopspeed" in parts:
-        report["loopspeed"] = part_loopspeed()
+        report["loopspeed"] = part_loopspeed(args.model)
         print(json.dumps(report["loopspeed"], indent=1))
     if "speed" in parts:
         report["speed"] = part_speed(seg, args.checkpoint, args.whip_seed)
