@@ -101,7 +101,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("video", metavar="VIDEO", help="video file OpenCV can read, or a folder of images")
     p.add_argument("--out", required=True, metavar="TRACK.csv", help="CSV to write (folder must exist)")
     p.add_argument(
-        "--calib", metavar="CALIB.json", help="camera calibration (PinholeCamera JSON); needs --plane"
+        "--calib", metavar="CALIB.json",
+        help="camera calibration (PinholeCamera JSON); needs --plane, or a second camera (--second-video)"
     )
     p.add_argument(
         "--plane",
