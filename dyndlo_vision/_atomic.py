@@ -119,7 +119,14 @@ def staged_folder(folder: Path) -> Iterator[Path]:
         yield stage
         if folder.is_dir():
             for item in sorted(stage.iterdir()):
-                os.replace(item, folder / item.name)
+                target = folder / item.name
+                if item.is_dir() and target.is_dir():  # a folder of outputs replaces its namesake whole
+                    old = Path(tempfile.mkdtemp(dir=folder, prefix=f".{item.name}.old-")) / item.name
+                    os.rename(target, old)
+                    os.rename(item, target)
+                    shutil.rmtree(old.parent, ignore_errors=True)
+                else:
+                    os.replace(item, target)
             stage.rmdir()
         else:
             folder.parent.mkdir(parents=True, exist_ok=True)

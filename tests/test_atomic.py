@@ -119,6 +119,15 @@ def test_staged_folder_lands_whole_or_leaves_nothing(tmp_path: Path) -> None:
     assert sorted(p.name for p in new.iterdir()) == ["demo.mp4", "metrics.json", "notes.txt"]
     assert (new / "demo.mp4").read_bytes() == b"video 2"
 
+    # A folder of outputs (demo --raw-videos' frames) replaces its namesake whole, again and again.
+    for frames in (["a.png", "b.png"], ["c.png"]):
+        with staged_folder(new) as stage:
+            (stage / "raw").mkdir()
+            for name in frames:
+                (stage / "raw" / name).write_bytes(b"png")
+        assert sorted(p.name for p in (new / "raw").iterdir()) == frames
+        assert sorted(p.name for p in new.iterdir()) == ["demo.mp4", "metrics.json", "notes.txt", "raw"]
+
 
 def test_check_output_folder_names_the_file_in_the_way(tmp_path: Path) -> None:
     (tmp_path / "f").write_text("x")

@@ -165,6 +165,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "onto the motion plane; 2: also the scene's second camera, the cable triangulated (vaulting, whose "
         "cable leaves the plane). Default: as many as the task's scene has (tip control 1, vaulting 2)",
     )
+    p.add_argument(
+        "--raw-videos",
+        action="store_true",
+        help="also write the first episode's unannotated camera frames, the inputs of `dyndlo-vision "
+        "track`: raw/ and camera.json (the --camera view's frames as lossless PNG files, and its "
+        "calibration), raw2/ and camera2.json (the scene's second tracking camera, where it has one), "
+        "tcp.csv (the gripper, time_s,x,y,z) and truth.csv (the true P_DLO), one row per frame",
+    )
     p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     p.add_argument(
         "--quiet", action="store_true", help="no progress bar on stderr (shown for --episodes > 1)"
@@ -200,6 +208,12 @@ def run(args: argparse.Namespace) -> int:
     if args.views is not None and args.observation != "tracked":
         raise ValueError(f"--views applies to the tracked observation, not to {args.observation!r}")
     push = parse_push(args.push)
+    if getattr(args, "raw_videos", False) and (args.observation != "tracked" or args.latency_ms):
+        raise ValueError(
+            "--raw-videos records the frames the loop's tracker is given, at the instants its truth is read: "
+            f"it needs --observation tracked without --latency-ms (got --observation {args.observation}, "
+            f"--latency-ms {args.latency_ms:g})"
+        )
     if not 0.0 <= args.actuation_latency_ms <= 1000.0:
         raise ValueError(f"--actuation-latency-ms must be in [0, 1000] ms, got {args.actuation_latency_ms}")
     out = Path(args.out)
@@ -244,6 +258,7 @@ def run(args: argparse.Namespace) -> int:
 
     episodes = []
     video: list[np.ndarray] = []
+    raw = RawRecording(env, views or 1) if getattr(args, "raw_videos", False) else None
     bar = tqdm(total=args.episodes, desc="demo episodes", unit="episode", file=sys.stderr,
                disable=args.quiet or args.episodes == 1)
     with bar:
@@ -260,6 +275,7 @@ def run(args: argparse.Namespace) -> int:
                 views=views,
                 goal_name=GOAL_NAMES[task],
                 actuation_latency_s=1e-3 * args.actuation_latency_ms,
+                raw=raw if i == 0 else None,
             )
             episodes.append(record)
             bar.update(1)
@@ -302,6 +318,8 @@ def run(args: argparse.Namespace) -> int:
                             "codec": codec}
         metrics["episodes"] = rows
         _write_plot(stage / "p_dlo.png", trace, GOAL_NAMES[task])
+        if raw is not None:
+            metrics["raw_videos"] = raw.write(stage, fps)
         text = json.dumps(metrics, indent=2)
         write_atomic(stage / "metrics.json", lambda p: Path(p).write_text(text))
     if args.episodes > 1:
@@ -313,6 +331,9 @@ def run(args: argparse.Namespace) -> int:
     note = "" if codec == "avc1" else " (MPEG-4 Part 2: this OpenCV build has no H.264 encoder)"
     print(f"wrote {out / 'demo.mp4'} ({len(video)} frames, {codec}{note}), {out / 'p_dlo.png'}, "
           f"{out / 'metrics.json'}")
+    if raw is not None:
+        print(f"wrote the raw camera frames for `dyndlo-vision track`: "
+              f"{', '.join(str(out / f) for f in metrics['raw_videos']['files'])}")
     return 0
 
 
@@ -377,6 +398,7 @@ def film_episode(
     goal_name: str = "target",
     actuation_latency_s: float = 0.0,
     views: int | None = None,
+    raw: RawRecording | None = None,
 ) -> dict[str, Any]:
     """One closed-loop episode (:func:`~dyndlo_vision.control.episode.run_loop_episode`), filmed.
 
@@ -392,6 +414,8 @@ def film_episode(
     def film(moment: Any) -> None:
         assert video is not None and moment.camera is not None
         calib = moment.camera.calibration
+        if raw is not None:
+            raw.add(moment)
         rgb = moment.frame.rgb if moment.frame is not None else moment.camera.read().rgb
         if moment.cycle is not None:
             video.append(_annotate(rgb, moment.cycle, calib, moment.goal, shown_legend))
@@ -417,6 +441,85 @@ def film_episode(
         actuation_latency_s=actuation_latency_s,
         views=views,
     )
+
+
+class RawRecording:
+    """The first episode's unannotated camera frames at every filmed instant, with the gripper's and the true
+    P_DLO's positions at the same instants: what ``dyndlo-vision track`` reads (one or two views).
+
+    In a control cycle the frames are the ones the loop's trackers were given, rendered at the cycle's start,
+    where the cycle's truth and TCP were read (the simulator has moved on by a period when the cycle is
+    reported); at the other filmed instants (after the last plan, the outcome) they are rendered then.
+    """
+
+    def __init__(self, env: Any, views: int) -> None:
+        self.env = env
+        self.views = views
+        self.frames: list[np.ndarray] = []
+        self.frames2: list[np.ndarray] = []
+        self.rows: list[tuple[float, Any, Any]] = []
+        self.calibs: list[Any] = []
+        self._second: Any = None
+
+    def add(self, moment: Any) -> None:
+        """Keeps this instant's frame(s), TCP and true P_DLO."""
+        from dyndlo_vision.cameras.simulated import MujocoCamera
+        from dyndlo_vision.sim.scene import SECOND_TRACKING_CAMERA_NAME
+
+        base = self.env.unwrapped
+        if not self.calibs:
+            self.calibs.append(moment.camera.calibration)
+            if self.views == 2:
+                self._second = MujocoCamera(base.model, base.data, SECOND_TRACKING_CAMERA_NAME,
+                                            width=moment.camera.width, height=moment.camera.height)
+                self.calibs.append(self._second.calibration)
+        if moment.cycle is not None:
+            if moment.frame is None or (self.views == 2 and moment.second_view is None):
+                raise RuntimeError("a control cycle without its camera frame(s) cannot be recorded raw")
+            self.frames.append(np.array(moment.frame.rgb, copy=True))
+            if self.views == 2:
+                self.frames2.append(np.array(moment.second_view.rgb, copy=True))
+            tcp = np.asarray(moment.cycle.tcp_position, dtype=float).reshape(3)
+        else:
+            self.frames.append(moment.camera.read().rgb.copy())
+            if self._second is not None:
+                self.frames2.append(self._second.read().rgb.copy())
+            tcp = np.asarray(base.scene.tcp_positions())[0].copy()
+        self.rows.append((float(moment.t), tcp, np.asarray(moment.p_dlo_true, dtype=float).copy()))
+
+    def write(self, folder: Path, fps: float) -> dict[str, Any]:
+        """Writes the videos, calibrations and the two CSVs into ``folder``; returns what it wrote."""
+        import csv
+
+        if self._second is not None:
+            self._second.close()
+            self._second = None
+        import cv2
+
+        written = {"frames": len(self.frames), "fps": fps, "files": []}
+        views = [("raw", "camera.json", self.frames)]
+        if self.frames2:
+            views.append(("raw2", "camera2.json", self.frames2))
+        # PNG, not MP4: video codecs smear a cable 1-2 px wide (the loop cameras'), which is what is tracked.
+        for (frames_name, calib_name, frames), calib in zip(views, self.calibs, strict=True):
+            (folder / frames_name).mkdir()
+            for k, rgb in enumerate(frames):
+                if not cv2.imwrite(str(folder / frames_name / f"frame_{k:05d}.png"),
+                                   cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)):
+                    raise RuntimeError(f"OpenCV cannot write PNG files into {folder / frames_name}")
+            calib.to_json(folder / calib_name)
+            written["files"] += [frames_name + "/", calib_name]
+        for name, column in (("tcp.csv", 1), ("truth.csv", 2)):
+            with open(folder / name, "w", newline="", encoding="utf-8") as f:
+                w = csv.writer(f)
+                w.writerow(["time_s", "x", "y", "z", "sim_time_s"])
+                for k, row in enumerate(self.rows):
+                    # Frame k's time on the video's clock (k / fps, as `track` reads it), the position when
+                    # the frame was rendered, and that instant's simulated time (the last frame, at the
+                    # outcome, is less than a period after the one before it).
+                    w.writerow([f"{k / fps:.6f}", *(f"{c:.6f}" for c in row[column]), f"{row[0]:.6f}"])
+            written["files"].append(name)
+        return written
 
 
 def _pixel(calib: Any, p: Any) -> tuple[int, int] | None:

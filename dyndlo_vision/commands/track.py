@@ -437,8 +437,12 @@ def _settings(args: argparse.Namespace) -> _Settings:
             "--cable-length needs --calib and --plane (or a second camera): the cable's length is measured "
             "in metres"
         )
-    if cable_length is not None and parse_point(args.point) != 1.0:
-        raise ValueError(f"--cable-length places the free tip; it cannot be used with --point {args.point}")
+    if cable_length is not None and parse_point(args.point) != 1.0 and second_video is None:
+        raise ValueError(
+            f"--cable-length places the free tip with one camera; it cannot be used with --point "
+            f"{args.point} (with two cameras it can: the point is then that share of the length along the "
+            "triangulated cable)"
+        )
     tcp_log = None if args.tcp_log is None else Path(args.tcp_log)
     if tcp_log is not None and not world:
         raise ValueError(
@@ -830,7 +834,10 @@ class _PointTracker:
             held = triangulate(cams[0], starts[0][None], cams[1], starts[1][None])[0][0]
             if not np.all(np.isfinite(held)):
                 return None
-        meas = stereo_measurement(first, cams[0], second, cams[1], held, None, StereoParams())
+        # With the cable's length, an inner point is that share of it along the triangulated cable (a material
+        # point, as in the vault loop); the tip keeps the polyline's own end, continued below if short.
+        length = self.cfg.cable_length_m if self.cfg.fraction < 1 else None
+        meas = stereo_measurement(first, cams[0], second, cams[1], held, length, StereoParams())
         return meas, held
 
     def step(self, frames: list[Frame], draw: bool) -> tuple[list[object], NDArray[np.uint8] | None]:
@@ -865,7 +872,7 @@ class _PointTracker:
                 if self.world
                 else np.append(uv, 0.0)
             )
-        if z is not None and self.world and cfg.cable_length_m is not None:
+        if z is not None and self.world and cfg.cable_length_m is not None and cfg.fraction == 1:
             # The polyline's end is the tip only if the polyline is as long as the cable; otherwise the cable
             # disappears there (behind something) and goes on, or too little of it is seen to place the tip.
             from dyndlo_vision.tracking.tracker import tip_from_polyline
