@@ -675,8 +675,13 @@ class _View:
         self.gripper_mask.center_uv = self.calib.project(tcp[None])[0]
         self.gripper_mask.radius_px = radius_m * float(self.calib.K[0, 0]) / depth
 
-    def measure(self, frame: Frame) -> Measurement:
-        """The tracker's measurement of one frame, with the held end chosen as the options say."""
+    def measure(self, frame: Frame,
+                first_view_held: tuple[PinholeCamera, NDArray[np.float64]] | None = None) -> Measurement:
+        """The tracker's measurement of one frame, with the held end chosen as the options say.
+
+        ``first_view_held``: for the second camera without an anchor of its own, the first camera and the
+        pixel where it sees the held end: of the two cable ends, the held end is the one nearer that pixel's
+        epipolar line (the same point, seen from here), else the upper one."""
         # The anchor picks the held end until the cable is first seen; from then on the tracker follows node 0
         # from frame to frame, because a held end that moves (a robot's gripper) can come closer to a fixed
         # anchor pixel than the swinging tip does.
@@ -692,14 +697,22 @@ class _View:
             self.held_end_found = True
             if self.anchor is None and self.gripper_mask is None:
                 # Either end could be node 0 (the walk's start), and a tip taken for the held end is a
-                # confident wrong answer: take the upper end, a hanging cable's held end.
-                if cl.path_uv[-1, 1] < cl.path_uv[0, 1]:
+                # confident wrong answer: take the end on the held end's epipolar line, or else the upper
+                # end, a hanging cable's held end.
+                rule = "the upper cable end"
+                flip = cl.path_uv[-1, 1] < cl.path_uv[0, 1]
+                if first_view_held is not None and self.calib is not None:
+                    gaps = _epipolar_gaps(*first_view_held, self.calib, cl.path_uv[[0, -1]])
+                    if abs(gaps[0] - gaps[1]) > 1e-3:  # normalised units: about half a pixel at f = 500
+                        flip = bool(gaps[1] < gaps[0])
+                        rule = "the cable end on the epipolar line of the first view's held end"
+                if flip:
                     meas = self.tracker.process(frame.rgb, frame.t_capture, anchor_uv=cl.path_uv[-1])
                     cl = meas.centerline
                 u0, v0 = meas.nodes_uv[0]
                 print(
-                    f"note: no {self.anchor_option}; took the upper cable end, at pixel ({u0:.0f}, "
-                    f"{v0:.0f}) in frame {frame.index} of {self.video}, as the held end",
+                    f"note: no {self.anchor_option}; took {rule}, at pixel ({u0:.0f}, {v0:.0f}) in frame "
+                    f"{frame.index} of {self.video}, as the held end",
                     file=sys.stderr,
                 )
         return meas
@@ -719,6 +732,19 @@ class _View:
         cut = cut_border or any(n and e[1] for n, e in zip(need, ends, strict=True))
         self.n_cut_by_zone += int(cut and not cut_border)
         return cut
+
+
+def _epipolar_gaps(cam_a: PinholeCamera, uv_a: NDArray[np.float64], cam_b: PinholeCamera,
+                   uv_b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Distances (normalised image units of ``cam_b``) of the pixels ``uv_b`` (K, 2) from the epipolar line
+    of ``uv_a`` (a pixel of ``cam_a``)."""
+    from dyndlo_vision.tracking.stereo import essential_matrix
+
+    xa = np.append(cam_a.normalized_coords(np.asarray(uv_a, dtype=float).reshape(1, 2))[0], 1.0)
+    line = essential_matrix(cam_a, cam_b) @ xa
+    xb = np.column_stack([cam_b.normalized_coords(np.asarray(uv_b, dtype=float).reshape(-1, 2)),
+                          np.ones(len(uv_b))])
+    return np.asarray(np.abs(xb @ line) / max(float(np.linalg.norm(line[:2])), 1e-300), dtype=np.float64)
 
 
 def _path_end(cl: Any, last: bool = True) -> NDArray[np.float64] | None:
@@ -849,7 +875,12 @@ class _PointTracker:
         cfg = self.cfg
         frame = frames[0]
         tcp = self._gripper(frame.t_capture)
-        measurements = [view.measure(f) for view, f in zip(self.views, frames, strict=True)]
+        measurements = [self.views[0].measure(frame)]
+        if self.stereo:
+            cl = measurements[0].centerline
+            start = None if cl is None or not cl.any_visible else _path_end(cl, last=False)
+            held_seen = None if start is None else (self.views[0].calib, start)
+            measurements.append(self.views[1].measure(frames[1], held_seen))
         cut = any([view.cut(m, cfg.fraction) for view, m in zip(self.views, measurements, strict=True)])
         meas, held = measurements[0], tcp
         if self.stereo and not cut:

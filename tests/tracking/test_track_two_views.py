@@ -289,3 +289,28 @@ def test_inset_view_puts_the_second_view_top_right() -> None:
         inset_view(base, view, fraction=0)
     with pytest.raises(ValueError, match="view must be"):
         inset_view(base, view[..., 0])
+
+
+def test_without_anchors_the_second_view_takes_the_end_on_the_held_ends_epipolar_line(
+        clip: StereoClip, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """Without anchors each view must choose which cable end is held. The first takes the upper end (a hanging
+    cable's). A second camera rolled upside down sees the held end at the bottom, so "the upper end" would be
+    the tip there; the end on the epipolar line of the first view's held end is the held end in any pose."""
+    flip = np.diag([-1.0, -1.0, 1.0])  # 180 degrees about the optical axis
+    cam_b = clip.cam_b
+    rolled = PinholeCamera(cam_b.width, cam_b.height, cam_b.K, cam_b.dist, flip @ cam_b.R, flip @ cam_b.t,
+                           fps=cam_b.fps)
+    curves = [cable_world(k / FPS) for k in range(N_FRAMES)]
+    video_b = _write(tmp_path / "rolled.mp4", _render(rolled, curves))
+    calib_b = tmp_path / "rolled.json"
+    rolled.to_json(calib_b)
+    assert rolled.project(clip.held[:1])[0, 1] > rolled.project(clip.tips[:1])[0, 1]  # held end below the tip
+    out = tmp_path / "t.csv"
+    assert main(["track", str(clip.video_a), "--calib", str(clip.calib_a), "--second-video", str(video_b),
+                 "--second-calib", str(calib_b), "--background", "frame", "--quiet", "--out", str(out)]) == 0
+    err_text = capsys.readouterr().err
+    assert "took the cable end on the epipolar line of the first view's held end" in err_text
+    visible, xyz, _ = _read(out, ("x_meas", "y_meas", "z_meas"))
+    assert visible.mean() > 0.9
+    err = np.linalg.norm(xyz[visible] - clip.tips[visible], axis=1)
+    assert np.median(err) < MEDIAN_TOL_M and err.max() < TIP_TOL_M, err
