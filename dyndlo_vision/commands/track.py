@@ -31,11 +31,13 @@ view it is not measured (:func:`~dyndlo_vision.tracking.tracker.tip_from_polylin
 vaulted, whipped out of plane) cannot be placed by one camera. With a second camera's video of the same
 motion, recorded in sync (frame k of both videos at the same time), the cable is tracked in both and its
 centreline is triangulated (:func:`~dyndlo_vision.tracking.stereo.stereo_measurement`): no ``--plane`` is
-needed. The held end is the logged gripper (``--tcp-log``) or else triangulated from where the two centrelines
-start. Without ``--cable-length`` a point past the held end is measured only when the triangulated cable
-reaches the far end of the cable in both images (one view may hide the tip); with it, the tip is placed from
-the triangulated polyline as in one view. ``u,v`` stay in the first video's pixels; the annotated video
-insets the second.
+needed. The held end is the logged gripper (``--tcp-log``) or else triangulated from where the two
+centrelines start; without ``--second-anchor`` the second view's held end is the cable end on the epipolar
+line of the first view's. Without ``--cable-length`` a point past the held end is measured only when the
+triangulated cable reaches the far end of the cable in both images (one view may hide the tip). With it, the
+tip is placed from the triangulated polyline as in one view, and ``--point FRACTION`` is that share of the
+length along the triangulated cable. ``u,v`` stay in the first video's pixels; the annotated video insets the
+second.
 
 Outputs are written to temporary files beside their destinations and renamed at the end, so after any error
 neither the CSV nor the video exists.
