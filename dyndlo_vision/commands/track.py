@@ -171,8 +171,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=float,
         metavar="L",
         help="length of the cable in metres from where it leaves the held end (the gripper) to its tip; with "
-        "--calib/--plane and --point tip, a polyline shorter than that is continued straight by the missing "
-        "length (the tip hidden behind something), and under half of it the tip is not measured (visible=0)",
+        "--point tip, a polyline shorter than that is continued straight by the missing length (the tip "
+        "hidden behind something), and under half of it the tip is not measured (visible=0); with two "
+        "cameras, --point FRACTION is then that share of the length along the triangulated cable",
     )
     p.add_argument(
         "--tcp-log",
