@@ -118,8 +118,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "both at the same time, at the same frame rate. The cable is tracked in both and triangulated, so it "
         "may move in 3D; needs --calib and --second-calib, and replaces --plane",
     )
-    p.add_argument("--second-calib", metavar="CALIB2.json", help="the second camera's calibration, in the "
-                   "same world frame as --calib (e.g. both from `dyndlo-vision calibrate` on one board)")
+    p.add_argument("--second-calib", metavar="CALIB2.json",
+                   help="the second camera's calibration, in the same world frame as --calib (e.g. both from "
+                   "`dyndlo-vision calibrate --extrinsic` with one board lying at one pose)")
     p.add_argument("--second-anchor", metavar="U,V", help="--anchor for the second video")
     p.add_argument(
         "--segmenter",
