@@ -96,6 +96,7 @@ _MAX_CABLE_WIDTH_SHARE = 0.1
 #: ``--gripper-radius`` default: the simulator's 2 cm gripper sphere plus a margin (the loop masks the same).
 _GRIPPER_RADIUS_M = 0.03
 CSV_COLUMNS = ("frame", "time_s", "visible", "u", "v", "x", "y", "z", "x_meas", "y_meas", "z_meas")
+NODE_CSV_COLUMNS = ("frame", "time_s", "node", "visible", "u", "v", "x", "y", "z")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -204,6 +205,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--nodes", type=int, default=20, help="centreline nodes (default 20)")
     p.add_argument("--annotated", metavar="OUT.mp4", help="also write an annotated MP4")
+    p.add_argument(
+        "--nodes-out",
+        metavar="NODES.csv",
+        help="also write the whole tracked cable: one row per frame and node (--nodes of them, node 0 at the "
+        "held end), columns frame,time_s,node,visible,u,v,x,y,z; the measured, unfiltered positions (x,y,z "
+        "lifted onto --plane or triangulated from two cameras; empty in pixel mode and where not measured)",
+    )
     p.add_argument("--fps", type=float, help="frame rate; overrides the video's time stamps (folders: 25)")
     p.add_argument(
         "--sigma-accel",
@@ -345,6 +353,7 @@ class _Settings:
     video: Path
     out: Path
     annotated: Path | None
+    nodes_out: Path | None
     second_video: Path | None
     second_calib: Path | None
     second_anchor: NDArray[np.float64] | None
@@ -473,8 +482,9 @@ def _settings(args: argparse.Namespace) -> _Settings:
     )
     out = Path(args.out)
     annotated = None if args.annotated is None else Path(args.annotated)
+    nodes_out = None if getattr(args, "nodes_out", None) is None else Path(args.nodes_out)
     video = Path(args.video)
-    for path, option in ((out, "--out"), (annotated, "--annotated")):
+    for path, option in ((out, "--out"), (annotated, "--annotated"), (nodes_out, "--nodes-out")):
         if path is None:
             continue
         if not path.parent.is_dir():
@@ -489,10 +499,14 @@ def _settings(args: argparse.Namespace) -> _Settings:
             raise ValueError(f"--annotated must be an .mp4 file name, got {annotated}")
         if annotated.resolve() == out.resolve():
             raise ValueError(f"--out and --annotated are the same file: {out}")
+    others = {p.resolve() for p in (out, annotated) if p is not None}
+    if nodes_out is not None and nodes_out.resolve() in others:
+        raise ValueError(f"--nodes-out {nodes_out} is another output's file")
     return _Settings(
         video=video,
         out=out,
         annotated=annotated,
+        nodes_out=nodes_out,
         second_video=second_video,
         second_calib=None if args.second_calib is None else Path(args.second_calib),
         second_anchor=None if args.second_anchor is None else parse_floats(
@@ -826,6 +840,20 @@ class _PointTracker:
         self.n_without_tcp = 0
         #: Two views: frames whose triangulated cable did not reach the far end in both images.
         self.n_not_both = 0
+        #: The last frame's measurement the tracked point came from (the triangulated one with two views).
+        self.last_nodes: Measurement | None = None
+
+    def node_rows(self, frame: Frame) -> list[list[object]]:
+        """``--nodes-out`` rows of the last stepped frame: each node's measured pixel and world position."""
+        meas = self.last_nodes
+        rows: list[list[object]] = []
+        for k in range(len(meas.visible)):
+            seen = bool(meas.visible[k])
+            uv = meas.nodes_uv[k] if seen else np.full(2, np.nan)
+            xyz = meas.nodes_xyz[k] if seen and self.world else np.full(3, np.nan)
+            rows.append([frame.index, f"{frame.t_capture:.6f}", k, int(seen and np.all(np.isfinite(uv)))]
+                        + [_fmt(float(c), 3) for c in uv] + [_fmt(float(c), 6) for c in xyz])
+        return rows
 
     @property
     def n_cut_by_zone(self) -> int:
@@ -899,6 +927,7 @@ class _PointTracker:
                         meas.nodes_xyz, self.views, measurements, StereoParams().samples):
                     cut = True
                     self.n_not_both += 1
+        self.last_nodes = meas
         uv = None if cut else point_on_nodes(meas.nodes_uv, meas.visible, cfg.fraction)
         z = None  # what the filter measures: world metres, or (u, v, 0) pixels without a calibration
         if uv is not None:
@@ -1063,6 +1092,7 @@ def _run(args: argparse.Namespace) -> int:
         pipeline = _PointTracker(cfg, calib, second_calib)
         pipeline.fps = source.fps
         destinations = [cfg.out] + ([cfg.annotated] if cfg.annotated is not None else [])
+        destinations += [cfg.nodes_out] if cfg.nodes_out is not None else []
         outputs = _AtomicOutputs(destinations)
         with outputs as temps:
             writer = None
@@ -1074,6 +1104,8 @@ def _run(args: argparse.Namespace) -> int:
             try:
                 with (
                     open(temps[0], "w", newline="", encoding="utf-8") as f,
+                    (open(temps[-1], "w", newline="", encoding="utf-8") if cfg.nodes_out is not None
+                     else contextlib.nullcontext()) as nodes_file,
                     tqdm(
                         total=source.frame_count,
                         unit="frame",
@@ -1084,9 +1116,14 @@ def _run(args: argparse.Namespace) -> int:
                 ):
                     rows = csv.writer(f)
                     rows.writerow(CSV_COLUMNS)
+                    node_rows = None if nodes_file is None else csv.writer(nodes_file)
+                    if node_rows is not None:
+                        node_rows.writerow(NODE_CSV_COLUMNS)
                     for frames in _frame_pairs(source, second, cfg):
                         row, image = pipeline.step(frames, draw=writer is not None)
                         rows.writerow(row)
+                        if node_rows is not None:
+                            node_rows.writerows(pipeline.node_rows(frames[0]))
                         if writer is not None and image is not None:
                             writer.write(cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
                         progress.update(1)

@@ -926,3 +926,27 @@ def test_learned_segmenter_tracks_the_synthetic_clip(
     print(f"learned: measured {visible.sum()}, tip error px median {np.median(err_px):.1f}, "
           f"max {err_px.max():.1f}")
     assert np.median(err_px) < TIP_TOL_PX, err_px
+
+
+def test_nodes_out_in_one_view_lies_on_the_plane_and_on_the_cable(clip: Clip, tmp_path: Path) -> None:
+    """``--nodes-out`` with one camera: the lifted nodes, on the plane y = 0 and on the drawn cable; none in
+    the blank frames; pixels only (no x,y,z) without a calibration."""
+    nodes = tmp_path / "nodes.csv"
+    args = [str(clip.video), "--calib", str(clip.calib), "--plane", "0,1,0,0", "--anchor", _anchor(clip)]
+    assert main(["track", *args, "--quiet", "--out", str(tmp_path / "t.csv"), "--nodes-out", str(nodes)]) == 0
+    _, rows = _read_csv(nodes)
+    assert len(rows) == 20 * N_FRAMES
+    seen = np.array([r["visible"] == "1" for r in rows])
+    frames = np.array([int(r["frame"]) for r in rows])
+    assert not seen[np.isin(frames, BLANK_FRAMES)].any()
+    xyz = _column([r for r, s in zip(rows, seen, strict=True) if s], "x,y,z")
+    np.testing.assert_allclose(xyz[:, 1], 0.0, atol=1e-9)
+    curves = {k: cable_world(k / FPS) for k in range(N_FRAMES)}
+    d = [np.min(np.linalg.norm(curves[f][:, [0, 2]] - p[[0, 2]], axis=1))
+         for f, p in zip(frames[seen], xyz, strict=True)]
+    assert np.median(d) < 0.004 and max(d) < 0.015, (np.median(d), max(d))
+    pixel = tmp_path / "pixel.csv"
+    assert main(["track", str(clip.video), "--anchor", _anchor(clip), "--quiet", "--out",
+                 str(tmp_path / "p.csv"), "--nodes-out", str(pixel)]) == 0
+    _, rows = _read_csv(pixel)
+    assert all(r["x"] == "" for r in rows) and any(r["u"] for r in rows)
