@@ -488,13 +488,14 @@ class RawRecording:
         self.rows.append((float(moment.t), tcp, np.asarray(moment.p_dlo_true, dtype=float).copy()))
 
     def write(self, folder: Path, fps: float) -> dict[str, Any]:
-        """Writes the videos, calibrations and the two CSVs into ``folder``; returns what it wrote."""
+        """Writes the frame folders, calibrations and the two CSVs into ``folder``; returns what it wrote."""
         import csv
+
+        import cv2
 
         if self._second is not None:
             self._second.close()
             self._second = None
-        import cv2
 
         written = {"frames": len(self.frames), "fps": fps, "files": []}
         views = [("raw", "camera.json", self.frames)]
