@@ -414,9 +414,9 @@ def film_episode(
     def film(moment: Any) -> None:
         assert video is not None and moment.camera is not None
         calib = moment.camera.calibration
-        if raw is not None:
-            raw.add(moment)
         rgb = moment.frame.rgb if moment.frame is not None else moment.camera.read().rgb
+        if raw is not None:
+            raw.add(moment, rgb)
         if moment.cycle is not None:
             video.append(_annotate(rgb, moment.cycle, calib, moment.goal, shown_legend))
             if moment.second_view is not None:
@@ -461,8 +461,9 @@ class RawRecording:
         self.calibs: list[Any] = []
         self._second: Any = None
 
-    def add(self, moment: Any) -> None:
-        """Keeps this instant's frame(s), TCP and true P_DLO."""
+    def add(self, moment: Any, rgb: np.ndarray) -> None:
+        """Keeps this instant's frame(s), TCP and true P_DLO; ``rgb`` is the loop camera's frame the video
+        shows (the trackers' frame in a cycle, the present otherwise)."""
         from dyndlo_vision.cameras.simulated import MujocoCamera
         from dyndlo_vision.sim.scene import SECOND_TRACKING_CAMERA_NAME
 
@@ -473,15 +474,14 @@ class RawRecording:
                 self._second = MujocoCamera(base.model, base.data, SECOND_TRACKING_CAMERA_NAME,
                                             width=moment.camera.width, height=moment.camera.height)
                 self.calibs.append(self._second.calibration)
+        self.frames.append(np.array(rgb, copy=True))
         if moment.cycle is not None:
             if moment.frame is None or (self.views == 2 and moment.second_view is None):
                 raise RuntimeError("a control cycle without its camera frame(s) cannot be recorded raw")
-            self.frames.append(np.array(moment.frame.rgb, copy=True))
             if self.views == 2:
                 self.frames2.append(np.array(moment.second_view.rgb, copy=True))
             tcp = np.asarray(moment.cycle.tcp_position, dtype=float).reshape(3)
         else:
-            self.frames.append(moment.camera.read().rgb.copy())
             if self._second is not None:
                 self.frames2.append(self._second.read().rgb.copy())
             tcp = np.asarray(base.scene.tcp_positions())[0].copy()

@@ -796,9 +796,8 @@ def _reaches_far_ends(nodes_xyz: NDArray[np.float64], views: list[_View], measur
     last = nodes_xyz[np.all(np.isfinite(nodes_xyz), axis=1)]
     if len(last) == 0:
         return False
-    lengths = [float(np.nansum(np.linalg.norm(np.diff(m.centerline.path_uv, axis=0), axis=1)))
-               for m in measurements]
-    tol = _STEREO_END_TOL_PX + 2.0 * max(lengths) / max(samples - 1, 1)
+    longest = max(float(m.centerline.length_px) for m in measurements)
+    tol = _STEREO_END_TOL_PX + 2.0 * longest / max(samples - 1, 1)
     for view, m in zip(views, measurements, strict=True):
         end = _path_end(m.centerline)
         assert view.calib is not None
