@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from dyndlo_vision.tracking.camera_model import PinholeCamera
 
@@ -42,3 +44,17 @@ def gt_params(points: np.ndarray, curve: np.ndarray) -> np.ndarray:
 def curve_length(curve: np.ndarray) -> float:
     """Arc length of a polyline."""
     return float(np.sum(np.hypot(*np.diff(curve, axis=0).T)))
+
+
+def assert_track_refuses(argv: list[str], message: str, outputs: Path, capsys: pytest.CaptureFixture) -> None:
+    """``dyndlo-vision track ARGV`` exits with status 2, says ``message`` (a regex) on stderr, and leaves the
+    ``outputs`` folder empty."""
+    from dyndlo_vision.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["track", *argv])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert re.search(message, err), err
+    assert list(outputs.iterdir()) == []
+

@@ -19,7 +19,7 @@ from dyndlo_vision.tracking.centerline import extract_centerline
 from dyndlo_vision.tracking.masks import CableShapedMask
 from dyndlo_vision.tracking.synthetic import render_cable
 
-from .helpers import look_at_camera
+from .helpers import assert_track_refuses, look_at_camera
 
 FPS = 25.0
 N_FRAMES = 36
@@ -821,12 +821,7 @@ def test_bad_input_exits_2_and_writes_nothing(
     argv = [a.format(**values) for a in template]
     if "--annotated" not in argv:
         argv += ["--annotated", str(outputs / "t.mp4")]
-    with pytest.raises(SystemExit) as exc:
-        main(["track", *argv])
-    assert exc.value.code == 2
-    err = capsys.readouterr().err
-    assert re.search(message, err), err
-    assert list(outputs.iterdir()) == []
+    assert_track_refuses(argv, message, outputs, capsys)
 
 
 # ------------------------------------------------------------------------------------------------ helpers

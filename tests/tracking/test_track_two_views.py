@@ -17,7 +17,7 @@ from dyndlo_vision.tracking.annotate import inset_view
 from dyndlo_vision.tracking.camera_model import PinholeCamera
 from dyndlo_vision.tracking.synthetic import render_cable
 
-from .helpers import look_at_camera
+from .helpers import assert_track_refuses, look_at_camera
 
 FPS = 25.0
 N_FRAMES = 30
@@ -266,12 +266,7 @@ def test_bad_two_view_input_exits_2_and_writes_nothing(case: str, clip: StereoCl
             "--quiet"]
     if "--annotated" not in argv:
         argv += ["--annotated", str(outputs / "t.mp4")]
-    with pytest.raises(SystemExit) as exc:
-        main(["track", *argv])
-    assert exc.value.code == 2
-    err = capsys.readouterr().err
-    assert re.search(message, err), err
-    assert list(outputs.iterdir()) == []
+    assert_track_refuses(argv, message, outputs, capsys)
 
 
 def test_inset_view_puts_the_second_view_top_right() -> None:
@@ -354,7 +349,5 @@ def test_nodes_out_must_be_its_own_file(clip: StereoClip, tmp_path: Path,
     out.mkdir()
     cases = ((out / "t.csv", "another output's file"), (out / "no" / "n.csv", "does not exist"))
     for nodes, message in cases:
-        with pytest.raises(SystemExit) as exc:
-            main(["track", *_stereo_args(clip), "--out", str(out / "t.csv"), "--nodes-out", str(nodes)])
-        assert exc.value.code == 2 and message in capsys.readouterr().err
-    assert list(out.iterdir()) == []
+        assert_track_refuses([*_stereo_args(clip), "--out", str(out / "t.csv"), "--nodes-out", str(nodes)],
+                             re.escape(message), out, capsys)
