@@ -76,18 +76,18 @@ def thin_coords(mask: NDArray[np.uint8]) -> NDArray[np.intp]:
     img = np.zeros((h + 2, wp), dtype=np.uint8)
     img[1:-1, 1:-1] = mask != 0
     flat = img.reshape(-1)
-    offs = [dy * wp + dx for dy, dx in _OFFSETS]
     idx = np.flatnonzero(flat)
+    # Each foreground pixel's 8 neighbours, gathered at once and packed into its neighbour code (bit k: P(k+2)).
+    nbrs = idx[:, None] + np.array([dy * wp + dx for dy, dx in _OFFSETS])
     quiet = 0
     while idx.size and quiet < 2:  # two sub-iterations in a row without change: converged
         for lut in (_LUT1, _LUT2):
-            code = flat[idx + offs[0]]
-            for k in range(1, 8):
-                code |= flat[idx + offs[k]] << k
+            code = np.packbits(flat[nbrs], axis=1, bitorder="little").reshape(-1)
             delete = lut[code]
             if delete.any():
                 flat[idx[delete]] = 0
-                idx = idx[~delete]
+                keep = ~delete
+                idx, nbrs = idx[keep], nbrs[keep]
                 quiet = 0
             else:
                 quiet += 1
@@ -553,11 +553,9 @@ def _direction(b: _Branch, end: int, skip: float, length: float) -> NDArray[np.f
         return np.zeros(2)
     s0 = min(skip, total / 3.0)
     s1 = min(s0 + length, total)
-    p0 = np.array([np.interp(s0, s, pts[:, 0]), np.interp(s0, s, pts[:, 1])])
-    p1 = np.array([np.interp(s1, s, pts[:, 0]), np.interp(s1, s, pts[:, 1])])
-    d = p1 - p0
-    n = math.hypot(d[0], d[1])
-    return d / n if n > 0 else np.zeros(2)
+    du, dv = np.diff(np.interp((s0, s1), s, pts[:, 0])), np.diff(np.interp((s0, s1), s, pts[:, 1]))
+    n = math.hypot(du[0], dv[0])
+    return np.array([du[0] / n, dv[0] / n]) if n > 0 else np.zeros(2)
 
 
 def _angle_deg(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:

@@ -32,19 +32,31 @@ _MULTIPLE = 16
 
 def to_blocks(rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
     """(H, W, 3) uint8 with H, W multiples of 4 -> (1, 48, H/4, W/4) float32 ``RGB / 255 - 0.5``, channel
-    ``c * 16 + 4 * i + j`` holding colour ``c`` of pixel ``(i, j)`` of each block (``pixel_unshuffle``)."""
+    ``c * 16 + 4 * i + j`` holding colour ``c`` of pixel ``(i, j)`` of each block (``pixel_unshuffle``).
+
+    Built from whole rows, which is faster than one strided numpy transpose (docs/RESULTS.md, "The 5 ms
+    rule"): ``cv2.split`` parts each row into the 12 colour-and-column planes of a block row (plane
+    ``3 * j + c``); the planes are then reordered as a copy of contiguous rows."""
     h, w = rgb.shape[:2]
-    blocks = rgb.reshape(h // BLOCK, BLOCK, w // BLOCK, BLOCK, 3).transpose(4, 1, 3, 0, 2)
-    out = np.empty((1, 3 * BLOCK * BLOCK, h // BLOCK, w // BLOCK), np.float32)
-    np.multiply(blocks.reshape(out.shape), np.float32(1.0 / 255.0), out=out, casting="unsafe")
-    out -= np.float32(0.5)
-    return out
+    planes = cv2.split(np.ascontiguousarray(rgb).reshape(h, w // BLOCK, 3 * BLOCK))
+    by_plane = np.stack(planes).reshape(BLOCK, 3, h // BLOCK, BLOCK, w // BLOCK)  # j, c, y, i, x
+    ordered = np.ascontiguousarray(by_plane.transpose(1, 3, 0, 2, 4)).reshape(-1, w // BLOCK)  # c, i, j, y, x
+    out = cv2.addWeighted(ordered, 1.0 / 255.0, ordered, 0.0, -0.5, dtype=cv2.CV_32F)
+    return out.reshape(1, 3 * BLOCK * BLOCK, h // BLOCK, w // BLOCK)
 
 
 def from_blocks(blocks: NDArray[np.generic]) -> NDArray[np.generic]:
-    """(16, h, w) per-block values -> (4h, 4w) image (``pixel_shuffle``)."""
+    """(16, h, w) per-block values -> (4h, 4w) image (``pixel_shuffle``).
+
+    Row ``i`` of every block is its four planes ``4 * i + j`` interleaved pixel by pixel, which ``cv2.merge``
+    does in one pass; a bool array goes through as uint8."""
     c, h, w = blocks.shape
-    return blocks.reshape(BLOCK, BLOCK, h, w).transpose(2, 0, 3, 1).reshape(h * BLOCK, w * BLOCK)
+    src = np.ascontiguousarray(blocks)
+    planes = src.view(np.uint8) if src.dtype == np.bool_ else src
+    out = np.empty((h, BLOCK, w * BLOCK), planes.dtype)
+    for i in range(BLOCK):
+        out[:, i, :] = cv2.merge(list(planes[BLOCK * i : BLOCK * (i + 1)])).reshape(h, w * BLOCK)
+    return out.reshape(h * BLOCK, w * BLOCK).view(src.dtype)
 
 
 class LearnedSegmenter:
