@@ -77,7 +77,7 @@ def thin_coords(mask: NDArray[np.uint8]) -> NDArray[np.intp]:
     img[1:-1, 1:-1] = mask != 0
     flat = img.reshape(-1)
     idx = np.flatnonzero(flat)
-    # Each foreground pixel's 8 neighbours, gathered at once and packed into its neighbour code (bit k: P(k+2)).
+    # Each foreground pixel's 8 neighbours, gathered at once and packed into its code (bit k: P(k+2)).
     nbrs = idx[:, None] + np.array([dy * wp + dx for dy, dx in _OFFSETS])
     quiet = 0
     while idx.size and quiet < 2:  # two sub-iterations in a row without change: converged
