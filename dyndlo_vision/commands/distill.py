@@ -100,6 +100,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "this probability, so the roll-in stays near the expert's plan (default 0: the student acts)",
     )
     p.add_argument(
+        "--expert-replan",
+        type=float,
+        default=None,
+        metavar="MM",
+        help="in DAgger rounds, where the expert cannot rejoin its plan (fit residual above MM, e.g. 2), "
+        "label with a re-plan searched from the student's state in simulation (privileged) and follow "
+        "that plan from then on (default: off; the plan-following label everywhere)",
+    )
+    p.add_argument(
         "--expert-noise",
         type=float,
         default=0.0,
@@ -161,6 +170,7 @@ def run(args: argparse.Namespace) -> int:
         expert_noise=args.expert_noise,
         p_dlo_history=args.p_dlo_history,
         expert_smoothing=args.expert_smoothing,
+        expert_replan_mm=args.expert_replan,
     )
     out = Path(args.out or f"runs/{args.task}-multi-step-distill-s{args.seed}")
     try:

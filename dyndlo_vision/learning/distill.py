@@ -13,6 +13,8 @@ the current position and velocity.
 * :class:`CableSearchTeacher` is the privileged teacher: it knows the episode's cable and target and refines
   the single-step policy's plan for them by search in simulation (the cross-entropy method), so the expert
   follows a plan made for *this* cable, which the student must infer from what it observes.
+* :class:`ReplanSearch` is the privileged expert off its plan: from a student's state it searches, in a copy
+  of the episode, the re-plan that does best, where the plan-following expert's plan is out of reach.
 * :func:`collect` runs episodes in which the student acts (with probability ``1 - beta``) or the expert does,
   and records the observation the student saw with the expert's action for it (DAgger, Ross et al. 2011).
 * :func:`fit_student` regresses the mean of a stable-baselines3 PPO policy onto the aggregated labels, so the
@@ -47,6 +49,7 @@ __all__ = [
     "PlanFollowingExpert",
     "PolicyTeacher",
     "CableSearchTeacher",
+    "ReplanSearch",
     "DistillConfig",
     "check_teacher",
     "collect",
@@ -65,6 +68,7 @@ _LATER_OPTIONS = {
     "p_dlo_history": 0,
     "expert_smoothing": 0.0,
     "dagger_beta": 0.0,
+    "expert_replan_mm": None,
 }
 #: Options a resumed run may change: how many rounds of each kind run from here on, and how many processes
 #: collect (every episode is seeded on its own, so the data do not depend on it).
@@ -144,6 +148,17 @@ class PlanFollowingExpert:
         self._last = a
         self.last_rms_m = 0.0
         return a.copy()
+
+    def adopt(self, action: NDArray[np.floating[Any]], t: float, position: NDArray[np.float64],
+              velocity: NDArray[np.float64]) -> None:
+        """Follow from now on the plan that ``action`` makes at ``t`` from the commanded ``position`` and
+        ``velocity`` (a re-plan found by :class:`ReplanSearch`) instead of the plan taken at :meth:`start`."""
+        a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+        points, times = self.spec.decode(a, np.asarray(position, dtype=np.float64), t)
+        v0 = np.asarray(velocity, dtype=np.float64)
+        self.reference = BSplineTrajectory(points, times, start_velocity=v0)
+        self._last = a
+        self.last_rms_m = 0.0
 
     def act(
         self, t: float, position: NDArray[np.float64], velocity: NDArray[np.float64]
@@ -290,6 +305,77 @@ class CableSearchTeacher:
         self.env.close()
 
 
+class ReplanSearch:
+    """A privileged expert's re-plan from where the episode is now, found by search in simulation.
+
+    Why: :class:`PlanFollowingExpert` labels a state with the action that rejoins its one plan. From the
+    states a student visits, that plan is often out of reach (its fit residual there was 6-26 mm against
+    0.4-2.5 mm on its own states), so the label is a compromise between a time-indexed reference and the
+    limits, and DAgger rounds made the students worse (docs/RESULTS.md, sessions 14-18). DAgger needs a label
+    that is a good action from *any* state: this is one.
+
+    From a :meth:`~dyndlo_vision.tasks.base.DynDLOEnv.snapshot` of the episode (the true cable, state and
+    goal: privileged), a candidate action is scored by re-planning with it and coasting on that plan to the
+    end of the episode (:meth:`~dyndlo_vision.tasks.base.DynDLOEnv.coast`, no further re-plans), by
+    :meth:`CableSearchTeacher.score`. The cross-entropy method starts from ``start`` (the plan-following
+    label); the environment is restored afterwards, so the episode goes on as if nothing had been tried.
+
+    Args:
+        population, iterations, elite: The cross-entropy method's sizes.
+        sigma, sigma_decay, min_sigma: Standard deviation of the actions drawn (normalised units), its decay
+            per generation and floor.
+        good_enough_m: A candidate scoring below this ends the search (``start`` itself: no search).
+    """
+
+    def __init__(self, population: int = 12, iterations: int = 3, elite: int = 3, sigma: float = 0.2,
+                 sigma_decay: float = 0.6, min_sigma: float = 0.05, good_enough_m: float = 0.03) -> None:
+        if not (1 <= elite <= population) or iterations < 1 or sigma <= 0 or min_sigma <= 0:
+            raise ValueError(
+                f"need 1 <= elite <= population, iterations >= 1 and positive sigmas; got elite={elite}, "
+                f"population={population}, iterations={iterations}, sigma={sigma}, min_sigma={min_sigma}"
+            )
+        self.population, self.iterations, self.elite = int(population), int(iterations), int(elite)
+        self.sigma, self.sigma_decay, self.min_sigma = float(sigma), float(sigma_decay), float(min_sigma)
+        self.good_enough_m = float(good_enough_m)
+        self.last_rollouts = 0
+        self.last_start_score = float("nan")
+        self.last_score = float("nan")
+
+    @staticmethod
+    def coasted_score(env: Any, snapshot: Any, action: NDArray[np.floating[Any]]) -> float:
+        """The score of re-planning with ``action`` at ``snapshot`` and coasting to the episode's end."""
+        env.restore(snapshot)
+        _, _, done, _, info = env.step(np.asarray(action, dtype=np.float32))
+        while not done:
+            _, _, done, _, info = env.coast()
+        return CableSearchTeacher.score(info)
+
+    def search(self, env: Any, start: NDArray[np.floating[Any]], seed: int) -> NDArray[np.float64]:
+        """The best action found for the multi-step ``env`` (unwrapped) now; ``start`` unless one scores
+        better. ``env`` is left in the state it was in."""
+        snapshot = env.snapshot()
+        try:
+            best = np.clip(np.asarray(start, dtype=np.float64), -1.0, 1.0)
+            best_score = self.last_start_score = self.coasted_score(env, snapshot, best)
+            self.last_rollouts = 1
+            rng = np.random.default_rng([int(seed), int(round(env.scene.time * 1000)), 0x5EA])
+            mean, sigma = best.copy(), self.sigma
+            for _ in range(self.iterations):
+                if best_score < self.good_enough_m:
+                    break
+                actions = np.clip(mean + sigma * rng.standard_normal((self.population, best.size)), -1.0, 1.0)
+                scores = np.array([self.coasted_score(env, snapshot, a) for a in actions])
+                self.last_rollouts += len(actions)
+                if scores.min() < best_score:
+                    best, best_score = actions[int(np.argmin(scores))], float(scores.min())
+                mean = actions[np.argsort(scores)[: self.elite]].mean(axis=0)
+                sigma = max(self.min_sigma, sigma * self.sigma_decay)
+            self.last_score = best_score
+            return best
+        finally:
+            env.restore(snapshot)
+
+
 # ---------------------------------------------------------------------------------------------- episodes
 @dataclass
 class Episodes:
@@ -302,6 +388,8 @@ class Episodes:
     successes: NDArray[np.bool_]
     avoided: NDArray[np.bool_]
     fit_rms_m: NDArray[np.float64]
+    #: Per episode: labels that came from :class:`ReplanSearch` (0 for files written before it existed).
+    replans: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     @staticmethod
     def concatenate(parts: Sequence[Episodes]) -> Episodes:
@@ -324,7 +412,9 @@ class Episodes:
     def load(path: Path) -> Episodes:
         """Read a file written by :meth:`save`."""
         with np.load(path) as data:
-            return Episodes(*(data[k] for k in Episodes.__dataclass_fields__))
+            fields = {k: data[k] for k in Episodes.__dataclass_fields__ if k in data}
+        fields.setdefault("replans", np.zeros(len(fields["successes"]), dtype=np.int64))
+        return Episodes(**fields)
 
 
 def with_history(data: Episodes, length: int) -> Episodes:
@@ -350,8 +440,15 @@ def run_mixed_episode(
     rng: np.random.Generator | None = None,
     student_noise: float = 0.0,
     expert_noise: float = 0.0,
+    replan: ReplanSearch | None = None,
+    replan_residual_m: float = 0.002,
 ) -> dict[str, Any]:
     """One multi-step episode: the student acts with probability ``1 - beta`` per decision, else the expert.
+
+    With ``replan``, wherever the expert's fit residual exceeds ``replan_residual_m`` (its plan is out of
+    reach from here) and no limit has been broken yet, the label is the search's re-plan from the true state
+    instead, when that scores better than the plan-following label, and the expert follows the new plan from
+    then on (:meth:`PlanFollowingExpert.adopt`).
 
     ``student_noise`` is the standard deviation of Gaussian noise added to the student's executed action (in
     the normalised [-1, 1] action units, then clipped): it drives the roll-in to states the noiseless student
@@ -362,7 +459,8 @@ def run_mixed_episode(
     Returns:
         ``observations`` (as the student saw them), ``true_observations`` (the simulator's state) and
         ``actions`` (the expert's label for every observation), ``success``, ``avoid``
-        (any avoid condition), ``fit_rms_m`` (median residual of the expert's fits) and ``info``.
+        (any avoid condition), ``fit_rms_m`` (median residual of the expert's fits), ``replans`` (labels that
+        came from the search) and ``info``.
     """
     rng = rng or np.random.default_rng(seed)
     obs, _ = env.reset(seed=seed)
@@ -371,14 +469,22 @@ def run_mixed_episode(
     u = env.unwrapped
     plan = teacher.plan_for(u, seed)  # the teacher sees the true state (and, if privileged, more)
     observations, true_obs, labels, rms = [], [], [], []
-    done, k, info = False, 0, {}
+    done, k, info, replans = False, 0, {}, 0
     while not done:
         if k == 0:
             label = expert.start(plan, u.scene.gripper_home[0])
         else:
             t = u.scene.time
-            label = expert.act(t, *u.replanner.commanded_state(t))
+            commanded = u.replanner.commanded_state(t)
+            label = expert.act(t, *commanded)
             rms.append(expert.last_rms_m)
+            # Once a limit is broken no continuation can score below 1 (an avoid condition stays): no search.
+            if replan is not None and expert.last_rms_m > replan_residual_m and not u.monitor.any_avoid:
+                found = replan.search(u, label, seed)
+                if replan.last_score < replan.last_start_score:
+                    label = found
+                    expert.adopt(label, t, *commanded)
+                    replans += 1
         action = label
         if expert_noise > 0.0:
             action = np.clip(label + rng.normal(0.0, expert_noise, np.shape(label)), -1.0, 1.0)
@@ -399,6 +505,7 @@ def run_mixed_episode(
         "success": bool(info["is_success"]),
         "avoid": any(info["avoid"].values()),
         "fit_rms_m": float(np.median(rms)) if rms else 0.0,
+        "replans": replans,
         "info": info,
     }
 
@@ -478,6 +585,8 @@ def _collect_chunk(job: dict[str, Any], on_episode: Callable[[int, bool], None] 
     expert = PlanFollowingExpert(
         env.unwrapped.spec_actions, speed_limit_m_s=job["speed_limit"], smoothing=job.get("smoothing", 0.0)
     )
+    replan_mm = job.get("replan_mm")
+    replan = ReplanSearch() if replan_mm is not None else None
     parts = []
     for seed in job["seeds"]:
         ep = run_mixed_episode(
@@ -490,6 +599,8 @@ def _collect_chunk(job: dict[str, Any], on_episode: Callable[[int, bool], None] 
             np.random.default_rng([int(seed), job["round"]]),
             job.get("student_noise", 0.0),
             job.get("expert_noise", 0.0),
+            replan,
+            1e-3 * replan_mm if replan_mm is not None else 0.0,
         )
         if on_episode is not None:
             on_episode(int(seed), ep["success"])
@@ -505,6 +616,7 @@ def _collect_chunk(job: dict[str, Any], on_episode: Callable[[int, bool], None] 
                 np.array([ep["success"]]),
                 np.array([ep["avoid"]]),
                 np.array([ep["fit_rms_m"]]),
+                np.array([ep["replans"]], dtype=np.int64),
             )
         )
     env.close()
@@ -530,6 +642,7 @@ def collect(
     teacher_search: bool = False,
     task: str = TEACHER_TASK,
     expert_smoothing: float = 0.0,
+    replan_residual_mm: float | None = None,
 ) -> Episodes:
     """Run one DAgger round's episodes (one per seed) in ``workers`` processes.
 
@@ -551,6 +664,8 @@ def collect(
             (:class:`CableSearchTeacher`, privileged) instead of taken from the policy as it is.
         task: The task (:data:`DISTILL_TASKS`).
         expert_smoothing: :class:`PlanFollowingExpert`'s ``smoothing``.
+        replan_residual_mm: Where the expert's fit residual exceeds this, its label is :class:`ReplanSearch`'s
+            re-plan from the true state (see :func:`run_mixed_episode`); None: never.
         on_episode: Called in this process with ``(seed, success)`` of every episode as it ends, in the order
             they end (e.g. for a progress bar). The returned data do not depend on it.
     """
@@ -571,6 +686,7 @@ def collect(
             "teacher_search": bool(teacher_search),
             "task": task,
             "smoothing": float(expert_smoothing),
+            "replan_mm": None if replan_residual_mm is None else float(replan_residual_mm),
         }
         for i in range(workers)
     ]
@@ -715,6 +831,10 @@ class DistillConfig:
             roll-in should stay nearer to it. Measured on the vault student (docs/RESULTS.md, session 18):
             at 0.5 every roll-in broke an avoid condition (two plans alternating every 40 ms), the residual
             barely fell, and the refitted student vaulted 12 of 50 (40 without the round).
+        expert_replan_mm: In DAgger rounds, where the plan-following expert's fit residual exceeds this many
+            mm, the label is :class:`ReplanSearch`'s re-plan from the student's state (privileged: the true
+            cable and state), and the expert follows that plan from then on. None (default): the
+            plan-following label everywhere. Expert rounds are not affected.
     """
 
     teacher: str = "tip-control-single-step"
@@ -737,6 +857,7 @@ class DistillConfig:
     p_dlo_history: int = 0
     expert_smoothing: float = 0.0
     dagger_beta: float = 0.0
+    expert_replan_mm: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("rounds", "episodes", "first_round_episodes", "workers", "epochs", "expert_rounds"):
@@ -766,6 +887,10 @@ class DistillConfig:
         beta = self.dagger_beta
         if isinstance(beta, bool) or not isinstance(beta, int | float) or not 0.0 <= beta < 1.0:
             raise ValueError(f"dagger_beta must be in [0, 1) (1: the student would never act), got {beta!r}")
+        replan = self.expert_replan_mm
+        if replan is not None and (isinstance(replan, bool) or not isinstance(replan, int | float)
+                                   or not 0.0 <= replan < float("inf")):
+            raise ValueError(f"expert_replan_mm must be a residual in mm >= 0, or None (off); got {replan!r}")
         history = self.p_dlo_history
         if isinstance(history, bool) or not isinstance(history, int) or history < 0:
             raise ValueError(f"p_dlo_history must be an integer >= 0 (0: no history), got {history!r}")
@@ -911,6 +1036,7 @@ def distill(
                         teacher_search=config.teacher_search,
                         task=config.task,
                         expert_smoothing=config.expert_smoothing,
+                        replan_residual_mm=None if expert else config.expert_replan_mm,
                     )
                 episodes.save(round_file)
             collect_s = time.monotonic() - start
@@ -934,6 +1060,7 @@ def distill(
                 "success_rate": float(np.mean(episodes.successes)),
                 "avoid_rate": float(np.mean(episodes.avoided)),
                 "expert_fit_rms_mm": float(1000 * np.median(episodes.fit_rms_m)),
+                "replanned_labels": int(episodes.replans.sum()),
                 **losses,
                 "collect_s": round(collect_s, 1),
                 "wall_s": round(time.monotonic() - start, 1),

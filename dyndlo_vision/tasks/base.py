@@ -12,6 +12,7 @@ Observations (table II): gripper positions (3 n_g), gripper velocities (3 n_g), 
 
 from __future__ import annotations
 
+import copy
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -169,6 +170,17 @@ class CablePush:
         object.__setattr__(self, "impulse_n_s", tuple(float(x) for x in impulse))
 
 
+@dataclass(frozen=True)
+class EnvSnapshot:
+    """An episode's state, from :meth:`DynDLOEnv.snapshot`: MuJoCo's integration state
+    (``mjSTATE_INTEGRATION``: time, positions, velocities, controls, mocap bodies), the count of blow-up
+    warnings, and copies of the Python side (plan, monitor, the task's attributes, decision count, goal)."""
+
+    physics: NDArray[np.float64]
+    bad_acceleration_warnings: int
+    python: dict[str, Any]
+
+
 class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     """A DynDLO task as a Gymnasium environment.
 
@@ -323,6 +335,56 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self._plan(action)
         if self.arm_check is not None and not self._check_arm():
             return self._refused()
+        return self._advance()
+
+    def coast(self) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
+        """One decision of a multi-step episode without a new plan: the current plan goes on for 40 ms.
+
+        What a policy whose re-plan reproduced the plan exactly would get; a search (``learning.distill``)
+        scores a re-plan by coasting on it to the end of the episode. Returns what :meth:`step` returns.
+
+        Raises:
+            RuntimeError: A single-step episode, or no plan yet.
+        """
+        if not self.multi_step or self._replanner.trajectory is None:
+            raise RuntimeError("coast() continues the plan of a multi-step episode: call step() first")
+        return self._advance()
+
+    def snapshot(self) -> EnvSnapshot:
+        """The episode's whole state now (physics, plan, monitor, task): :meth:`restore` goes back to it."""
+        m, d = self.scene.model, self.scene.data
+        spec = mujoco.mjtState.mjSTATE_INTEGRATION
+        physics = np.empty(mujoco.mj_stateSize(m, spec))
+        mujoco.mj_getState(m, d, physics, spec)
+        python = {"replanner": self._replanner, "monitor": self._monitor, "task": vars(self.task),
+                  "decisions": self._decisions, "pushed": self._pushed, "goal": self._goal,
+                  "arm_verdict": getattr(self, "_arm_verdict", None)}
+        return EnvSnapshot(physics, int(d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number),
+                           copy.deepcopy(python))
+
+    def restore(self, snapshot: EnvSnapshot) -> None:
+        """Go back to a state of this environment taken by :meth:`snapshot` (any number of times).
+
+        Raises:
+            ValueError: A snapshot of another model (another cable or task).
+        """
+        m, d = self.scene.model, self.scene.data
+        spec = mujoco.mjtState.mjSTATE_INTEGRATION
+        if snapshot.physics.shape != (mujoco.mj_stateSize(m, spec),):
+            raise ValueError(f"a snapshot of {snapshot.physics.size} physics values cannot restore this "
+                             f"model's {mujoco.mj_stateSize(m, spec)}: taken with another cable or task")
+        mujoco.mj_setState(m, d, snapshot.physics, spec)
+        d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number = snapshot.bad_acceleration_warnings
+        mujoco.mj_forward(m, d)
+        python = copy.deepcopy(snapshot.python)
+        vars(self._replanner).update(vars(python["replanner"]))  # the loop may hold this planner: same object
+        self._monitor = python["monitor"]
+        self.task.__dict__.update(python["task"])
+        self._decisions, self._pushed, self._goal = python["decisions"], python["pushed"], python["goal"]
+        self._arm_verdict = python["arm_verdict"]
+
+    def _advance(self) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
+        """Simulate the plan in force for one decision (multi-step) or to its end (single-step); reward."""
         if self.multi_step:
             self._simulate(self._steps_per_control)
             self._decisions += 1

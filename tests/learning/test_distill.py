@@ -20,6 +20,7 @@ from dyndlo_vision.learning.distill import (
     Episodes,
     PlanFollowingExpert,
     PolicyTeacher,
+    ReplanSearch,
     collect,
     distill,
     run_mixed_episode,
@@ -628,3 +629,117 @@ def test_cli_distill_env_options_default_to_the_teachers(tmp_path, monkeypatch) 
     assert main(["distill", *fast, "--env-option", "cable=chain", "--out", str(tmp_path / "override")]) == 0
     stored = json.loads((tmp_path / "override" / "config.json").read_text())
     assert stored["task_options"] == {"cable": "chain"}
+
+
+# ------------------------------------------------------------------------- the re-planning expert (DAgger)
+def _off_plan_tip_control(seed: int = 1, push: float = 0.3, decisions: int = 3) -> tuple[Any, Any, Any]:
+    """A tip-control episode driven off the teacher's plan: the plan-following expert's actions with noise
+    ``push`` for ``decisions`` decisions. Returns the environment, the expert and its label now."""
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    u = env.unwrapped
+    env.reset(seed=seed)
+    expert = PlanFollowingExpert(u.spec_actions)
+    u.step(expert.start(PolicyTeacher(policies.load("tip-control-single-step")).plan_for(u, seed),
+                        u.scene.gripper_home[0]).astype(np.float32))
+    rng = np.random.default_rng(seed)
+    for _ in range(decisions):
+        t = u.scene.time
+        label = expert.act(t, *u.replanner.commanded_state(t))
+        u.step(np.clip(label + push * rng.standard_normal(label.shape), -1, 1).astype(np.float32))
+    t = u.scene.time
+    return env, expert, expert.act(t, *u.replanner.commanded_state(t))
+
+
+@pytest.mark.slow
+def test_replan_search_finds_a_hit_off_the_plan_and_leaves_the_episode_as_it_was() -> None:
+    """Off its plan (seed 1, three noisy decisions) the plan-following label breaks a limit when coasted on;
+    the search from the true state finds a clean hit. The episode is where it was, and the found
+    action, played there, does what the search said."""
+    env, expert, label = _off_plan_tip_control()
+    u = env.unwrapped
+    before = u.observation()
+    search = ReplanSearch()
+    found = search.search(u, label, seed=1)
+    assert np.array_equal(u.observation(), before)
+    assert search.last_start_score > 1.0  # the label's plan breaks a limit
+    assert search.last_score < 0.03 and 1 < search.last_rollouts <= 1 + search.population * search.iterations
+    _, _, done, _, info = u.step(found.astype(np.float32))
+    while not done:
+        _, _, done, _, info = u.coast()
+    assert info["is_success"] and not any(info["avoid"].values())
+    assert CableSearchTeacher.score(info) == pytest.approx(search.last_score)
+    env.close()
+
+
+def test_adopted_plan_is_what_the_expert_follows() -> None:
+    """After adopt(a) at a state, the expert's label there is a again (it re-plans onto a's own plan)."""
+    expert = PlanFollowingExpert(SPEC)
+    expert.start(np.zeros(SPEC.size), HOME)
+    a = np.random.default_rng(0).uniform(-0.8, 0.8, SPEC.size)
+    p, v = HOME + np.array([0.05, 0.0, -0.02]), np.array([0.3, 0.0, 0.1])
+    assert expert.act(0.12, p, v) is not None and expert.last_rms_m > 0.005  # the old plan is out of reach
+    expert.adopt(a, 0.12, p, v)
+    assert np.allclose(expert.act(0.12, p, v), a, atol=1e-3) and expert.last_rms_m < 1e-4
+
+
+class _FakeSearch:
+    """Stands in for :class:`ReplanSearch`: returns ``marker``, scored as told, and counts its calls."""
+
+    def __init__(self, marker: np.ndarray, start_score: float, score: float) -> None:
+        self.marker, self.last_start_score, self.last_score = marker, start_score, score
+        self.calls = 0
+
+    def search(self, env: Any, start: Any, seed: int) -> np.ndarray:
+        self.calls += 1
+        return self.marker.copy()
+
+
+@pytest.mark.parametrize("better", [True, False])
+def test_dagger_labels_come_from_the_search_only_where_it_does_better(better: bool) -> None:
+    """With a re-planning search, a decision whose plan-following residual is over the threshold is labelled
+    with the search's action when that scores better than the label, and the expert adopts it; otherwise the
+    label stays. The first decision (the plan itself) is never searched."""
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    teacher = PolicyTeacher(policies.load("tip-control-single-step"))
+    marker = np.full(env.unwrapped.spec_actions.size, 0.123)
+    fake = _FakeSearch(marker, start_score=1.0, score=0.5 if better else 1.0)
+    ep = run_mixed_episode(env, teacher, PlanFollowingExpert(env.unwrapped.spec_actions), seed=100001,
+                           replan=fake, replan_residual_m=-1.0)  # every decision is "out of reach"
+    labelled_marker = np.all(np.isclose(ep["actions"], 0.123), axis=1)
+    assert fake.calls == len(ep["actions"]) - 1 or ep["avoid"]
+    assert not labelled_marker[0]
+    if better:
+        assert labelled_marker[1:].all() and ep["replans"] == len(ep["actions"]) - 1
+    else:
+        assert not labelled_marker.any() and ep["replans"] == 0
+    env.close()
+
+
+def test_no_search_once_a_limit_is_broken(monkeypatch) -> None:
+    """A broken limit stays broken (every continuation scores over 1): the search is not run from there."""
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    teacher = PolicyTeacher(policies.load("tip-control-single-step"))
+    fake = _FakeSearch(np.zeros(env.unwrapped.spec_actions.size), 1.0, 0.5)
+    violent = type("Violent", (), {"predict": lambda self, obs, deterministic=True: (np.ones(9), None)})()
+    ep = run_mixed_episode(env, teacher, PlanFollowingExpert(env.unwrapped.spec_actions), seed=100001,
+                           student=violent, beta=0.0, replan=fake, replan_residual_m=-1.0)
+    assert ep["avoid"] and fake.calls < len(ep["actions"]) - 1
+    env.close()
+
+
+def test_expert_replan_option_reaches_dagger_rounds_only(tmp_path, monkeypatch, capsys) -> None:
+    seen: list[Any] = []
+
+    def recording(seeds: Any, *args: Any, replan_residual_mm: Any = None, **kwargs: Any) -> Episodes:
+        seen.append(replan_residual_mm)
+        return _fake_collect(seeds, *args, **kwargs)
+
+    monkeypatch.setattr(distill_module, "collect", recording)
+    fast = ["--workers", "1", "--first-round-episodes", "2", "--episodes", "2", "--epochs", "1", "--quiet"]
+    out = str(tmp_path / "r")
+    assert main(["distill", *fast, "--rounds", "2", "--expert-replan", "2.5", "--out", out]) == 0
+    assert seen == [None, 2.5]
+    assert json.loads((tmp_path / "r" / "config.json").read_text())["expert_replan_mm"] == 2.5
+    for bad in (-1.0, True, "2"):
+        with pytest.raises(ValueError, match="expert_replan_mm"):
+            DistillConfig(expert_replan_mm=bad)
