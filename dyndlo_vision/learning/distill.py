@@ -306,36 +306,38 @@ class CableSearchTeacher:
 
 
 class ReplanSearch:
-    """A privileged expert's re-plan from where the episode is now, found by search in simulation.
+    """A privileged expert's re-plan from where the episode is now: the smallest correction of a label that
+    makes the episode succeed, found by search in simulation.
 
     Why: :class:`PlanFollowingExpert` labels a state with the action that rejoins its one plan. From the
     states a student visits, that plan is often out of reach (its fit residual there was 6-26 mm against
     0.4-2.5 mm on its own states), so the label is a compromise between a time-indexed reference and the
     limits, and DAgger rounds made the students worse (docs/RESULTS.md, sessions 14-18). DAgger needs a label
-    that is a good action from *any* state: this is one.
+    that is a good action from *any* state.
 
     From a :meth:`~dyndlo_vision.tasks.base.DynDLOEnv.snapshot` of the episode (the true cable, state and
     goal: privileged), a candidate action is scored by re-planning with it and coasting on that plan to the
     end of the episode (:meth:`~dyndlo_vision.tasks.base.DynDLOEnv.coast`, no further re-plans), by
-    :meth:`CableSearchTeacher.score`. The cross-entropy method starts from ``start`` (the plan-following
-    label); the environment is restored afterwards, so the episode goes on as if nothing had been tried.
+    :meth:`CableSearchTeacher.score`. Candidates are drawn around ``start`` (the plan-following label) in
+    widening rings (``sigmas``); the first ring with a candidate scoring below ``good_enough_m`` ends the
+    search, and of those the one **nearest to** ``start`` is the answer. Many actions succeed from most
+    states; taking whichever a search happens to find first made labels a student could not fit (a
+    cross-entropy search, docs/RESULTS.md, session 20). Without a good candidate the best-scoring one is
+    returned. The environment is restored afterwards, so the episode goes on as if nothing had been tried.
 
     Args:
-        population, iterations, elite: The cross-entropy method's sizes.
-        sigma, sigma_decay, min_sigma: Standard deviation of the actions drawn (normalised units), its decay
-            per generation and floor.
-        good_enough_m: A candidate scoring below this ends the search (``start`` itself: no search).
+        population: Candidates per ring.
+        sigmas: Standard deviations of the rings (normalised action units), searched in this order.
+        good_enough_m: A score below this is a success (``start`` itself: no search).
     """
 
-    def __init__(self, population: int = 12, iterations: int = 3, elite: int = 3, sigma: float = 0.2,
-                 sigma_decay: float = 0.6, min_sigma: float = 0.05, good_enough_m: float = 0.03) -> None:
-        if not (1 <= elite <= population) or iterations < 1 or sigma <= 0 or min_sigma <= 0:
-            raise ValueError(
-                f"need 1 <= elite <= population, iterations >= 1 and positive sigmas; got elite={elite}, "
-                f"population={population}, iterations={iterations}, sigma={sigma}, min_sigma={min_sigma}"
-            )
-        self.population, self.iterations, self.elite = int(population), int(iterations), int(elite)
-        self.sigma, self.sigma_decay, self.min_sigma = float(sigma), float(sigma_decay), float(min_sigma)
+    def __init__(self, population: int = 12, sigmas: Sequence[float] = (0.05, 0.1, 0.2, 0.4),
+                 good_enough_m: float = 0.03) -> None:
+        if population < 1 or not sigmas or any(not 0 < sg < float("inf") for sg in sigmas):
+            raise ValueError(f"need population >= 1 and positive finite sigmas; got population={population}, "
+                             f"sigmas={sigmas!r}")
+        self.population = int(population)
+        self.sigmas = tuple(float(sg) for sg in sigmas)
         self.good_enough_m = float(good_enough_m)
         self.last_rollouts = 0
         self.last_start_score = float("nan")
@@ -351,25 +353,27 @@ class ReplanSearch:
         return CableSearchTeacher.score(info)
 
     def search(self, env: Any, start: NDArray[np.floating[Any]], seed: int) -> NDArray[np.float64]:
-        """The best action found for the multi-step ``env`` (unwrapped) now; ``start`` unless one scores
-        better. ``env`` is left in the state it was in."""
+        """The answer for the multi-step ``env`` (unwrapped) now: ``start`` if it is good enough, else the
+        nearest good candidate, else the best-scoring one (``start`` unless one scores better). ``env`` is
+        left in the state it was in."""
         snapshot = env.snapshot()
         try:
-            best = np.clip(np.asarray(start, dtype=np.float64), -1.0, 1.0)
-            best_score = self.last_start_score = self.coasted_score(env, snapshot, best)
-            self.last_rollouts = 1
+            origin = np.clip(np.asarray(start, dtype=np.float64), -1.0, 1.0)
+            best, best_score = origin, self.coasted_score(env, snapshot, origin)
+            self.last_start_score, self.last_rollouts = best_score, 1
             rng = np.random.default_rng([int(seed), int(round(env.scene.time * 1000)), 0x5EA])
-            mean, sigma = best.copy(), self.sigma
-            for _ in range(self.iterations):
+            for sigma in self.sigmas:
                 if best_score < self.good_enough_m:
                     break
-                actions = np.clip(mean + sigma * rng.standard_normal((self.population, best.size)), -1.0, 1.0)
+                actions = np.clip(origin + sigma * rng.standard_normal((self.population, origin.size)), -1, 1)
                 scores = np.array([self.coasted_score(env, snapshot, a) for a in actions])
                 self.last_rollouts += len(actions)
-                if scores.min() < best_score:
+                good = np.flatnonzero(scores < self.good_enough_m)
+                if good.size:
+                    nearest = good[np.argmin(np.linalg.norm(actions[good] - origin, axis=1))]
+                    best, best_score = actions[nearest], float(scores[nearest])
+                elif scores.min() < best_score:
                     best, best_score = actions[int(np.argmin(scores))], float(scores.min())
-                mean = actions[np.argsort(scores)[: self.elite]].mean(axis=0)
-                sigma = max(self.min_sigma, sigma * self.sigma_decay)
             self.last_score = best_score
             return best
         finally:

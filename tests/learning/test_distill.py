@@ -662,7 +662,7 @@ def test_replan_search_finds_a_hit_off_the_plan_and_leaves_the_episode_as_it_was
     found = search.search(u, label, seed=1)
     assert np.array_equal(u.observation(), before)
     assert search.last_start_score > 1.0  # the label's plan breaks a limit
-    assert search.last_score < 0.03 and 1 < search.last_rollouts <= 1 + search.population * search.iterations
+    assert search.last_score < 0.03 and 1 < search.last_rollouts <= 1 + search.population * len(search.sigmas)
     _, _, done, _, info = u.step(found.astype(np.float32))
     while not done:
         _, _, done, _, info = u.coast()
@@ -743,3 +743,31 @@ def test_expert_replan_option_reaches_dagger_rounds_only(tmp_path, monkeypatch, 
     for bad in (-1.0, True, "2"):
         with pytest.raises(ValueError, match="expert_replan_mm"):
             DistillConfig(expert_replan_mm=bad)
+
+
+def test_replan_search_answers_with_the_nearest_good_action(monkeypatch) -> None:
+    """Good actions (score 0) lie on one side of a plane beyond the start; the search widens its rings until a
+    ring holds one, and answers with the good candidate nearest the start (not the first or a random one)."""
+    drawn: list[np.ndarray] = []
+
+    def score(env: Any, snapshot: Any, action: np.ndarray) -> float:
+        drawn.append(np.asarray(action).copy())
+        return 0.0 if action[0] > 0.15 else 1.0 + abs(float(action[0]))
+
+    monkeypatch.setattr(ReplanSearch, "coasted_score", staticmethod(score))
+    env = type("Env", (), {"snapshot": lambda self: None, "restore": lambda self, s: None,
+                           "scene": type("Scene", (), {"time": 0.4})()})()
+    search = ReplanSearch(population=12, sigmas=(0.05, 0.1, 0.2, 0.4))
+    start = np.zeros(9)
+    for seed in range(10):  # several draws: in some the first good candidate drawn is not the nearest
+        drawn.clear()
+        found = search.search(env, start, seed=seed)
+        last_ring = np.array(drawn[-12:])  # the search stops at the first ring holding a good candidate
+        good = last_ring[last_ring[:, 0] > 0.15]
+        assert len(good) and search.last_score == 0.0 and len(drawn) == search.last_rollouts
+        np.testing.assert_array_equal(found, good[np.argmin(np.linalg.norm(good - start, axis=1))])
+        assert not any(a[0] > 0.15 for a in drawn[:-12])
+    # a start that is good already is the answer after one roll-out
+    drawn.clear()
+    assert np.array_equal(search.search(env, np.full(9, 0.5), seed=3), np.full(9, 0.5))
+    assert search.last_rollouts == 1
