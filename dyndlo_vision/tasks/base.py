@@ -351,14 +351,20 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         return self._advance()
 
     def snapshot(self) -> EnvSnapshot:
-        """The episode's whole state now (physics, plan, monitor, task): :meth:`restore` goes back to it."""
+        """The episode's whole state now (physics, plan, monitor, task): :meth:`restore` goes back to it.
+
+        Raises:
+            RuntimeError: A real arm's plan checks are on (:meth:`set_robot`): their record of the arm's
+                motion so far is not part of a snapshot.
+        """
+        if self.arm_check is not None:
+            raise RuntimeError("snapshot() does not cover the arm's plan checks: call set_robot(None) first")
         m, d = self.scene.model, self.scene.data
         spec = mujoco.mjtState.mjSTATE_INTEGRATION
         physics = np.empty(mujoco.mj_stateSize(m, spec))
         mujoco.mj_getState(m, d, physics, spec)
         python = {"replanner": self._replanner, "monitor": self._monitor, "task": vars(self.task),
-                  "decisions": self._decisions, "pushed": self._pushed, "goal": self._goal,
-                  "arm_verdict": getattr(self, "_arm_verdict", None)}
+                  "decisions": self._decisions, "pushed": self._pushed, "goal": self._goal}
         return EnvSnapshot(physics, int(d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number),
                            copy.deepcopy(python))
 
@@ -381,7 +387,6 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self._monitor = python["monitor"]
         self.task.__dict__.update(python["task"])
         self._decisions, self._pushed, self._goal = python["decisions"], python["pushed"], python["goal"]
-        self._arm_verdict = python["arm_verdict"]
 
     def _advance(self) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
         """Simulate the plan in force for one decision (multi-step) or to its end (single-step); reward."""

@@ -81,5 +81,8 @@ def test_restore_refuses_a_snapshot_of_another_model() -> None:
     vault.reset(seed=0)
     with pytest.raises(ValueError, match="another cable or task"):
         vault.unwrapped.restore(tip.unwrapped.snapshot())
+    tip.unwrapped.set_robot("ur5e")
+    with pytest.raises(RuntimeError, match="set_robot"):
+        tip.unwrapped.snapshot()
     tip.close()
     vault.close()
