@@ -9,9 +9,10 @@ algorithm, training budget and the success rate it was measured at. stable-basel
 pickled Python objects: load only files you trust.
 
 A policy whose metadata has ``p_dlo_history`` H reads, besides the table-II observation, how P_DLO moved over
-the last H decisions (:class:`~dyndlo_vision.tasks.wrappers.PDloHistory`). :func:`load` returns it as a
-:class:`HistoryPolicy`, which takes table-II observations like any other and keeps that history itself: call
-its ``reset()`` at the start of every episode.
+the last H decisions (:class:`~dyndlo_vision.tasks.wrappers.PDloHistory`); one with ``decision_clock`` true
+also reads the time since the episode began (:class:`~dyndlo_vision.tasks.wrappers.DecisionClock`).
+:func:`load` returns such a policy as a :class:`HistoryPolicy`, which takes table-II observations like any
+other and keeps that history and clock itself: call its ``reset()`` at the start of every episode.
 """
 
 from __future__ import annotations
@@ -86,7 +87,8 @@ def resolve(name_or_path: str | Path) -> tuple[Path, dict[str, Any]]:
         config = json.loads((path.parent / "config.json").read_text())
         meta = {
             k: config[k]
-            for k in ("task", "multi_step", "algo", "timesteps", "env_options", "p_dlo_history")
+            for k in ("task", "multi_step", "algo", "timesteps", "env_options", "p_dlo_history",
+                      "decision_clock")
             if k in config
         }
     return path, meta
@@ -120,9 +122,9 @@ def load(name_or_path: str | Path, env: Any = None, algo: str | None = None) -> 
             errors.append(f"{cls.__name__}: {type(err).__name__}: {err}")
     else:
         raise ValueError(f"{path} could not be loaded as a stable-baselines3 policy: " + "; ".join(errors))
-    history = int(meta.get("p_dlo_history") or 0)
-    if history:
-        model = HistoryPolicy(model, history)
+    history, clock = int(meta.get("p_dlo_history") or 0), bool(meta.get("decision_clock"))
+    if history or clock:
+        model = HistoryPolicy(model, history, clock)
     if env is not None:
         for space in ("observation_space", "action_space"):
             theirs, ours = getattr(model, space), getattr(env, space)
@@ -134,32 +136,34 @@ def load(name_or_path: str | Path, env: Any = None, algo: str | None = None) -> 
 
 
 class HistoryPolicy:
-    """A stable-baselines3 model trained on observations with a P_DLO history, fed table-II observations.
+    """A stable-baselines3 model trained on observations with student features, fed table-II observations.
 
-    ``predict`` appends :class:`~dyndlo_vision.tasks.wrappers.PDloHistory` to the observation it is given and
-    remembers its P_DLO; ``reset`` starts a new episode (without it, the first decision of the next episode
-    would see the jump from the last one's P_DLO as motion). Its ``observation_space`` is the table-II one.
+    ``predict`` appends :class:`~dyndlo_vision.tasks.wrappers.StudentFeatures` (the P_DLO history and/or
+    the decision clock) to the observation it is given and remembers what they need; ``reset`` starts a new
+    episode (without it, the first decision of the next episode would see the jump from the last one's P_DLO
+    as motion, and its clock would run on). Its ``observation_space`` is the table-II one.
 
     Args:
-        model: The stable-baselines3 model, whose observation has ``3 * length`` values more than table II.
-        length: H, the history's number of periods.
+        model: The stable-baselines3 model, whose observation has the features' values more than table II.
+        length: H, the history's number of periods (0: no history).
+        clock: Whether the model reads the decision clock.
     """
 
-    def __init__(self, model: Any, length: int) -> None:
+    def __init__(self, model: Any, length: int = 0, clock: bool = False) -> None:
         import gymnasium as gym
 
-        from dyndlo_vision.tasks.wrappers import PDloHistory
+        from dyndlo_vision.tasks.wrappers import StudentFeatures
 
         space = model.observation_space
-        size = int(space.shape[0]) - 3 * int(length)
+        size = int(space.shape[0]) - 3 * int(length) - int(bool(clock))
         self.sb3_model = model
-        self.history = PDloHistory.for_observation_size(length, size)
+        self.features = StudentFeatures(size, length, clock)
         self.observation_space = gym.spaces.Box(space.low[:size], space.high[:size], dtype=space.dtype)
         self.action_space = model.action_space
 
     def reset(self, *_: Any) -> None:
-        """Forget the episode's history (extra arguments, such as an environment, are ignored)."""
-        self.history.reset()
+        """Forget the episode's history, restart its clock (extra arguments, e.g. an env, are ignored)."""
+        self.features.reset()
 
     def predict(self, observation: Any, deterministic: bool = True, **kwargs: Any) -> tuple[Any, Any]:
         """The action for one table-II observation (not a batch), as ``model.predict`` gives it."""
@@ -168,4 +172,4 @@ class HistoryPolicy:
             raise ValueError(
                 f"expected one observation of shape {self.observation_space.shape}, got {obs.shape}"
             )
-        return self.sb3_model.predict(self.history(obs), deterministic=deterministic, **kwargs)
+        return self.sb3_model.predict(self.features(obs), deterministic=deterministic, **kwargs)

@@ -10,8 +10,10 @@ runs, during which the last value is extrapolated at constant velocity like a co
 reset every few episodes.
 
 :class:`PDloHistory` appends P_DLO's finite-difference velocities over the last few decisions to an
-observation (a pure function of the observations so far); :class:`PDloHistoryWrapper` puts it on an
-environment, for a student that must tell the cable from how it moves.
+observation (a pure function of the observations so far), for a student that must tell the cable from how it
+moves; :class:`DecisionClock` appends the time since the episode began, for a student whose expert's action
+depends on where in its plan the episode is. :class:`StudentFeatures` appends both, as a student's metadata
+asks; :class:`StudentFeaturesWrapper` (and :class:`PDloHistoryWrapper`) put them on an environment.
 """
 
 from __future__ import annotations
@@ -29,7 +31,16 @@ from dyndlo_vision.sim.cable import CableParams
 from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
 from dyndlo_vision.tasks.noise import NoiseProcess, ObservationNoiseModel
 
-__all__ = ["CableRandomization", "NoisyObservation", "PDloHistory", "PDloHistoryWrapper", "draw_cable"]
+__all__ = [
+    "CableRandomization",
+    "DecisionClock",
+    "NoisyObservation",
+    "PDloHistory",
+    "PDloHistoryWrapper",
+    "StudentFeatures",
+    "StudentFeaturesWrapper",
+    "draw_cable",
+]
 
 # Mixed into the reset seed so that the cable draws differ from the environment's own random stream.
 _CABLE_STREAM = 0x4E6F697379 + 1
@@ -212,8 +223,43 @@ class CableRandomization(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], N
         return obs, {**info, "cable": self.cable}
 
 
-# ---------------------------------------------------------------------------------------- P_DLO history
-class PDloHistory:
+# ---------------------------------------------------------------------------------------- student features
+class _EpisodeFeature:
+    """A feature appended to observations that depends on the episode so far: ``reset`` and ``__call__``."""
+
+    def reset(self) -> None:  # pragma: no cover - every feature defines it
+        raise NotImplementedError
+
+    def __call__(self, observation: NDArray[np.floating[Any]]) -> NDArray[np.float32]:  # pragma: no cover
+        raise NotImplementedError
+
+    #: How many values it appends.
+    size: int = 0
+
+    def stack(
+        self, observations: NDArray[np.floating[Any]], episode_ids: NDArray[Any]
+    ) -> NDArray[np.float32]:
+        """Each row of ``observations`` (N, n) with the feature, episodes told apart by ``episode_ids`` (N,).
+
+        The rows of an episode must be consecutive and in time order, as :func:`~dyndlo_vision.learning.
+        distill.collect` stores them. The same result as calling this object on them one by one, with a
+        :meth:`reset` at the start of every episode.
+        """
+        observations = np.asarray(observations)
+        ids = np.asarray(episode_ids)
+        if observations.ndim != 2 or len(ids) != len(observations):
+            raise ValueError(f"expected (N, n) observations and N episode ids, got {observations.shape}, "
+                             f"{ids.shape}")
+        out = []
+        for i, row in enumerate(observations):
+            if i == 0 or ids[i] != ids[i - 1]:
+                self.reset()
+            out.append(self(row))
+        self.reset()
+        return np.array(out, dtype=np.float32).reshape(len(observations), -1)
+
+
+class PDloHistory(_EpisodeFeature):
     """Appends how P_DLO moved to a table-II observation: a history for a policy that must infer the cable.
 
     For ``length`` H it appends the finite-difference velocities of P_DLO over the last ``k`` control periods,
@@ -239,6 +285,7 @@ class PDloHistory:
         if not control_period_s > 0:
             raise ValueError(f"control period {control_period_s!r} s; expected a positive number")
         self.length = int(length)
+        self.size = 3 * self.length
         self.p_dlo = p_dlo
         self.period_s = float(control_period_s)
         self._past: list[NDArray[np.float64]] = []
@@ -271,49 +318,107 @@ class PDloHistory:
         obs = np.asarray(observation, dtype=np.float32)
         return np.concatenate([obs, self.features(obs[self.p_dlo]).astype(np.float32)])
 
-    def stack(
-        self, observations: NDArray[np.floating[Any]], episode_ids: NDArray[Any]
-    ) -> NDArray[np.float32]:
-        """Each row of ``observations`` (N, n) with its history, episodes told apart by ``episode_ids`` (N,).
 
-        The rows of an episode must be consecutive and in time order, as :func:`~dyndlo_vision.learning.
-        distill.collect` stores them. The same result as calling this object on them one by one, with a
-        :meth:`reset` at the start of every episode.
-        """
-        observations = np.asarray(observations)
-        ids = np.asarray(episode_ids)
-        if observations.ndim != 2 or len(ids) != len(observations):
-            raise ValueError(f"expected (N, n) observations and N episode ids, got {observations.shape}, "
-                             f"{ids.shape}")
-        out = []
-        for i, row in enumerate(observations):
-            if i == 0 or ids[i] != ids[i - 1]:
-                self.reset()
-            out.append(self(row))
-        self.reset()
-        return np.array(out, dtype=np.float32).reshape(len(observations), -1)
+class DecisionClock(_EpisodeFeature):
+    """Appends the time since the episode began to an observation: ``k T`` at decision ``k`` (0 first).
+
+    The table-II observation says where the gripper and the cable are, not when: two decisions at different
+    phases of a throw can look alike and still need different re-plans, since a multi-step action re-plans the
+    whole rest of the trajectory and its timing. An expert that plans in time (a single-step plan followed, or
+    re-planned from the current state) labels such look-alike states differently, which a student without the
+    clock can only average. The clock counts the decisions since :meth:`reset`, one per call, so the control
+    loop and a simulator give the same value; it is not the cable's parameter.
+
+    Args:
+        control_period_s: T, the time between two decisions.
+    """
+
+    size = 1
+
+    def __init__(self, control_period_s: float = CONTROL_PERIOD_S) -> None:
+        if not control_period_s > 0:
+            raise ValueError(f"control period {control_period_s!r} s; expected a positive number")
+        self.period_s = float(control_period_s)
+        self._decisions = 0
+
+    def reset(self) -> None:
+        """The next observation is the episode's first (time 0)."""
+        self._decisions = 0
+
+    def __call__(self, observation: NDArray[np.floating[Any]]) -> NDArray[np.float32]:
+        """``observation`` with the time of this decision appended (one value more, in s)."""
+        t = self._decisions * self.period_s
+        self._decisions += 1
+        return np.concatenate([np.asarray(observation, dtype=np.float32), np.float32([t])])
 
 
-class PDloHistoryWrapper(
+class StudentFeatures(_EpisodeFeature):
+    """What a student reads besides table II: :class:`PDloHistory`, then :class:`DecisionClock`.
+
+    Args:
+        observation_size: Values in the table-II observation (``6 n_g + 6``).
+        p_dlo_history: H of :class:`PDloHistory` (0: none).
+        clock: Append :class:`DecisionClock`.
+        control_period_s: T, the time between two decisions.
+
+    Raises:
+        ValueError: Neither feature asked for, or a bad H, period or observation size.
+    """
+
+    def __init__(self, observation_size: int, p_dlo_history: int = 0, clock: bool = False,
+                 control_period_s: float = CONTROL_PERIOD_S) -> None:
+        if isinstance(p_dlo_history, bool) or int(p_dlo_history) != p_dlo_history or p_dlo_history < 0:
+            raise ValueError(f"P_DLO history length {p_dlo_history!r}; expected an integer >= 0 (0: none)")
+        self.parts: list[_EpisodeFeature] = []
+        if p_dlo_history:
+            self.parts.append(PDloHistory.for_observation_size(int(p_dlo_history), observation_size,
+                                                               control_period_s))
+        if clock:
+            self.parts.append(DecisionClock(control_period_s))
+        if not self.parts:
+            raise ValueError("no student feature asked for: give p_dlo_history >= 1 and/or clock=True")
+        self.observation_size = int(observation_size)
+        self.size = sum(part.size for part in self.parts)
+
+    def reset(self) -> None:
+        """Every feature starts a new episode."""
+        for part in self.parts:
+            part.reset()
+
+    def __call__(self, observation: NDArray[np.floating[Any]]) -> NDArray[np.float32]:
+        """``observation`` with every feature appended, in order."""
+        out = np.asarray(observation, dtype=np.float32)
+        if out.shape != (self.observation_size,):
+            raise ValueError(
+                f"expected one observation of {self.observation_size} values, got shape {out.shape}"
+            )
+        for part in self.parts:
+            out = part(out)
+        return out
+
+
+class StudentFeaturesWrapper(
     gym.ObservationWrapper[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]],
     gym.utils.RecordConstructorArgs,
 ):
-    """A DynDLO environment whose observations carry :class:`PDloHistory` (3 H more values, unbounded).
+    """A DynDLO environment whose observations carry :class:`StudentFeatures` (unbounded values appended).
 
     Put it outside :class:`NoisyObservation`, so that the history is of the P_DLO the policy sees.
     """
 
-    def __init__(self, env: gym.Env[NDArray[np.float32], NDArray[np.float32]], length: int,
-                 control_period_s: float = CONTROL_PERIOD_S) -> None:
-        gym.utils.RecordConstructorArgs.__init__(self, length=length, control_period_s=control_period_s)
+    def __init__(self, env: gym.Env[NDArray[np.float32], NDArray[np.float32]], p_dlo_history: int = 0,
+                 clock: bool = False, control_period_s: float = CONTROL_PERIOD_S) -> None:
+        gym.utils.RecordConstructorArgs.__init__(
+            self, p_dlo_history=p_dlo_history, clock=clock, control_period_s=control_period_s
+        )
         gym.ObservationWrapper.__init__(self, env)
         shape = env.observation_space.shape
         if shape is None or len(shape) != 1:
             raise ValueError(f"expected a DynDLO observation vector, got observation shape {shape}")
-        self.history = PDloHistory.for_observation_size(length, shape[0], control_period_s)
+        self.features = StudentFeatures(shape[0], p_dlo_history, clock, control_period_s)
         base = env.observation_space
         assert isinstance(base, gym.spaces.Box)
-        extra = np.full(3 * self.history.length, np.inf, dtype=np.float32)
+        extra = np.full(self.features.size, np.inf, dtype=np.float32)
         self.observation_space = gym.spaces.Box(
             np.concatenate([base.low, -extra]), np.concatenate([base.high, extra]), dtype=np.float32
         )
@@ -321,10 +426,20 @@ class PDloHistoryWrapper(
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[NDArray[np.float32], dict[str, Any]]:
-        """Resets the environment and the history."""
-        self.history.reset()
+        """Resets the environment and the features."""
+        self.features.reset()
         return super().reset(seed=seed, options=options)
 
     def observation(self, observation: NDArray[np.float32]) -> NDArray[np.float32]:
-        """The observation with the history appended."""
-        return self.history(observation)
+        """The observation with the features appended."""
+        return self.features(observation)
+
+
+class PDloHistoryWrapper(StudentFeaturesWrapper):
+    """A DynDLO environment whose observations carry :class:`PDloHistory` (3 H more values, unbounded)."""
+
+    def __init__(self, env: gym.Env[NDArray[np.float32], NDArray[np.float32]], length: int,
+                 control_period_s: float = CONTROL_PERIOD_S) -> None:
+        if int(length) != length or length < 1:
+            raise ValueError(f"P_DLO history length {length!r}; expected an integer of at least 1")
+        super().__init__(env, p_dlo_history=length, control_period_s=control_period_s)
