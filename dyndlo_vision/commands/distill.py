@@ -133,6 +133,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "how the cable moves (default 0: the table-II observation only)",
     )
     p.add_argument(
+        "--replan-anchor",
+        choices=("plan", "student"),
+        default="plan",
+        help="with --expert-replan: centre the search on the plan-following label where its residual exceeds "
+        "MM (plan, default), or on the student's own action at every decision it takes (student: its action "
+        "where coasting on it succeeds, else the nearest good correction; MM unused)",
+    )
+    p.add_argument(
+        "--decision-clock",
+        action="store_true",
+        help="the student also reads the time since the episode began (k x 40 ms at its k-th decision), so "
+        "that look-alike states at different phases of the expert's plan can get different actions",
+    )
+    p.add_argument(
         "--out", default=None, help="run folder (default: runs/<task>-multi-step-distill-s<seed>)"
     )
     p.add_argument("--resume", action="store_true", help="continue the run in --out after its last round")
@@ -169,8 +183,10 @@ def run(args: argparse.Namespace) -> int:
         dagger_beta=args.dagger_beta,
         expert_noise=args.expert_noise,
         p_dlo_history=args.p_dlo_history,
+        decision_clock=args.decision_clock,
         expert_smoothing=args.expert_smoothing,
         expert_replan_mm=args.expert_replan,
+        expert_replan_anchor=args.replan_anchor,
     )
     out = Path(args.out or f"runs/{args.task}-multi-step-distill-s{args.seed}")
     try:

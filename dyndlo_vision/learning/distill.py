@@ -69,6 +69,8 @@ _LATER_OPTIONS = {
     "expert_smoothing": 0.0,
     "dagger_beta": 0.0,
     "expert_replan_mm": None,
+    "decision_clock": False,
+    "expert_replan_anchor": "plan",
 }
 #: Options a resumed run may change: how many rounds of each kind run from here on, and how many processes
 #: collect (every episode is seeded on its own, so the data do not depend on it).
@@ -421,17 +423,18 @@ class Episodes:
         return Episodes(**fields)
 
 
-def with_history(data: Episodes, length: int) -> Episodes:
-    """``data`` with the P_DLO history of ``length`` periods appended to its observations (0: unchanged).
+def with_history(data: Episodes, length: int, clock: bool = False) -> Episodes:
+    """``data`` with the student's features appended to its observations: the P_DLO history of ``length``
+    periods, then the decision clock if ``clock`` (neither: unchanged).
 
     Episodes are told apart by their seeds; within one, the rows are in time order (:func:`collect`).
     """
-    if not length:
+    if not length and not clock:
         return data
-    from dyndlo_vision.tasks.wrappers import PDloHistory
+    from dyndlo_vision.tasks.wrappers import StudentFeatures
 
-    history = PDloHistory.for_observation_size(length, data.observations.shape[1])
-    return replace(data, observations=history.stack(data.observations, data.seeds))
+    features = StudentFeatures(data.observations.shape[1], length, clock)
+    return replace(data, observations=features.stack(data.observations, data.seeds))
 
 
 def run_mixed_episode(
@@ -446,6 +449,7 @@ def run_mixed_episode(
     expert_noise: float = 0.0,
     replan: ReplanSearch | None = None,
     replan_residual_m: float = 0.002,
+    replan_anchor: str = "plan",
 ) -> dict[str, Any]:
     """One multi-step episode: the student acts with probability ``1 - beta`` per decision, else the expert.
 
@@ -453,6 +457,13 @@ def run_mixed_episode(
     reach from here) and no limit has been broken yet, the label is the search's re-plan from the true state
     instead, when that scores better than the plan-following label, and the expert follows the new plan from
     then on (:meth:`PlanFollowingExpert.adopt`).
+
+    With ``replan_anchor="student"`` the search is centred on the *student's* action instead, at every
+    decision the student takes while no limit is broken: the label is the student's own action where coasting
+    on it succeeds, else the nearest good correction of it. The plan-following label depends on which of many
+    good plans the expert chose for the episode, which the student cannot see once it is off that plan;
+    labels anchored on the student depend only on its observation and the true state (docs/RESULTS.md,
+    session 21).
 
     ``student_noise`` is the standard deviation of Gaussian noise added to the student's executed action (in
     the normalised [-1, 1] action units, then clipped): it drives the roll-in to states the noiseless student
@@ -474,28 +485,40 @@ def run_mixed_episode(
     plan = teacher.plan_for(u, seed)  # the teacher sees the true state (and, if privileged, more)
     observations, true_obs, labels, rms = [], [], [], []
     done, k, info, replans = False, 0, {}, 0
+    if replan_anchor not in ("plan", "student"):
+        raise ValueError(f"replan_anchor {replan_anchor!r}; expected 'plan' or 'student'")
     while not done:
+        student_action = None
+        if student is not None and rng.random() >= beta:
+            student_action, _ = student.predict(obs, deterministic=True)
+            if student_noise > 0.0:
+                student_action = np.clip(
+                    student_action + rng.normal(0.0, student_noise, np.shape(student_action)), -1.0, 1.0
+                )
+        t = u.scene.time
+        commanded = u.replanner.commanded_state(t) if k else None
         if k == 0:
             label = expert.start(plan, u.scene.gripper_home[0])
         else:
-            t = u.scene.time
-            commanded = u.replanner.commanded_state(t)
             label = expert.act(t, *commanded)
             rms.append(expert.last_rms_m)
-            # Once a limit is broken no continuation can score below 1 (an avoid condition stays): no search.
-            if replan is not None and expert.last_rms_m > replan_residual_m and not u.monitor.any_avoid:
+        # Once a limit is broken no continuation can score below 1 (an avoid condition stays): no search.
+        if replan is not None and not u.monitor.any_avoid:
+            if replan_anchor == "student" and student_action is not None:
+                label = replan.search(u, student_action, seed).astype(np.float32)
+                if replan.last_score < replan.last_start_score:  # the student's own action was corrected
+                    replans += 1
+                if k:
+                    expert.adopt(label, t, *commanded)
+            elif k and expert.last_rms_m > replan_residual_m:
                 found = replan.search(u, label, seed)
                 if replan.last_score < replan.last_start_score:
                     label = found
                     expert.adopt(label, t, *commanded)
                     replans += 1
-        action = label
-        if expert_noise > 0.0:
+        action = label if student_action is None else student_action
+        if expert_noise > 0.0 and student_action is None:
             action = np.clip(label + rng.normal(0.0, expert_noise, np.shape(label)), -1.0, 1.0)
-        if student is not None and rng.random() >= beta:
-            action, _ = student.predict(obs, deterministic=True)
-            if student_noise > 0.0:
-                action = np.clip(action + rng.normal(0.0, student_noise, np.shape(action)), -1.0, 1.0)
         observations.append(np.asarray(obs, dtype=np.float32))
         true_obs.append(u.observation())
         labels.append(label.astype(np.float32))
@@ -605,6 +628,7 @@ def _collect_chunk(job: dict[str, Any], on_episode: Callable[[int, bool], None] 
             job.get("expert_noise", 0.0),
             replan,
             1e-3 * replan_mm if replan_mm is not None else 0.0,
+            job.get("replan_anchor", "plan"),
         )
         if on_episode is not None:
             on_episode(int(seed), ep["success"])
@@ -647,6 +671,7 @@ def collect(
     task: str = TEACHER_TASK,
     expert_smoothing: float = 0.0,
     replan_residual_mm: float | None = None,
+    replan_anchor: str = "plan",
 ) -> Episodes:
     """Run one DAgger round's episodes (one per seed) in ``workers`` processes.
 
@@ -670,6 +695,8 @@ def collect(
         expert_smoothing: :class:`PlanFollowingExpert`'s ``smoothing``.
         replan_residual_mm: Where the expert's fit residual exceeds this, its label is :class:`ReplanSearch`'s
             re-plan from the true state (see :func:`run_mixed_episode`); None: never.
+        replan_anchor: Where that search is centred: ``"plan"`` (the plan-following label) or ``"student"``
+            (the student's action, at every decision it takes; see :func:`run_mixed_episode`).
         on_episode: Called in this process with ``(seed, success)`` of every episode as it ends, in the order
             they end (e.g. for a progress bar). The returned data do not depend on it.
     """
@@ -691,6 +718,7 @@ def collect(
             "task": task,
             "smoothing": float(expert_smoothing),
             "replan_mm": None if replan_residual_mm is None else float(replan_residual_mm),
+            "replan_anchor": replan_anchor,
         }
         for i in range(workers)
     ]
@@ -828,6 +856,10 @@ class DistillConfig:
         p_dlo_history: H > 0: the student also reads how P_DLO moved over the last H decisions
             (:class:`~dyndlo_vision.tasks.wrappers.PDloHistory`), from which it can tell the cable. The round
             files keep the table-II observations; the history is added when the student is fitted.
+        decision_clock: The student also reads the time since the episode began
+            (:class:`~dyndlo_vision.tasks.wrappers.DecisionClock`). The expert's label re-plans the rest of
+            a plan in time, so states that look alike at different phases of it get different labels; with
+            the clock the student can tell them apart. Added, like the history, when the student is fitted.
         expert_smoothing: :class:`PlanFollowingExpert`'s ``smoothing`` (0: off).
         dagger_beta: In DAgger rounds, the probability that the expert's action, not the student's, is
             executed at a decision (DAgger's beta; 0: the student acts throughout). The expert's
@@ -841,6 +873,10 @@ class DistillConfig:
             plan-following label everywhere. Expert rounds are not affected. Measured on tip control
             (docs/RESULTS.md, session 20): with it a DAgger round left the student worse (56 of 100 on issue
             16's ranges) than the plan-following round (84) and than round 0 alone (90); it stays opt-in.
+        expert_replan_anchor: ``"plan"``: the search starts from the plan-following label, where its residual
+            exceeds ``expert_replan_mm``; ``"student"``: from the student's own action, at every decision it
+            takes (``expert_replan_mm`` must be set, and is not used then): the label is its action where
+            coasting on it succeeds, else the nearest good correction (:func:`run_mixed_episode`).
     """
 
     teacher: str = "tip-control-single-step"
@@ -864,6 +900,8 @@ class DistillConfig:
     expert_smoothing: float = 0.0
     dagger_beta: float = 0.0
     expert_replan_mm: float | None = None
+    decision_clock: bool = False
+    expert_replan_anchor: str = "plan"
 
     def __post_init__(self) -> None:
         for name in ("rounds", "episodes", "first_round_episodes", "workers", "epochs", "expert_rounds"):
@@ -900,6 +938,14 @@ class DistillConfig:
         history = self.p_dlo_history
         if isinstance(history, bool) or not isinstance(history, int) or history < 0:
             raise ValueError(f"p_dlo_history must be an integer >= 0 (0: no history), got {history!r}")
+        if self.expert_replan_anchor not in ("plan", "student"):
+            raise ValueError(
+                f"expert_replan_anchor must be 'plan' or 'student', got {self.expert_replan_anchor!r}"
+            )
+        if self.expert_replan_anchor == "student" and replan is None:
+            raise ValueError("expert_replan_anchor 'student' needs the re-planning expert (expert_replan_mm)")
+        if not isinstance(self.decision_clock, bool):
+            raise ValueError(f"decision_clock must be True or False, got {self.decision_clock!r}")
         if not self.net_arch or any(int(n) < 1 for n in self.net_arch):
             raise ValueError(f"net_arch must be positive layer sizes, got {self.net_arch!r}")
         object.__setattr__(self, "net_arch", tuple(int(n) for n in self.net_arch))
@@ -1003,10 +1049,10 @@ def distill(
         model = getattr(model, "sb3_model", model)  # the network itself, fitted on observations with history
     else:
         student_env = env
-        if config.p_dlo_history:
-            from dyndlo_vision.tasks.wrappers import PDloHistoryWrapper
+        if config.p_dlo_history or config.decision_clock:
+            from dyndlo_vision.tasks.wrappers import StudentFeaturesWrapper
 
-            student_env = PDloHistoryWrapper(env, config.p_dlo_history)
+            student_env = StudentFeaturesWrapper(env, config.p_dlo_history, config.decision_clock)
         model = new_student(student_env, config.net_arch, config.seed)
     made_folder = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
@@ -1043,6 +1089,7 @@ def distill(
                         task=config.task,
                         expert_smoothing=config.expert_smoothing,
                         replan_residual_mm=None if expert else config.expert_replan_mm,
+                        replan_anchor=config.expert_replan_anchor,
                     )
                 episodes.save(round_file)
             collect_s = time.monotonic() - start
@@ -1050,7 +1097,7 @@ def distill(
             with _bar(config.epochs, f"round {r} fit", "epoch", progress) as bar:
                 losses = fit_student(
                     model,
-                    with_history(Episodes.concatenate(data), config.p_dlo_history),
+                    with_history(Episodes.concatenate(data), config.p_dlo_history, config.decision_clock),
                     epochs=config.epochs,
                     seed=config.seed + r,
                     on_epoch=_loss_reporter(bar),
@@ -1139,6 +1186,9 @@ def _write_metadata(out: Path, config: DistillConfig, history: list[dict[str, An
         "expert_rounds": config.expert_rounds,
         "expert_noise": config.expert_noise,
         "p_dlo_history": config.p_dlo_history,
+        "decision_clock": config.decision_clock,
+        "expert_replan_mm": config.expert_replan_mm,
+        "expert_replan_anchor": config.expert_replan_anchor,
         "expert_smoothing": config.expert_smoothing,
         "rounds": len(history),
         "samples": history[-1]["total_samples"] if history else 0,

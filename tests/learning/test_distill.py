@@ -449,6 +449,40 @@ def test_distill_with_a_p_dlo_history(tmp_path) -> None:
     env.close()
 
 
+@pytest.mark.slow
+def test_distill_with_the_decision_clock(tmp_path) -> None:
+    """--decision-clock: the student is fitted on observations with the time appended, the DAgger round's
+    student keeps its own clock (restarted every episode: its second episode is the one it acts in alone),
+    and the shipped form reads table-II observations."""
+    from dyndlo_vision.learning.distill import with_history
+
+    out = tmp_path / "run"
+    config = DistillConfig(rounds=2, episodes=2, first_round_episodes=2, workers=1, epochs=3, seed=7,
+                           decision_clock=True)
+    distill(config, out, log=lambda *_: None)
+    assert json.loads((out / "model.json").read_text())["decision_clock"] is True
+    assert json.loads((out / "config.json").read_text())["decision_clock"] is True
+    round1 = Episodes.load(out / "round1.npz")
+    assert round1.observations.shape[1] == 12  # stored without the clock
+    second = int(round1.seeds[-1])
+    alone = collect([second], config.teacher, str(out / "model_round0.zip"), 0.0, round_index=1)
+    assert np.array_equal(round1.true_observations[round1.seeds == second], alone.true_observations)
+
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    model = policies.load(out / "model.zip", env=env)
+    assert isinstance(model, policies.HistoryPolicy)
+    assert model.sb3_model.observation_space.shape == (13,)
+    fitted = with_history(round1, 0, clock=True)
+    first = round1.seeds == round1.seeds[0]
+    assert np.allclose(fitted.observations[first][:, 12], 0.04 * np.arange(first.sum()))
+    network = model.sb3_model
+    offline = np.array([network.predict(o, deterministic=True)[0] for o in fitted.observations[first]])
+    model.reset()
+    online = np.array([model.predict(o)[0] for o in round1.observations[first]])
+    assert np.allclose(online, offline, atol=1e-6)
+    env.close()
+
+
 def test_cli_distill_bad_input(tmp_path, capsys) -> None:
     with pytest.raises(SystemExit) as err:
         main(["distill", "--obs-noise", str(tmp_path / "missing.json"), "--out", str(tmp_path / "x")])
@@ -457,7 +491,7 @@ def test_cli_distill_bad_input(tmp_path, capsys) -> None:
     for bad in (
         ["--rounds", "0"], ["--expert-speed-limit", "-1"], ["--student-noise", "-1"],
         ["--expert-noise", "-1"], ["--expert-rounds", "0"], ["--p-dlo-history", "-1"],
-        ["--expert-smoothing", "-0.1"],
+        ["--expert-smoothing", "-0.1"], ["--decision-clock", "yes"],
     ):
         with pytest.raises(SystemExit) as err:
             main(["distill", *bad, "--out", str(tmp_path / "y")])
@@ -725,6 +759,54 @@ def test_no_search_once_a_limit_is_broken(monkeypatch) -> None:
                            student=violent, beta=0.0, replan=fake, replan_residual_m=-1.0)
     assert ep["avoid"] and fake.calls < len(ep["actions"]) - 1
     env.close()
+
+
+class _RecordingSearch(_FakeSearch):
+    """A :class:`_FakeSearch` that also records where each search started."""
+
+    def __init__(self, marker: np.ndarray, start_score: float, score: float) -> None:
+        super().__init__(marker, start_score, score)
+        self.starts: list[np.ndarray] = []
+
+    def search(self, env: Any, start: Any, seed: int) -> np.ndarray:
+        self.starts.append(np.asarray(start, dtype=float).copy())
+        return start.copy() if self.last_start_score <= self.last_score else super().search(env, start, seed)
+
+
+@pytest.mark.parametrize("student_good", [True, False])
+def test_student_anchored_labels_are_the_students_action_or_its_correction(student_good: bool) -> None:
+    """replan_anchor="student": at every decision the student takes (the first included), the search starts
+    from the student's own action, not the plan-following label. Where that action succeeds when coasted on,
+    it is the label; where not, the correction is, and only then is it counted as a re-plan. The student's
+    action is what is executed either way."""
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    teacher = PolicyTeacher(policies.load("tip-control-single-step"))
+    own = np.full(env.unwrapped.spec_actions.size, -0.05)
+    student = type("Calm", (), {"predict": lambda self, obs, deterministic=True: (own.copy(), None)})()
+    marker = np.full(own.size, 0.123)
+    start_score, score = (0.0, 0.0) if student_good else (1.0, 0.5)
+    fake = _RecordingSearch(marker, start_score=start_score, score=score)
+    ep = run_mixed_episode(env, teacher, PlanFollowingExpert(env.unwrapped.spec_actions), seed=100001,
+                           student=student, beta=0.0, replan=fake, replan_residual_m=1e9,  # MM is not used
+                           replan_anchor="student")
+    n = len(ep["actions"])
+    assert len(fake.starts) == n or ep["avoid"]
+    assert all(np.allclose(start, own) for start in fake.starts)
+    searched = ep["actions"][: len(fake.starts)]
+    if student_good:
+        assert np.allclose(searched, own) and ep["replans"] == 0
+    else:
+        assert np.allclose(searched, marker) and ep["replans"] == len(fake.starts)
+    env.close()
+
+
+def test_student_anchor_needs_the_replanning_expert() -> None:
+    with pytest.raises(ValueError, match="expert_replan_mm"):
+        DistillConfig(expert_replan_anchor="student")
+    with pytest.raises(ValueError, match="'plan' or 'student'"):
+        DistillConfig(expert_replan_mm=2.0, expert_replan_anchor="learner")
+    assert DistillConfig(expert_replan_mm=2.0, expert_replan_anchor="student").to_json()[
+        "expert_replan_anchor"] == "student"
 
 
 def test_expert_replan_option_reaches_dagger_rounds_only(tmp_path, monkeypatch, capsys) -> None:
