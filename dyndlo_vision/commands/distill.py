@@ -141,6 +141,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "where coasting on it succeeds, else the nearest good correction; MM unused)",
     )
     p.add_argument(
+        "--replan-score",
+        choices=("coast", "student"),
+        default="coast",
+        help="with --expert-replan: score a candidate by coasting on its plan to the end (coast, default: "
+        "open loop), or with the student re-planning every decision after it (student: labels after which "
+        "the student's own feedback succeeds)",
+    )
+    p.add_argument(
         "--decision-clock",
         action="store_true",
         help="the student also reads the time since the episode began (k x 40 ms at its k-th decision), so "
@@ -187,6 +195,7 @@ def run(args: argparse.Namespace) -> int:
         expert_smoothing=args.expert_smoothing,
         expert_replan_mm=args.expert_replan,
         expert_replan_anchor=args.replan_anchor,
+        expert_replan_score=args.replan_score,
     )
     out = Path(args.out or f"runs/{args.task}-multi-step-distill-s{args.seed}")
     try:

@@ -71,6 +71,7 @@ _LATER_OPTIONS = {
     "expert_replan_mm": None,
     "decision_clock": False,
     "expert_replan_anchor": "plan",
+    "expert_replan_score": "coast",
 }
 #: Options a resumed run may change: how many rounds of each kind run from here on, and how many processes
 #: collect (every episode is seeded on its own, so the data do not depend on it).
@@ -327,20 +328,28 @@ class ReplanSearch:
     cross-entropy search, docs/RESULTS.md, session 20). Without a good candidate the best-scoring one is
     returned. The environment is restored afterwards, so the episode goes on as if nothing had been tried.
 
+    With a ``follower`` (the student), a candidate is scored with the follower re-planning every decision
+    after it, from the true observation, instead of coasting: the label is then an action after which the
+    student's own feedback succeeds (cost-to-go under the learner, as in AggreVaTe), not one that succeeds
+    open loop. A follower with student features (a P_DLO history or clock) gets its own copy of them for every
+    roll-out: it goes on from the episode's history and comes back unchanged.
+
     Args:
         population: Candidates per ring.
         sigmas: Standard deviations of the rings (normalised action units), searched in this order.
         good_enough_m: A score below this is a success (``start`` itself: no search).
+        follower: What acts after the candidate (``predict(obs, deterministic=True)``); None: coast.
     """
 
     def __init__(self, population: int = 12, sigmas: Sequence[float] = (0.05, 0.1, 0.2, 0.4),
-                 good_enough_m: float = 0.03) -> None:
+                 good_enough_m: float = 0.03, follower: Any = None) -> None:
         if population < 1 or not sigmas or any(not 0 < sg < float("inf") for sg in sigmas):
             raise ValueError(f"need population >= 1 and positive finite sigmas; got population={population}, "
                              f"sigmas={sigmas!r}")
         self.population = int(population)
         self.sigmas = tuple(float(sg) for sg in sigmas)
         self.good_enough_m = float(good_enough_m)
+        self.follower = follower
         self.last_rollouts = 0
         self.last_start_score = float("nan")
         self.last_score = float("nan")
@@ -354,6 +363,27 @@ class ReplanSearch:
             _, _, done, _, info = env.coast()
         return CableSearchTeacher.score(info)
 
+    def followed_score(self, env: Any, snapshot: Any, action: NDArray[np.floating[Any]]) -> float:
+        """The score of re-planning with ``action`` at ``snapshot``, then with the follower at every later
+        decision (on a copy of it, from the true observation)."""
+        import copy
+
+        follower = self.follower
+        if hasattr(follower, "features"):  # a HistoryPolicy: its own copy of the episode's history and clock
+            follower = copy.copy(follower)
+            follower.features = copy.deepcopy(self.follower.features)
+        env.restore(snapshot)
+        obs, _, done, _, info = env.step(np.asarray(action, dtype=np.float32))
+        while not done:
+            a, _ = follower.predict(obs, deterministic=True)
+            obs, _, done, _, info = env.step(np.asarray(a, dtype=np.float32))
+        return CableSearchTeacher.score(info)
+
+    def _score(self, env: Any, snapshot: Any, action: NDArray[np.floating[Any]]) -> float:
+        if self.follower is None:
+            return self.coasted_score(env, snapshot, action)
+        return self.followed_score(env, snapshot, action)
+
     def search(self, env: Any, start: NDArray[np.floating[Any]], seed: int) -> NDArray[np.float64]:
         """The answer for the multi-step ``env`` (unwrapped) now: ``start`` if it is good enough, else the
         nearest good candidate, else the best-scoring one (``start`` unless one scores better). ``env`` is
@@ -361,14 +391,14 @@ class ReplanSearch:
         snapshot = env.snapshot()
         try:
             origin = np.clip(np.asarray(start, dtype=np.float64), -1.0, 1.0)
-            best, best_score = origin, self.coasted_score(env, snapshot, origin)
+            best, best_score = origin, self._score(env, snapshot, origin)
             self.last_start_score, self.last_rollouts = best_score, 1
             rng = np.random.default_rng([int(seed), int(round(env.scene.time * 1000)), 0x5EA])
             for sigma in self.sigmas:
                 if best_score < self.good_enough_m:
                     break
                 actions = np.clip(origin + sigma * rng.standard_normal((self.population, origin.size)), -1, 1)
-                scores = np.array([self.coasted_score(env, snapshot, a) for a in actions])
+                scores = np.array([self._score(env, snapshot, a) for a in actions])
                 self.last_rollouts += len(actions)
                 good = np.flatnonzero(scores < self.good_enough_m)
                 if good.size:
@@ -613,7 +643,9 @@ def _collect_chunk(job: dict[str, Any], on_episode: Callable[[int, bool], None] 
         env.unwrapped.spec_actions, speed_limit_m_s=job["speed_limit"], smoothing=job.get("smoothing", 0.0)
     )
     replan_mm = job.get("replan_mm")
-    replan = ReplanSearch() if replan_mm is not None else None
+    replan = None
+    if replan_mm is not None:
+        replan = ReplanSearch(follower=student if job.get("replan_score") == "student" else None)
     parts = []
     for seed in job["seeds"]:
         ep = run_mixed_episode(
@@ -672,6 +704,7 @@ def collect(
     expert_smoothing: float = 0.0,
     replan_residual_mm: float | None = None,
     replan_anchor: str = "plan",
+    replan_score: str = "coast",
 ) -> Episodes:
     """Run one DAgger round's episodes (one per seed) in ``workers`` processes.
 
@@ -697,6 +730,8 @@ def collect(
             re-plan from the true state (see :func:`run_mixed_episode`); None: never.
         replan_anchor: Where that search is centred: ``"plan"`` (the plan-following label) or ``"student"``
             (the student's action, at every decision it takes; see :func:`run_mixed_episode`).
+        replan_score: How the search scores a candidate: ``"coast"`` (its plan followed to the end) or
+            ``"student"`` (the student re-planning after it; :class:`ReplanSearch`'s ``follower``).
         on_episode: Called in this process with ``(seed, success)`` of every episode as it ends, in the order
             they end (e.g. for a progress bar). The returned data do not depend on it.
     """
@@ -719,6 +754,7 @@ def collect(
             "smoothing": float(expert_smoothing),
             "replan_mm": None if replan_residual_mm is None else float(replan_residual_mm),
             "replan_anchor": replan_anchor,
+            "replan_score": replan_score,
         }
         for i in range(workers)
     ]
@@ -877,6 +913,9 @@ class DistillConfig:
             exceeds ``expert_replan_mm``; ``"student"``: from the student's own action, at every decision it
             takes (``expert_replan_mm`` must be set, and is not used then): the label is its action where
             coasting on it succeeds, else the nearest good correction (:func:`run_mixed_episode`).
+        expert_replan_score: How the re-planning expert scores a candidate: ``"coast"`` (its plan followed
+            to the end, open loop) or ``"student"`` (the student re-planning every decision after it, from the
+            true observation; :class:`ReplanSearch`'s ``follower``).
     """
 
     teacher: str = "tip-control-single-step"
@@ -902,6 +941,7 @@ class DistillConfig:
     expert_replan_mm: float | None = None
     decision_clock: bool = False
     expert_replan_anchor: str = "plan"
+    expert_replan_score: str = "coast"
 
     def __post_init__(self) -> None:
         for name in ("rounds", "episodes", "first_round_episodes", "workers", "epochs", "expert_rounds"):
@@ -944,6 +984,12 @@ class DistillConfig:
             )
         if self.expert_replan_anchor == "student" and replan is None:
             raise ValueError("expert_replan_anchor 'student' needs the re-planning expert (expert_replan_mm)")
+        if self.expert_replan_score not in ("coast", "student"):
+            raise ValueError(
+                f"expert_replan_score must be 'coast' or 'student', got {self.expert_replan_score!r}"
+            )
+        if self.expert_replan_score == "student" and replan is None:
+            raise ValueError("expert_replan_score 'student' needs the re-planning expert (expert_replan_mm)")
         if not isinstance(self.decision_clock, bool):
             raise ValueError(f"decision_clock must be True or False, got {self.decision_clock!r}")
         if not self.net_arch or any(int(n) < 1 for n in self.net_arch):
@@ -1090,6 +1136,7 @@ def distill(
                         expert_smoothing=config.expert_smoothing,
                         replan_residual_mm=None if expert else config.expert_replan_mm,
                         replan_anchor=config.expert_replan_anchor,
+                        replan_score=config.expert_replan_score,
                     )
                 episodes.save(round_file)
             collect_s = time.monotonic() - start
@@ -1189,6 +1236,7 @@ def _write_metadata(out: Path, config: DistillConfig, history: list[dict[str, An
         "decision_clock": config.decision_clock,
         "expert_replan_mm": config.expert_replan_mm,
         "expert_replan_anchor": config.expert_replan_anchor,
+        "expert_replan_score": config.expert_replan_score,
         "expert_smoothing": config.expert_smoothing,
         "rounds": len(history),
         "samples": history[-1]["total_samples"] if history else 0,

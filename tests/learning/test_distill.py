@@ -800,6 +800,50 @@ def test_student_anchored_labels_are_the_students_action_or_its_correction(stude
     env.close()
 
 
+class _CountingFollower:
+    """A follower with per-episode state (like a HistoryPolicy's features): a fixed action and a call log."""
+
+    def __init__(self, action: np.ndarray) -> None:
+        self.action, self.features = action, []
+
+    def predict(self, obs: Any, deterministic: bool = True) -> tuple[np.ndarray, None]:
+        self.features.append(len(self.features))
+        return self.action.copy(), None
+
+
+@pytest.mark.slow
+def test_a_followed_score_lets_the_follower_re_plan_after_the_candidate() -> None:
+    """With a follower, a candidate is scored by playing it, then the follower's action at every later
+    decision (not by coasting); the follower's own state and the episode are as they were afterwards."""
+    env, _, label = _off_plan_tip_control(decisions=2)
+    u = env.unwrapped
+    before = u.observation()
+    follower = _CountingFollower(np.full(label.shape, -0.3))
+    search = ReplanSearch(follower=follower)
+    snapshot = u.snapshot()
+    followed = search.followed_score(u, snapshot, label)
+    u.restore(snapshot)
+    _, _, done, _, info = u.step(label.astype(np.float32))
+    steps = 0
+    while not done:
+        _, _, done, _, info = u.step(np.full(label.shape, -0.3, dtype=np.float32))
+        steps += 1
+    assert followed == pytest.approx(CableSearchTeacher.score(info))
+    assert steps > 0 and followed != pytest.approx(ReplanSearch.coasted_score(u, snapshot, label))
+    u.restore(snapshot)
+    search.search(u, label, seed=1)
+    assert follower.features == []  # every roll-out used its own copy
+    assert np.array_equal(u.observation(), before)
+    env.close()
+
+
+def test_replan_score_option_needs_the_replanning_expert() -> None:
+    with pytest.raises(ValueError, match="expert_replan_mm"):
+        DistillConfig(expert_replan_score="student")
+    with pytest.raises(ValueError, match="'coast' or 'student'"):
+        DistillConfig(expert_replan_mm=2.0, expert_replan_score="rollout")
+
+
 def test_student_anchor_needs_the_replanning_expert() -> None:
     with pytest.raises(ValueError, match="expert_replan_mm"):
         DistillConfig(expert_replan_anchor="student")
