@@ -390,6 +390,28 @@ def test_distill_adds_expert_rounds_to_a_finished_run(tmp_path) -> None:
     assert not np.allclose(round1.true_observations[later[:3]], clean1.true_observations[later[:3]])
 
 
+def _distill_with_student_features(out: Any, **features: Any) -> Any:
+    """A two-round run whose student reads ``features``. Checks what every such run must do: the round files
+    keep table-II observations, and the DAgger round's student (round 0's, selectable by its file) starts
+    every episode afresh (its second episode is the one it acts in alone). Returns the loaded student."""
+    config = DistillConfig(rounds=2, episodes=2, first_round_episodes=2, workers=1, epochs=3, seed=7,
+                           **features)
+    history = distill(config, out, log=lambda *_: None)
+    assert [h["acting"] for h in history] == ["expert", "student of round 0"]
+    for key, value in features.items():
+        assert json.loads((out / "model.json").read_text())[key] == value
+    round1 = Episodes.load(out / "round1.npz")
+    assert round1.observations.shape[1] == 12  # stored without the features
+    second = int(round1.seeds[-1])
+    alone = collect([second], config.teacher, str(out / "model_round0.zip"), 0.0, round_index=1)
+    assert np.array_equal(round1.true_observations[round1.seeds == second], alone.true_observations)
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    model = policies.load(out / "model.zip", env=env)
+    env.close()
+    assert isinstance(model, policies.HistoryPolicy) and model.observation_space.shape == (12,)
+    return model
+
+
 @pytest.mark.slow
 def test_distill_with_a_p_dlo_history(tmp_path) -> None:
     """--p-dlo-history: the round files keep table-II observations, the student is fitted on them with the
@@ -399,24 +421,10 @@ def test_distill_with_a_p_dlo_history(tmp_path) -> None:
     from dyndlo_vision.learning.evaluate import evaluate
 
     out = tmp_path / "run"
-    config = DistillConfig(rounds=2, episodes=2, first_round_episodes=2, workers=1, epochs=3, seed=7,
-                           p_dlo_history=2)
-    history = distill(config, out, log=lambda *_: None)
-    assert [h["acting"] for h in history] == ["expert", "student of round 0"]
-    assert json.loads((out / "model.json").read_text())["p_dlo_history"] == 2
+    model = _distill_with_student_features(out, p_dlo_history=2)
     data = Episodes.concatenate([Episodes.load(out / f"round{r}.npz") for r in range(2)])
-    assert data.observations.shape[1] == 12  # stored without the history
-    # The DAgger round's student (round 0's, selectable by its file) starts every episode afresh: its second
-    # episode is the one it acts in alone.
-    round1 = Episodes.load(out / "round1.npz")
-    second = int(round1.seeds[-1])
-    alone = collect([second], config.teacher, str(out / "model_round0.zip"), 0.0, round_index=1)
-    assert np.array_equal(round1.true_observations[round1.seeds == second], alone.true_observations)
-
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
-    model = policies.load(out / "model.zip", env=env)
-    assert isinstance(model, policies.HistoryPolicy)
-    assert model.observation_space.shape == (12,) and model.sb3_model.observation_space.shape == (18,)
+    assert model.sb3_model.observation_space.shape == (18,)
     fitted = with_history(data, 2)
     first = data.seeds == data.seeds[0]
     network = model.sb3_model
@@ -457,20 +465,9 @@ def test_distill_with_the_decision_clock(tmp_path) -> None:
     from dyndlo_vision.learning.distill import with_history
 
     out = tmp_path / "run"
-    config = DistillConfig(rounds=2, episodes=2, first_round_episodes=2, workers=1, epochs=3, seed=7,
-                           decision_clock=True)
-    distill(config, out, log=lambda *_: None)
-    assert json.loads((out / "model.json").read_text())["decision_clock"] is True
+    model = _distill_with_student_features(out, decision_clock=True)
     assert json.loads((out / "config.json").read_text())["decision_clock"] is True
     round1 = Episodes.load(out / "round1.npz")
-    assert round1.observations.shape[1] == 12  # stored without the clock
-    second = int(round1.seeds[-1])
-    alone = collect([second], config.teacher, str(out / "model_round0.zip"), 0.0, round_index=1)
-    assert np.array_equal(round1.true_observations[round1.seeds == second], alone.true_observations)
-
-    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
-    model = policies.load(out / "model.zip", env=env)
-    assert isinstance(model, policies.HistoryPolicy)
     assert model.sb3_model.observation_space.shape == (13,)
     fitted = with_history(round1, 0, clock=True)
     first = round1.seeds == round1.seeds[0]
@@ -480,7 +477,6 @@ def test_distill_with_the_decision_clock(tmp_path) -> None:
     model.reset()
     online = np.array([model.predict(o)[0] for o in round1.observations[first]])
     assert np.allclose(online, offline, atol=1e-6)
-    env.close()
 
 
 def test_cli_distill_bad_input(tmp_path, capsys) -> None:
