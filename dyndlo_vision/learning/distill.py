@@ -896,6 +896,8 @@ class DistillConfig:
             (:class:`~dyndlo_vision.tasks.wrappers.DecisionClock`). The expert's label re-plans the rest of
             a plan in time, so states that look alike at different phases of it get different labels; with
             the clock the student can tell them apart. Added, like the history, when the student is fitted.
+            Measured on tip control (docs/RESULTS.md, session 21): the DAgger labels' conflicts did not come
+            from time, and the clock did not stop a DAgger round from hurting.
         expert_smoothing: :class:`PlanFollowingExpert`'s ``smoothing`` (0: off).
         dagger_beta: In DAgger rounds, the probability that the expert's action, not the student's, is
             executed at a decision (DAgger's beta; 0: the student acts throughout). The expert's
@@ -978,18 +980,13 @@ class DistillConfig:
         history = self.p_dlo_history
         if isinstance(history, bool) or not isinstance(history, int) or history < 0:
             raise ValueError(f"p_dlo_history must be an integer >= 0 (0: no history), got {history!r}")
-        if self.expert_replan_anchor not in ("plan", "student"):
-            raise ValueError(
-                f"expert_replan_anchor must be 'plan' or 'student', got {self.expert_replan_anchor!r}"
-            )
-        if self.expert_replan_anchor == "student" and replan is None:
-            raise ValueError("expert_replan_anchor 'student' needs the re-planning expert (expert_replan_mm)")
-        if self.expert_replan_score not in ("coast", "student"):
-            raise ValueError(
-                f"expert_replan_score must be 'coast' or 'student', got {self.expert_replan_score!r}"
-            )
-        if self.expert_replan_score == "student" and replan is None:
-            raise ValueError("expert_replan_score 'student' needs the re-planning expert (expert_replan_mm)")
+        for name, (default, other) in {"expert_replan_anchor": ("plan", "student"),
+                                       "expert_replan_score": ("coast", "student")}.items():
+            value = getattr(self, name)
+            if value not in (default, other):
+                raise ValueError(f"{name} must be {default!r} or {other!r}, got {value!r}")
+            if value != default and replan is None:
+                raise ValueError(f"{name} {value!r} needs the re-planning expert (expert_replan_mm)")
         if not isinstance(self.decision_clock, bool):
             raise ValueError(f"decision_clock must be True or False, got {self.decision_clock!r}")
         if not self.net_arch or any(int(n) < 1 for n in self.net_arch):
