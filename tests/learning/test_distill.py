@@ -413,20 +413,23 @@ def _distill_with_student_features(out: Any, **features: Any) -> Any:
 
 
 @pytest.mark.slow
-def test_distill_with_a_p_dlo_history(tmp_path) -> None:
-    """--p-dlo-history: the round files keep table-II observations, the student is fitted on them with the
-    history appended, and the loaded policy, fed table-II observations one by one, computes the same history
-    (so what it was fitted on is what it sees when it acts, in the DAgger round too)."""
+def test_distill_with_a_p_dlo_history_and_the_decision_clock(tmp_path) -> None:
+    """--p-dlo-history and --decision-clock: the round files keep table-II observations, the student is fitted
+    on them with the history and the clock appended, and the loaded policy, fed table-II observations one by
+    one, computes the same history and clock (so what it was fitted on is what it sees when it acts, in the
+    DAgger round too)."""
     from dyndlo_vision.learning.distill import with_history
     from dyndlo_vision.learning.evaluate import evaluate
 
     out = tmp_path / "run"
-    model = _distill_with_student_features(out, p_dlo_history=2)
+    model = _distill_with_student_features(out, p_dlo_history=2, decision_clock=True)
+    assert json.loads((out / "config.json").read_text())["decision_clock"] is True
     data = Episodes.concatenate([Episodes.load(out / f"round{r}.npz") for r in range(2)])
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
-    assert model.sb3_model.observation_space.shape == (18,)
-    fitted = with_history(data, 2)
+    assert model.sb3_model.observation_space.shape == (12 + 6 + 1,)
+    fitted = with_history(data, 2, clock=True)
     first = data.seeds == data.seeds[0]
+    assert np.allclose(fitted.observations[first][:, 18], 0.04 * np.arange(first.sum()))
     network = model.sb3_model
     offline = np.array([network.predict(o, deterministic=True)[0] for o in fitted.observations[first]])
     model.reset()
@@ -455,28 +458,6 @@ def test_distill_with_a_p_dlo_history(tmp_path) -> None:
     evaluate(alone, env, 1, seed=2)
     assert np.allclose(both.actions[records[0].length:], alone.actions, atol=1e-6)
     env.close()
-
-
-@pytest.mark.slow
-def test_distill_with_the_decision_clock(tmp_path) -> None:
-    """--decision-clock: the student is fitted on observations with the time appended, the DAgger round's
-    student keeps its own clock (restarted every episode: its second episode is the one it acts in alone),
-    and the shipped form reads table-II observations."""
-    from dyndlo_vision.learning.distill import with_history
-
-    out = tmp_path / "run"
-    model = _distill_with_student_features(out, decision_clock=True)
-    assert json.loads((out / "config.json").read_text())["decision_clock"] is True
-    round1 = Episodes.load(out / "round1.npz")
-    assert model.sb3_model.observation_space.shape == (13,)
-    fitted = with_history(round1, 0, clock=True)
-    first = round1.seeds == round1.seeds[0]
-    assert np.allclose(fitted.observations[first][:, 12], 0.04 * np.arange(first.sum()))
-    network = model.sb3_model
-    offline = np.array([network.predict(o, deterministic=True)[0] for o in fitted.observations[first]])
-    model.reset()
-    online = np.array([model.predict(o)[0] for o in round1.observations[first]])
-    assert np.allclose(online, offline, atol=1e-6)
 
 
 def test_cli_distill_bad_input(tmp_path, capsys) -> None:
@@ -815,7 +796,7 @@ def test_a_followed_score_lets_the_follower_re_plan_after_the_candidate() -> Non
     u = env.unwrapped
     before = u.observation()
     follower = _CountingFollower(np.full(label.shape, -0.3))
-    search = ReplanSearch(follower=follower)
+    search = ReplanSearch(population=2, sigmas=(0.1,), follower=follower)
     snapshot = u.snapshot()
     followed = search.followed_score(u, snapshot, label)
     u.restore(snapshot)
