@@ -37,10 +37,12 @@ from dyndlo_vision.control.dry_run import JointRecorder
 from dyndlo_vision.control.loop import ControlLoop, CycleRecord
 from dyndlo_vision.control.run_config import SCRIPTED_PREFIX, RunConfig
 from dyndlo_vision.robots.egm import EgmRobot
+from dyndlo_vision.robots.kinematics import JointLimitError
 from dyndlo_vision.robots.protocol import Setpoints, TcpState
 from dyndlo_vision.robots.rtde import RtdeRobot
 from dyndlo_vision.robots.safety import ClampedRobot, WorkspaceBox, clamp_setpoints
 from dyndlo_vision.tasks.base import CONTROL_PERIOD_S, observation_vector
+from dyndlo_vision.tracking.params import LOOP_FILTER
 
 __all__ = ["HorizonRobot", "RunRefused", "RunResult", "run_session"]
 
@@ -61,6 +63,18 @@ FIRST_PLAN_LEAD_S = 0.25
 #: The shortest span of setpoints sent: a plan that has (nearly) ended is held this long, longer than the
 #: driver may take to accept it on a loaded machine.
 MIN_HORIZON_S = 0.25
+#: The lead grows to this multiple of the longest cycle latency (reading the robot to the driver accepting the
+#: plan) among the last :data:`LEAD_WINDOW` plans, between ``lead_s`` and :data:`MAX_PLAN_LEAD_S`.
+LEAD_FACTOR, LEAD_WINDOW = 1.5, 12
+#: A plan is sent only if it starts later than the driver's last target plus this multiple of the longest of
+#: the last sends, plus a driver period (a send's IK takes that long before the driver joins the plan).
+SEND_MARGIN = 1.25
+#: The most the lead adapts to: P_DLO is predicted a lead past the newest frame, and the loop's filter reports
+#: it lost past ``max_coast_s`` (0.3 s), so a longer lead would lose it whenever a frame or two is missed.
+#: Plans that still arrive late are dropped (the robot goes on with the plans it has, which end at rest).
+MAX_PLAN_LEAD_S = round(LOOP_FILTER.max_coast_s - 2 * CONTROL_PERIOD_S, 6)
+#: Tries at the first plan: each starts it later, by twice what the failed try took (the arm is at rest).
+FIRST_PLAN_TRIES = 4
 
 
 class RunRefused(ValueError):
@@ -109,7 +123,20 @@ class HorizonRobot:
     predicted to it, the new plan starting there from where the current plan is then, as the environment's
     plans join and as ``PlanFeasibility`` judges them in training). With a lead longer than the period
     several plans are pending at once; what is sent follows, at each instant, the newest plan that has started
-    by then. A plan accepted after its start would join mid-way; :attr:`max_late_s` records by how much.
+    by then.
+
+    A loaded computer: the lead adapts. After each plan it becomes :data:`LEAD_FACTOR` times the longest
+    latency of the last :data:`LEAD_WINDOW` plans (robot time from :meth:`state` to the driver accepting the
+    plan), never below ``lead_s`` nor above ``max_lead_s``. A plan that would still arrive after its start
+    (the driver has sent targets past it, or will have by the time its IK is done, judged from the last sends)
+    would join mid-way, with a jump. It is never sent that way:
+
+    * the first plan is started later (the arm is at rest at home until it starts, so this is exact);
+    * a later plan is dropped: the replanner goes back to the last plan sent, the robot goes on with the plans
+      it has, and the next cycle plans again. :attr:`plans_late` counts them.
+
+    :attr:`max_late_s` records, over the plans sent, (driver's last target time at acceptance) - (plan's
+    start): negative, by how much each arrived in time.
 
     ``send`` ignores the loop's one-period window except as a signal: when there is a new plan it sends, from
     the driver's last target on, that piecewise plan to the newest plan's end (at least :data:`MIN_HORIZON_S`,
@@ -121,15 +148,16 @@ class HorizonRobot:
         replanner: The loop's replanner (its current trajectory is the newest plan).
         box: Workspace box of the TCP.
         max_speed_m_s: TCP speed limit.
-        lead_s: How far ahead of the measured time plans start.
+        lead_s: How far ahead of the measured time plans start, at least (the lead adapts above it).
         first_lead_s: The same for the first plan (the arm at rest); at least ``lead_s``.
         replans: The loop re-plans every cycle (multi-step); without, the state is the measured one once the
             single plan is made (nothing more is planned, and the estimate is then for the present).
+        max_lead_s: The most the lead adapts to; at least ``lead_s``.
     """
 
     def __init__(self, driver: Any, replanner: Any, box: WorkspaceBox, max_speed_m_s: float,
                  lead_s: float = PLAN_LEAD_S, first_lead_s: float = FIRST_PLAN_LEAD_S,
-                 replans: bool = True) -> None:
+                 replans: bool = True, max_lead_s: float = MAX_PLAN_LEAD_S) -> None:
         if not lead_s >= 0.0:
             raise ValueError(f"lead_s must be >= 0, got {lead_s}")
         self.first_lead_s = max(float(first_lead_s), float(lead_s))
@@ -139,13 +167,25 @@ class HorizonRobot:
         self._view = _CommandedView(driver)
         self.clamped = ClampedRobot(self._view, box, max_speed_m_s)
         self.period_s = float(driver.period_s)
-        self.lead_s = float(lead_s)
+        #: The configured (smallest) lead, and the lead now (adapted to the cycle latency).
+        self.min_lead_s = float(lead_s)
+        self.max_lead_s = max(float(max_lead_s), self.min_lead_s)
+        self.lead_s = self.min_lead_s
+        #: The largest the lead became.
+        self.lead_max_used_s = self.lead_s
         self.sends = 0
         self.unchanged = 0  # cycles that had no new plan to send
         self.clamped_sends = 0
+        #: Plans dropped because they would have arrived after their start (see the class docstring).
+        self.plans_late = 0
+        #: How much later than planned the first plan started (0 when it was in time).
+        self.first_plan_delay_s = 0.0
         #: Largest (time the driver had sent targets up to when it accepted a new plan) - (the plan's start).
         self.max_late_s = -math.inf
         self._plans: list[Any] = []  # sent plans, oldest first, with non-decreasing start times
+        self._state_t = math.nan  # the measured time of the latest state() (the cycle's start)
+        self._latencies: list[float] = []  # robot time from state() to a plan's acceptance, latest last
+        self._send_s: list[float] = []  # robot time each send took, latest last
 
     def connect(self) -> None:
         """The driver is connected before the loop starts."""
@@ -153,6 +193,7 @@ class HorizonRobot:
     def state(self) -> TcpState:
         """The measured TCP, stamped ``lead_s`` ahead (see the class docstring)."""
         s = self.driver.state()
+        self._state_t = float(s.t)
         traj = self.replanner.trajectory
         if traj is None:
             return TcpState(s.position, s.velocity, float(s.t) + self.first_lead_s)
@@ -186,8 +227,64 @@ class HorizonRobot:
             # The driver holds the whole of the plans already (they end at rest): nothing new to send.
             self.unchanged += 1
             return
-        if new_plan:
+        if not new_plan:
+            self._send_rest()
+            return
+        first = not self._plans
+        tries = FIRST_PLAN_TRIES if first else 1
+        delay = self._send_allowance()
+        for attempt in range(tries):
+            t_join = float(self.driver.commanded_state().t) + delay
+            if traj.t_start < t_join:  # it would reach the robot after its start
+                if not first:
+                    self._drop_late(traj)
+                    return
+                traj = self._start_first_plan_later(traj, t_join)
+            t_before = float(self.driver.commanded_state().t)
             self._plans.append(traj)
+            try:
+                self._send_rest()
+                break
+            except JointLimitError as exc:
+                self._plans.pop()
+                now = float(self.driver.commanded_state().t)
+                if not (exc.at_join and now >= traj.t_start) or (first and attempt == tries - 1):
+                    raise  # the plan itself breaks a limit (not a matter of time), or no try was in time
+                if not first:
+                    self._drop_late(traj)
+                    return
+                delay = 2.0 * max(now - t_before, self.period_s)
+                log.warning("first plan reached the robot after its start (sending took %.3f s): "
+                            "starting it later", now - t_before)
+        t_after = float(self.driver.commanded_state().t)
+        self._send_s = (self._send_s + [t_after - t_before])[-LEAD_WINDOW:]
+        self.max_late_s = max(self.max_late_s, t_after - float(traj.t_start))
+        if math.isfinite(self._state_t):
+            self._latencies = (self._latencies + [t_after - self._state_t])[-LEAD_WINDOW:]
+            self.lead_s = min(self.max_lead_s, max(self.min_lead_s, LEAD_FACTOR * max(self._latencies)))
+            self.lead_max_used_s = max(self.lead_max_used_s, self.lead_s)
+
+    def _send_allowance(self) -> float:
+        """Robot time a send is expected to take: the longest recent send, with margin, plus a period."""
+        return SEND_MARGIN * max(self._send_s, default=0.0) + self.period_s
+
+    def _start_first_plan_later(self, traj: Any, t_start: float) -> Any:
+        """The first plan, starting at ``t_start`` instead (exact: the arm rests at its start until then)."""
+        self.first_plan_delay_s += t_start - float(traj.t_start)
+        later = traj.shifted(t_start - float(traj.t_start))
+        self.replanner.trajectory = later
+        return later
+
+    def _drop_late(self, traj: Any) -> None:
+        """Not send a plan that would arrive after its start; go back to the last plan sent."""
+        self.plans_late += 1
+        self.replanner.trajectory = self._plans[-1]
+        log.warning("plan for t=%.3f s dropped: it would reach the robot after its start (lead %.0f ms); "
+                    "the robot goes on with the plans it has", traj.t_start, 1e3 * self.lead_s)
+
+    def _send_rest(self) -> None:
+        """Send the plans from the driver's last target on (see the class docstring)."""
+        traj = self.replanner.trajectory
         commanded = self.driver.commanded_state()
         self._view.snapshot = commanded  # the clamps start from the state the setpoints start after
         t0 = float(commanded.t)
@@ -197,9 +294,6 @@ class HorizonRobot:
         times = t0 + self.period_s * np.arange(1, math.ceil((t_end - t0) / self.period_s - 1e-9) + 1)
         p, v = self.references(times)
         self.clamped.send(Setpoints(times, p, v))
-        if new_plan:
-            late = float(self.driver.commanded_state().t) - float(traj.t_start)
-            self.max_late_s = max(self.max_late_s, late)
         self.sends += 1
         self.clamped_sends += int(self.clamped.last_report.changed)
 
@@ -727,7 +821,10 @@ def _metrics(cfg: RunConfig, dry_run: bool, name: str, note: str | None, multi_s
         "plans_sent": robot.sends,
         "cycles_without_new_plan": robot.unchanged,
         "plans_clamped": robot.clamped_sends,
-        "plan_lead_s": robot.lead_s,
+        "plan_lead_s": robot.min_lead_s,
+        "plan_lead_max_used_s": robot.lead_max_used_s,
+        "plans_late": robot.plans_late,
+        "first_plan_delay_s": robot.first_plan_delay_s,
         "plan_max_late_s": robot.max_late_s if math.isfinite(robot.max_late_s) else None,
         "joint_targets_sent": sent_all,
         "joint_targets_sent_moving": len(active),

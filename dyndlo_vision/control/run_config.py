@@ -17,7 +17,7 @@ Schema (``examples/run-gofa-dry.yaml`` documents it field by field)::
       base_pose: [x, y, z, roll, pitch, yaw]   # arm base in the task's world (m, degrees); default per arm
       tool_offset: [x, y, z]      # TCP in the flange frame (m); default [0, 0, 0]
       home_tolerance_m: 0.01      # the TCP must start this close to the task's home
-      plan_lead_s: 0.08           # re-plans start this long after the state they are made from
+      plan_lead_s: 0.08           # re-plans start at least this long after the state they are made from
     camera:
       source: simulated | device | realsense | video
       calibration: camera.json    # PinholeCamera JSON (dyndlo-vision calib / calibrate); world = task world

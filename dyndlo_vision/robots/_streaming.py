@@ -269,7 +269,7 @@ class JointStreamingDriver:
                 logger.error(
                     "%s: refusing setpoints, nothing of them sent: %s%s", self.protocol_name, report, hint
                 )
-                raise JointLimitError(report, hint)
+                raise JointLimitError(report, hint, at_join=bool(hint))
             # The plan starts at the last target sent, so interpolation joins it without a jump.
             self._plan = (t_all[hist_t.size - 1 :], q_all[hist_t.size - 1 :])
             self._active = True

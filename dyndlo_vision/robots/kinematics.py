@@ -688,9 +688,11 @@ class LimitReport:
 class JointLimitError(ValueError):
     """A joint trajectory breaks a position, velocity or acceleration limit; ``report`` says where."""
 
-    def __init__(self, report: LimitReport, hint: str = "") -> None:
+    def __init__(self, report: LimitReport, hint: str = "", at_join: bool = False) -> None:
         super().__init__(str(report) + hint)
         self.report = report
+        #: The setpoints alone keep the limits; only their join to the targets already sent breaks them.
+        self.at_join = bool(at_join)
 
 
 def check_joint_limits(arm: ArmModel, t: ArrayLike, q: ArrayLike, tolerance: float = 1e-9) -> LimitReport:

@@ -50,6 +50,7 @@ Speed (timeit, Python 3.11, numpy 2.4, dev container CPU): scalar ``position(t)`
 
 from __future__ import annotations
 
+import math
 from bisect import bisect_right
 from typing import Any
 
@@ -366,6 +367,16 @@ class BSplineTrajectory:
     def monotone_fallback(self) -> bool:
         """True when the plain timing spline overshot and the monotone variant is used."""
         return self._fallback
+
+    def shifted(self, dt: float) -> BSplineTrajectory:
+        """The same trajectory ``dt`` seconds later: ``shifted(dt).sample(t + dt) == sample(t)``.
+
+        Exact: the fits are made in local time, so only the via-point times move.
+        """
+        if not math.isfinite(dt):
+            raise ValueError(f"dt must be finite, got {dt!r}")
+        p, t, v0, a0 = self._args
+        return type(self)(p, t + float(dt), start_velocity=v0, start_acceleration=a0)
 
     # -- evaluation ---------------------------------------------------------------------------
 

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from dyndlo_vision.control.robot_run import HorizonRobot
+from dyndlo_vision.control.robot_run import LEAD_FACTOR, HorizonRobot
 from dyndlo_vision.control.run_config import ConfigError, parse_run_config
 from dyndlo_vision.control.scripted import SlowReach
 from dyndlo_vision.robots.kinematics import ArmKinematics, abb_gofa_crb15000
@@ -160,6 +160,122 @@ def test_horizon_robot_sends_the_old_plan_until_the_new_one_starts() -> None:
     np.testing.assert_allclose(sent.position[before, 0], first.position(sent.t[before]))
     np.testing.assert_allclose(sent.position[~before, 0], second.position(sent.t[~before]))
     assert robot.max_late_s == pytest.approx(1.5 - 1.58)
+
+
+class _SlowDriver(_Driver):
+    """A driver on a loaded computer: each send takes ``send_s`` of robot time (its IK); the first
+    ``refuse_joins`` sends are refused at the join, as the real driver refuses setpoints that start after
+    targets it has already sent."""
+
+    def __init__(self, send_s: float = 0.0, refuse_joins: int = 0) -> None:
+        super().__init__()
+        self.send_s, self.refuse_joins = send_s, refuse_joins
+
+    def send(self, setpoints: Setpoints) -> None:
+        from dyndlo_vision.robots.kinematics import JointLimitError, LimitReport
+
+        self.t += self.send_s
+        if self.refuse_joins > 0:
+            self.refuse_joins -= 1
+            raise JointLimitError(LimitReport(), "(at the join)", at_join=True)
+        super().send(setpoints)
+
+
+def _horizon(driver: _Driver) -> tuple[HorizonRobot, Replanner, Any]:
+    spec = TipControl(planar=True).action_spec()
+    replanner = Replanner(spec, np.array([TCP_HOME_M]))
+    robot = HorizonRobot(driver, replanner, WorkspaceBox((-2, -2, -2), (2, 2, 2)), 10.0, lead_s=0.08,
+                         first_lead_s=0.25)
+    return robot, replanner, spec
+
+
+NOTHING = Setpoints(np.array([0.0]), np.zeros((1, 1, 3)), np.zeros((1, 1, 3)))
+
+
+def test_a_late_first_plan_starts_later_and_unchanged() -> None:
+    """The first cycle took longer than the first lead: the arm is still at rest at home, so the plan is sent
+    whole, later by what it would have missed (never joined mid-way)."""
+    driver = _SlowDriver()
+    robot, replanner, spec = _horizon(driver)
+    planned = replanner.replan(np.full(spec.size, 0.3), robot.state().t)  # starts at 1.25
+    driver.t = 1.4  # the cycle took 0.4 s
+    robot.send(NOTHING)
+    sent = driver.sent[-1]
+    started = replanner.trajectory
+    assert started.t_start >= 1.4 + driver.period_s and robot.first_plan_delay_s > 0.15
+    np.testing.assert_allclose(started.points, planned.points)
+    np.testing.assert_allclose(started.position(sent.t), planned.position(sent.t - robot.first_plan_delay_s))
+    np.testing.assert_allclose(sent.position[:, 0], started.position(sent.t))
+    held = sent.t <= started.t_start
+    np.testing.assert_allclose(sent.position[held, 0], np.tile(TCP_HOME_M, (held.sum(), 1)))
+    assert robot.max_late_s < 0.0 and robot.plans_late == 0
+
+
+def test_a_late_plan_is_dropped_and_the_robot_keeps_the_plans_it_has() -> None:
+    driver = _SlowDriver()
+    robot, replanner, spec = _horizon(driver)
+    first = replanner.replan(np.full(spec.size, 0.3), robot.state().t)
+    robot.send(NOTHING)
+    driver.t, driver.position = 1.5, first.position(np.array([1.5]))
+    replanner.replan(np.full(spec.size, -0.3), robot.state().t)  # starts at 1.58
+    driver.t = 1.6  # ... but the cycle took 0.1 s
+    robot.send(NOTHING)
+    assert len(driver.sent) == 1 and robot.plans_late == 1 and replanner.trajectory is first
+    # The next cycle plans from the plan the robot follows, and is in time: it is sent.
+    driver.position = first.position(np.array([1.6]))
+    third = replanner.replan(np.full(spec.size, 0.1), robot.state().t)
+    np.testing.assert_allclose(third.points[0], first.position(np.array([third.t_start]))[0])
+    robot.send(NOTHING)
+    assert len(driver.sent) == 2 and robot.plans_late == 1 and robot.max_late_s < 0.0
+
+
+def test_the_lead_grows_with_the_cycle_latency_and_is_bounded() -> None:
+    driver = _SlowDriver(send_s=0.1)
+    robot, replanner, spec = _horizon(driver)
+    replanner.replan(np.full(spec.size, 0.3), robot.state().t)
+    robot.send(NOTHING)  # 0.1 s from state() to acceptance
+    assert robot.lead_s == pytest.approx(LEAD_FACTOR * 0.1) and LEAD_FACTOR > 1.0
+    driver.t = 1.3
+    assert robot.state().t == pytest.approx(1.3 + LEAD_FACTOR * 0.1)
+    driver.send_s = 0.6
+    replanner.replan(np.full(spec.size, 0.1), robot.state().t + 0.7)  # in time, however long the send
+    robot.send(NOTHING)
+    assert robot.lead_s == robot.max_lead_s == robot.lead_max_used_s == pytest.approx(0.22)
+
+
+def test_a_first_plan_refused_at_the_join_is_tried_later_and_a_limit_of_its_own_is_not() -> None:
+    from dyndlo_vision.robots.kinematics import JointLimitError, LimitReport
+
+    driver = _SlowDriver(send_s=0.3, refuse_joins=1)  # the first send takes longer than the first lead
+    robot, replanner, spec = _horizon(driver)
+    replanner.replan(np.full(spec.size, 0.3), robot.state().t)
+    robot.send(NOTHING)
+    assert len(driver.sent) == 1 and robot.first_plan_delay_s > 0.3 and robot.max_late_s < 0.0
+
+    class _Refusing(_Driver):
+        """Refuses the ``accept``-th plan on, for a limit of the plan's own, after its start passed."""
+
+        def __init__(self, accept: int) -> None:
+            super().__init__()
+            self.accept, self.refused = accept, 0
+
+        def send(self, setpoints: Setpoints) -> None:
+            if len(self.sent) >= self.accept:
+                self.t += 0.3
+                self.refused += 1
+                raise JointLimitError(LimitReport())  # the plan itself: not at the join
+            super().send(setpoints)
+
+    for accept in (0, 1):  # the first plan, then a later one
+        driver = _Refusing(accept)
+        robot, replanner, spec = _horizon(driver)
+        if accept:
+            replanner.replan(np.full(spec.size, 0.3), robot.state().t)
+            robot.send(NOTHING)
+        replanner.replan(np.full(spec.size, -0.3), robot.state().t)
+        with pytest.raises(JointLimitError):  # stops the run: neither dropped nor tried again
+            robot.send(NOTHING)
+        assert driver.refused == 1 and robot.plans_late == 0
 
 
 def test_joint_trajectory_when_the_coarse_grid_rounds_past_the_end() -> None:

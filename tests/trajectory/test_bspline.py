@@ -311,3 +311,15 @@ def test_pickle_round_trip(accel: bool) -> None:
 def test_invalid_inputs(kwargs: dict, match: str) -> None:
     with pytest.raises(ValueError, match=match):
         BSplineTrajectory(**kwargs)
+
+
+def test_shifted_is_the_same_trajectory_later() -> None:
+    points = np.array([[0.0, 0.0, 0.0], [0.1, 0.05, -0.02], [0.3, 0.0, 0.1], [0.35, 0.02, 0.1]])
+    traj = BSplineTrajectory(points, [1.0, 1.2, 1.5, 1.9], start_velocity=[0.2, 0.0, 0.1])
+    later = traj.shifted(0.37)
+    t = np.linspace(0.9, 2.0, 57)
+    for a, b in zip(later.sample(t + 0.37), traj.sample(t), strict=True):
+        np.testing.assert_allclose(a, b, atol=1e-12)
+    assert later.t_start == pytest.approx(1.37) and later.duration == pytest.approx(traj.duration)
+    with pytest.raises(ValueError, match="dt must be finite"):
+        traj.shifted(float("nan"))
