@@ -129,14 +129,16 @@ class HorizonRobot:
     latency of the last :data:`LEAD_WINDOW` plans (robot time from :meth:`state` to the driver accepting the
     plan), never below ``lead_s`` nor above ``max_lead_s``. A plan that would still arrive after its start
     (the driver has sent targets past it, or will have by the time its IK is done, judged from the last sends)
-    would join mid-way, with a jump. It is never sent that way:
+    would join mid-way, with a jump, so it is not sent:
 
     * the first plan is started later (the arm is at rest at home until it starts, so this is exact);
     * a later plan is dropped: the replanner goes back to the last plan sent, the robot goes on with the plans
       it has, and the next cycle plans again. :attr:`plans_late` counts them.
 
-    :attr:`max_late_s` records, over the plans sent, (driver's last target time at acceptance) - (plan's
-    start): negative, by how much each arrived in time.
+    A send slower than the recent ones can still deliver a plan after its start. The driver then joins it only
+    if the joined targets keep every joint limit; if they do not, the plan is handled as above (the first
+    tried again later, a later one dropped). :attr:`max_late_s` records, over the plans sent, (driver's last
+    target time at acceptance) - (plan's start): negative when every plan arrived in time.
 
     ``send`` ignores the loop's one-period window except as a signal: when there is a new plan it sends, from
     the driver's last target on, that piecewise plan to the newest plan's end (at least :data:`MIN_HORIZON_S`,
