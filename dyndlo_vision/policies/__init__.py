@@ -155,9 +155,9 @@ class HistoryPolicy:
         from dyndlo_vision.tasks.wrappers import StudentFeatures
 
         space = model.observation_space
-        size = int(space.shape[0]) - 3 * int(length) - int(bool(clock))
         self.sb3_model = model
-        self.features = StudentFeatures(size, length, clock)
+        self.features = StudentFeatures.for_input_size(int(space.shape[0]), length, clock)
+        size = self.features.observation_size
         self.observation_space = gym.spaces.Box(space.low[:size], space.high[:size], dtype=space.dtype)
         self.action_space = model.action_space
 

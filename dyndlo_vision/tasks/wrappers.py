@@ -383,6 +383,13 @@ class StudentFeatures(_EpisodeFeature):
         self.observation_size = int(observation_size)
         self.size = sum(part.size for part in self.parts)
 
+    @classmethod
+    def for_input_size(cls, input_size: int, p_dlo_history: int = 0, clock: bool = False,
+                       control_period_s: float = CONTROL_PERIOD_S) -> StudentFeatures:
+        """The features of a student whose input (table II, then the features) has ``input_size`` values."""
+        added = cls(12, p_dlo_history, clock, control_period_s).size  # the same for any table-II size
+        return cls(int(input_size) - added, p_dlo_history, clock, control_period_s)
+
     def reset(self) -> None:
         """Every feature starts a new episode."""
         for part in self.parts:

@@ -47,6 +47,15 @@ def test_student_features_put_the_history_first_then_the_clock() -> None:
     assert StudentFeatures(12, clock=True).size == 1 and StudentFeatures(12, 3, True).size == 10
 
 
+@pytest.mark.parametrize("table_ii, history, clock", [(12, 2, True), (12, 0, True), (18, 3, False)])
+def test_the_features_of_a_students_input_size(table_ii, history, clock) -> None:
+    """A loaded student knows only its input size: table II is what is left after the features."""
+    features = StudentFeatures.for_input_size(table_ii + 3 * history + int(clock), history, clock)
+    assert features.observation_size == table_ii and features.size == 3 * history + int(clock)
+    if history:  # P_DLO's slice follows the number of grippers
+        assert features.parts[0].p_dlo == slice(table_ii - 6, table_ii - 3)
+
+
 @pytest.mark.parametrize("history, clock, match", [(0, False, "no student feature"), (-1, True, "history"),
                                                     (1.5, True, "history"), (True, True, "history")])
 def test_bad_feature_settings_are_refused(history, clock, match) -> None:
