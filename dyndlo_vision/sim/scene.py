@@ -29,7 +29,7 @@ from dyndlo_vision.sim.physics import ROD_INTEGRATORS, PhysicsOptions
 
 CABLE_NAME = "cable"
 #: Settled initial states by scene configuration (its ``repr``, exact for the floats and tuples it holds),
-#: newest last, at most :data:`SETTLED_CACHE_SIZE` (each a few kB).
+#: in the order settled, at most :data:`SETTLED_CACHE_SIZE` (each a few kB).
 _SETTLED: OrderedDict[str, NDArray[np.float64]] = OrderedDict()
 SETTLED_CACHE_SIZE = 64
 FLOOR_NAME = "floor"
@@ -454,9 +454,9 @@ class Scene:
         (:data:`_SETTLED`): a vaulting cable on the floor takes about 1 500 steps, 2 s of CPU.
         """
         key = repr(self.config)
-        if key in _SETTLED:
-            _SETTLED.move_to_end(key)
-            state = _SETTLED[key].copy()
+        cached = _SETTLED.get(key)
+        if cached is not None:
+            state = cached.copy()
             mujoco.mj_resetData(self.model, self.data)
             mujoco.mj_setState(self.model, self.data, state, self._state_spec)
             mujoco.mj_forward(self.model, self.data)
@@ -464,7 +464,7 @@ class Scene:
         state = self._settle_afresh()
         _SETTLED[key] = state.copy()
         while len(_SETTLED) > SETTLED_CACHE_SIZE:
-            _SETTLED.popitem(last=False)
+            _SETTLED.popitem(last=False)  # the oldest settled
         return state
 
     def _settle_afresh(self) -> NDArray[np.float64]:
