@@ -12,7 +12,7 @@ import pytest
 from dyndlo_vision.control.robot_run import LEAD_FACTOR, HorizonRobot
 from dyndlo_vision.control.run_config import ConfigError, parse_run_config
 from dyndlo_vision.control.scripted import SlowReach
-from dyndlo_vision.robots.kinematics import ArmKinematics, abb_gofa_crb15000
+from dyndlo_vision.robots.kinematics import ArmKinematics, IKOptions, abb_gofa_crb15000
 from dyndlo_vision.robots.protocol import Setpoints, TcpState
 from dyndlo_vision.robots.safety import WorkspaceBox
 from dyndlo_vision.tasks.tip_control import TCP_HOME_M, TipControl
@@ -280,7 +280,7 @@ def test_a_first_plan_refused_at_the_join_is_tried_later_and_a_limit_of_its_own_
 
 def test_joint_trajectory_when_the_coarse_grid_rounds_past_the_end() -> None:
     """np.arange(t0, t1, 0.02) can end a rounding error past t1; the IK used to index past its samples."""
-    kin = ArmKinematics(abb_gofa_crb15000())
+    kin = ArmKinematics(abb_gofa_crb15000(), options=IKOptions(coarse_step_s=0.02))
     q0 = kin.ik(np.array(TCP_HOME_M)).q
     starts = np.arange(0.5, 0.7, 0.004)
     for t0 in starts:
