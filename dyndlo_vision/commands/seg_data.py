@@ -10,6 +10,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from dyndlo_vision.learning.segdata import SegDataConfig
+
 HELP = "render a domain-randomised cable image/mask dataset (resumable)"
 
 
@@ -22,6 +24,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the randomisation (training used 0)")
     p.add_argument("--width", type=int, default=320, help="image width in pixels")
     p.add_argument("--height", type=int, default=240, help="image height in pixels")
+    defaults = SegDataConfig()
+    p.add_argument("--texture-share", type=float, default=defaults.texture_share,
+                   help="share of samples whose background is a procedural texture; the others keep the "
+                   "rendered floor")
+    p.add_argument("--lum-match-share", type=float, default=defaults.lum_match_share,
+                   help="share of textured samples scaled to the cable's brightness (colour-only contrast)")
+    p.add_argument("--grey-floor-share", type=float, default=defaults.grey_floor_share,
+                   help="share of rendered-floor samples with a neutral grey floor, the task scenes' look "
+                   "(0: a random colour each; the shipped networks' data)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -29,9 +40,10 @@ def run(args: argparse.Namespace) -> int:
     """Writes (or resumes) the dataset; 0 on success."""
     from tqdm import tqdm
 
-    from dyndlo_vision.learning.segdata import SegDataConfig, write_dataset
+    from dyndlo_vision.learning.segdata import write_dataset
 
-    config = SegDataConfig(width=args.width, height=args.height)
+    config = SegDataConfig(width=args.width, height=args.height, texture_share=args.texture_share,
+                           lum_match_share=args.lum_match_share, grey_floor_share=args.grey_floor_share)
     config.check()
     if args.count < 1:
         raise ValueError(f"--count must be >= 1, got {args.count}")

@@ -39,7 +39,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--widths", default="8,16,32", metavar="C1,C2,C3",
                    help="channels of the network's three levels (default 8,16,32, the shipped networks'); "
                    "narrower runs faster")
-    p.add_argument("--init", metavar="CHECKPOINT.pt", help="start from these weights (fine-tuning)")
+    p.add_argument("--init", metavar="CHECKPOINT.pt|NET.onnx|NAME",
+                   help="start from these weights (fine-tuning): a seg-train checkpoint, an exported ONNX "
+                   "network or a shipped one by name (cable-segmenter, cable-segmenter-fine); an ONNX "
+                   "network is fine-tuned with its batch norms frozen (the export folded their statistics "
+                   "away)")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     p.add_argument("--resume", action="store_true", help="continue OUT/checkpoint.pt")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -49,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     """Trains; 0 on success, 130 on Ctrl-C (checkpoint saved)."""
     import sys
 
-    from dyndlo_vision.learning.segtrain import TrainConfig, train
+    from dyndlo_vision.learning.segtrain import TrainConfig, is_onnx_init, train
 
     if args.steps < 1 or args.batch < 1:
         raise ValueError(f"--steps and --batch must be >= 1, got {args.steps}, {args.batch}")
@@ -71,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         external_share=args.external_share,
         arch=args.arch,
+        frozen_batch_norm=bool(args.init) and is_onnx_init(args.init),
     )
     try:
         meta = train(
@@ -85,6 +90,7 @@ def run(args: argparse.Namespace) -> int:
         )
     except KeyboardInterrupt:
         ext = f" --external {args.external} --external-share {args.external_share}" if args.external else ""
+        ext += f" --init {args.init}" if args.init else ""
         print(
             f"interrupted; resume with: dyndlo-vision seg-train --resume --data {args.data} --out {args.out} "
             f"--steps {args.steps} --batch {args.batch} --lr {args.lr} --seed {args.seed} --arch {args.arch}"

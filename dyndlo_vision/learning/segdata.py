@@ -50,6 +50,10 @@ class SegDataConfig:
     max_width_px: float = 12.0
     #: Share of textured samples whose background is scaled to the cable's brightness (colour-only contrast).
     lum_match_share: float = 0.3
+    #: Share of rendered-floor samples whose floor is a neutral grey (the task scenes' look: a grey checker
+    #: floor, the black void beyond it); the others get a random colour. 0 draws nothing more (datasets made
+    #: before this option are reproduced sample for sample).
+    grey_floor_share: float = 0.0
 
     def check(self) -> None:
         for name in ("width", "height", "samples_per_scene"):
@@ -58,7 +62,7 @@ class SegDataConfig:
                 raise ValueError(f"{name} must be a positive int, got {v!r}")
         if self.width < 32 or self.height < 32:
             raise ValueError(f"image size must be at least 32x32, got {self.width}x{self.height}")
-        for name in ("texture_share", "lum_match_share"):
+        for name in ("texture_share", "lum_match_share", "grey_floor_share"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)!r}")
         if not 0.5 <= self.min_width_px <= self.max_width_px:
@@ -349,6 +353,8 @@ class SceneSampler:
         self.tcp_geom = int(m.geom("tcp_0_geom").id)
         self.renderer = make_renderer(m, h2, w2)
         self.scene.reset()
+        self.scene_lights = (m.light_diffuse[0].copy(), m.light_pos[0].copy(),
+                             m.vis.headlight.ambient.copy(), m.vis.headlight.diffuse.copy())
 
     def close(self) -> None:
         if self.renderer is not None:
@@ -399,6 +405,14 @@ class SceneSampler:
         m.vis.headlight.ambient[:] = rng.uniform(0.05, 0.6)
         m.vis.headlight.diffuse[:] = rng.uniform(0.1, 0.7)
         m.geom_rgba[self.floor_geom] = [*rng.uniform(0.2, 1.0, 3), 1.0]
+        if cfg.grey_floor_share > 0 and rng.random() < cfg.grey_floor_share:
+            # The task scenes' look: their own lights (a little brighter or dimmer), a grey checker floor.
+            m.geom_rgba[self.floor_geom, :3] = rng.uniform(0.4, 1.0)
+            gain = float(rng.uniform(0.8, 1.2))
+            m.light_diffuse[0] = self.scene_lights[0] * gain
+            m.light_pos[0] = self.scene_lights[1]
+            m.vis.headlight.ambient[:] = self.scene_lights[2] * gain
+            m.vis.headlight.diffuse[:] = self.scene_lights[3] * gain
         mujoco.mj_forward(m, d)
         r = self.renderer
         r.update_scene(d, camera=self.cam_id)
@@ -525,7 +539,9 @@ def write_dataset(out: Path, count: int, seed: int, config: SegDataConfig, progr
         raise NotADirectoryError(f"--out {out} exists and is not a folder")
     if manifest.exists():
         old = json.loads(manifest.read_text())
-        if old.get("seed") != info["seed"] or old.get("config") != info["config"]:
+        # A dataset made before an option existed was made with its default.
+        old_config = {**asdict(SegDataConfig()), **old.get("config", {})}
+        if old.get("seed") != info["seed"] or old_config != info["config"]:
             raise ValueError(
                 f"{out} holds a dataset made with seed {old.get('seed')} and config {old.get('config')}; "
                 f"asked for seed {seed} and config {info['config']}: use another --out"

@@ -37,6 +37,8 @@ __all__ = [
     "TrainConfig",
     "build_net",
     "export_onnx",
+    "is_onnx_init",
+    "net_from_onnx",
     "external_split",
     "full_res_logits",
     "load_external",
@@ -150,6 +152,53 @@ def export_onnx(net: Any) -> bytes:
             opset_version=13,
         )
     return buf.getvalue()
+
+
+def net_from_onnx(data: bytes) -> tuple[Any, str, tuple[int, int, int]]:
+    """The :func:`build_net` network an exported ONNX file holds (``net``, ``arch``, ``widths``).
+
+    The export folded each batch norm into its convolution, so the weights come back as the folded
+    convolution and a batch norm that is the identity plus the folded bias (mean 0, variance 1 - eps,
+    scale 1). In eval mode the network computes what the ONNX file does. Fine-tune it with the batch norms
+    in eval mode (:attr:`TrainConfig.frozen_batch_norm`): their statistics are gone, and batch statistics
+    would change every layer's output at the first step. Needs the ``onnx`` package.
+
+    Raises:
+        ValueError: the file is not a network :func:`build_net` exports.
+    """
+    try:
+        import onnx
+        from onnx import numpy_helper
+    except ImportError as e:  # pragma: no cover - the train-segmenter extra
+        raise ImportError("reading an ONNX network needs the onnx package: pip install onnx") from e
+    torch = _torch()
+    model = onnx.load_from_string(data)
+    weights = {t.name: np.array(numpy_helper.to_array(t)) for t in model.graph.initializer}
+    convs = [n for n in model.graph.node if n.op_type == "Conv"]
+    if len(convs) != 9 or not all(len(n.input) == 3 and n.input[1] in weights for n in convs):
+        raise ValueError(f"not a cablenet ONNX file: {len(convs)} convolutions, expected 9 with weights and "
+                         "bias")
+    shapes = [weights[n.input[1]].shape for n in convs]
+    arch = "cablenet-s2d4" if shapes[0][1] == 3 * S2D_BLOCK * S2D_BLOCK else "cablenet"
+    widths = (shapes[0][0] // 2 if arch == "cablenet-s2d4" else shapes[0][0], shapes[1][0], shapes[2][0])
+    net = build_net(arch, *widths)
+    modules = [m for m in net.modules() if isinstance(m, torch.nn.Conv2d)]
+    norms = [m for m in net.modules() if isinstance(m, torch.nn.BatchNorm2d)]
+    if [tuple(m.weight.shape) for m in modules] != [tuple(s) for s in shapes]:
+        raise ValueError(f"not a cablenet ONNX file: convolution shapes {shapes}")
+    with torch.no_grad():
+        for k, (module, node) in enumerate(zip(modules, convs, strict=True)):
+            module.weight.copy_(torch.from_numpy(weights[node.input[1]]))
+            bias = torch.from_numpy(weights[node.input[2]])
+            if k < len(norms):  # a convolution without bias, then its batch norm
+                bn = norms[k]
+                bn.running_mean.zero_()
+                bn.running_var.fill_(1.0 - bn.eps)
+                bn.weight.fill_(1.0)
+                bn.bias.copy_(bias)
+            else:  # the output convolution
+                module.bias.copy_(bias)
+    return net.eval(), arch, widths
 
 
 def net_in_channels(net: Any) -> int:
@@ -267,11 +316,22 @@ class TrainConfig:
     #: Share of each batch drawn from the external train split (0: synthetic only).
     external_share: float = 0.0
     checkpoint_every: int = 250
+    #: Batch norms in eval mode while training (their statistics fixed, scale and shift still trained): how a
+    #: network read back from ONNX (:func:`net_from_onnx`) is fine-tuned.
+    frozen_batch_norm: bool = False
 
 
 def _with_widths(config: dict[str, Any]) -> dict[str, Any]:
-    """A stored training config with ``widths`` as a tuple (the default where it predates the option)."""
-    return {**config, "widths": tuple(config.get("widths", DEFAULT_WIDTHS))}
+    """A stored training config with ``widths`` as a tuple; options it predates at their defaults."""
+    return {"frozen_batch_norm": False, **config, "widths": tuple(config.get("widths", DEFAULT_WIDTHS))}
+
+
+def is_onnx_init(init: str | Path) -> bool:
+    """Whether ``--init`` names an ONNX network (a ``.onnx`` file or a shipped segmenter's name), which
+    :func:`train` reads with :func:`net_from_onnx`, rather than a ``seg-train`` checkpoint."""
+    from dyndlo_vision.policies.segmenter import SHIPPED_NAMES
+
+    return str(init) in SHIPPED_NAMES or Path(init).suffix.lower() == ".onnx"
 
 
 def _atomic_save(obj: Any, path: Path) -> None:
@@ -316,13 +376,23 @@ def train(
         raise ValueError(
             f"cablenet-s2d4 needs crops in multiples of 16 px, got {config.crop_h}x{config.crop_w}"
         )
-    init_state = None
+    init_weights = None
     if init is not None and not resume:
-        init_state = torch.load(Path(init), weights_only=False)
-        init_arch = init_state.get("config", {}).get("arch", "cablenet")  # before the choice: cablenet
+        if is_onnx_init(init):
+            from dyndlo_vision.policies.segmenter import onnx_bytes
+
+            if not config.frozen_batch_norm:
+                raise ValueError(f"--init {init} is an ONNX network, whose batch-norm statistics the export "
+                                 "folded away: fine-tune it with frozen_batch_norm=True")
+            init_net, init_arch, init_widths = net_from_onnx(onnx_bytes(init))
+            init_weights = init_net.state_dict()
+        else:
+            init_state = torch.load(Path(init), weights_only=False)
+            init_weights = init_state["net"]
+            init_arch = init_state.get("config", {}).get("arch", "cablenet")  # before the choice: cablenet
+            init_widths = tuple(init_state.get("config", {}).get("widths", DEFAULT_WIDTHS))
         if init_arch != config.arch:
             raise ValueError(f"--init {init} holds a {init_arch} network; train it with --arch {init_arch}")
-        init_widths = tuple(init_state.get("config", {}).get("widths", DEFAULT_WIDTHS))
         if init_widths != tuple(config.widths):
             raise ValueError(f"--init {init} holds a network of widths {init_widths}; train it with --widths "
                              f"{','.join(map(str, init_widths))}")
@@ -350,8 +420,8 @@ def train(
         opt.load_state_dict(ck["opt"])
         step, history = int(ck["step"]), list(ck["history"])
         rng.bit_generator.state = ck["rng"]
-    elif init_state is not None:
-        net.load_state_dict(init_state["net"])
+    elif init_weights is not None:
+        net.load_state_dict(init_weights)
     pos_weight = torch.tensor([config.pos_weight])
     bar = tqdm(
         total=config.steps,
@@ -369,6 +439,10 @@ def train(
         _atomic_save(state, ckpt_path)
 
     net.train()
+    if config.frozen_batch_norm:
+        for module in net.modules():
+            if isinstance(module, torch.nn.BatchNorm2d):
+                module.eval()
     t0 = time.perf_counter()
     running = 0.0
     try:

@@ -92,3 +92,34 @@ def test_command_writes_and_rejects(tmp_path: Path, capsys: pytest.CaptureFixtur
     assert exc.value.code == 2
     assert "width" in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()
+
+
+def test_grey_floor_share_gives_the_task_scenes_look() -> None:
+    """``grey_floor_share=1`` renders every floor neutral grey under the scene's own lights; at 0 (the shipped
+    networks' data) each floor keeps a random colour."""
+    grey = SceneSampler(SegDataConfig(width=96, height=64, texture_share=0.0, grey_floor_share=1.0), 4, 0)
+    plain = SceneSampler(SegDataConfig(width=96, height=64, texture_share=0.0), 4, 0)
+    try:
+        for _ in range(3):
+            grey.sample()
+            rgba = grey.scene.model.geom_rgba[grey.floor_geom]
+            assert rgba[0] == rgba[1] == rgba[2]
+            np.testing.assert_allclose(grey.scene.model.light_pos[0], grey.scene_lights[1])
+            plain.sample()
+            rgba = plain.scene.model.geom_rgba[plain.floor_geom]
+            assert len(set(rgba[:3].tolist())) == 3
+    finally:
+        grey.close()
+        plain.close()
+
+
+def test_a_dataset_from_before_an_option_resumes(tmp_path: Path) -> None:
+    out = tmp_path / "ds"
+    write_dataset(out, 2, 0, SMALL)
+    manifest = json.loads((out / "dataset.json").read_text())
+    del manifest["config"]["grey_floor_share"]
+    (out / "dataset.json").write_text(json.dumps(manifest))
+    assert write_dataset(out, 3, 0, SMALL) == 1
+    with pytest.raises(ValueError, match="another --out"):
+        write_dataset(out, 3, 0, SegDataConfig(width=96, height=64, samples_per_scene=2,
+                                               grey_floor_share=0.5))

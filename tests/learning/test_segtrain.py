@@ -17,6 +17,7 @@ from dyndlo_vision.learning.segtrain import (
     export_onnx,
     external_split,
     full_res_logits,
+    net_from_onnx,
     train,
 )
 from dyndlo_vision.tracking.learned import LearnedSegmenter, from_blocks, to_blocks
@@ -162,3 +163,80 @@ def test_widths_build_train_and_guard_init(dataset: Path, tmp_path: Path,
     ck["step"] = 1
     torch.save(ck, run / "checkpoint.pt")
     train(dataset, run, cfg, resume=True, progress=False)
+
+
+def _random_eval_net(arch: str, seed: int, widths: tuple[int, int, int] = (8, 16, 32)) -> object:
+    """A network with batch-norm statistics and affines away from the identity (eval mode)."""
+    import torch
+
+    torch.manual_seed(seed)
+    net = build_net(arch, *widths)
+    for m in net.modules():
+        if isinstance(m, torch.nn.BatchNorm2d):
+            m.running_mean.uniform_(-0.2, 0.2)
+            m.running_var.uniform_(0.5, 2.0)
+            m.weight.data.uniform_(0.5, 1.5)
+            m.bias.data.uniform_(-0.3, 0.3)
+    return net.eval()
+
+
+@pytest.mark.parametrize("arch", ARCHITECTURES)
+def test_a_network_read_back_from_onnx_computes_the_same(arch: str) -> None:
+    """``net_from_onnx`` undoes the export (batch norms folded into the convolutions): same architecture,
+    widths and logits, so the shipped networks can be fine-tuned without their checkpoints."""
+    import torch
+
+    widths = (6, 12, 24)
+    net = _random_eval_net(arch, 3, widths)
+    back, got_arch, got_widths = net_from_onnx(export_onnx(net))
+    assert (got_arch, got_widths) == (arch, widths)
+    x = torch.from_numpy(np.random.default_rng(2).uniform(-0.5, 0.5, (1, 3, 64, 96)).astype(np.float32))
+    with torch.inference_mode():
+        ref = full_res_logits(net, x, arch)
+        out = full_res_logits(back, x, arch)
+    assert float(ref.abs().max()) > 0.1  # not a trivially small output
+    assert float((out - ref).abs().max()) < 1e-4
+    with pytest.raises(ValueError, match="not a cablenet ONNX file"):
+        net_from_onnx(_onnx_with_one_conv())
+
+
+def _onnx_with_one_conv() -> bytes:
+    import io
+
+    import torch
+
+    buf = io.BytesIO()
+    torch.onnx.export(torch.nn.Conv2d(3, 4, 3).eval(), torch.zeros(1, 3, 8, 8), buf, dynamo=False)
+    return buf.getvalue()
+
+
+def test_fine_tuning_an_onnx_network_keeps_its_batch_norms_frozen(dataset: Path, tmp_path: Path,
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """``--init NET.onnx`` starts from the network's own function: with the batch norms frozen, a step at a
+    vanishing learning rate exports the same network (batch statistics would have changed every layer).
+    Without frozen batch norms the library refuses, before writing anything."""
+    import torch
+
+    onnx_file = tmp_path / "start.onnx"
+    start = _random_eval_net("cablenet-s2d4", 5)
+    onnx_file.write_bytes(export_onnx(start))
+    cfg = TrainConfig(steps=1, batch=2, crop_h=64, crop_w=64, lr=1e-12)
+    with pytest.raises(ValueError, match="frozen_batch_norm"):
+        train(dataset, tmp_path / "refused", cfg, progress=False, init=onnx_file)
+    assert not (tmp_path / "refused").exists()
+    assert main(["seg-train", "--data", str(dataset), "--out", str(tmp_path / "ft"), "--quiet",
+                 "--steps", "1", "--batch", "2", "--lr", "1e-12", "--init", str(onnx_file)]) == 0
+    meta = json.loads((tmp_path / "ft" / "cable_segmenter.json").read_text())
+    assert meta["train_config"]["frozen_batch_norm"] is True
+    tuned, _, _ = net_from_onnx((tmp_path / "ft" / "cable_segmenter.onnx").read_bytes())
+    x = torch.from_numpy(np.random.default_rng(4).uniform(-0.5, 0.5, (1, 3, 64, 64)).astype(np.float32))
+    with torch.inference_mode():
+        ref = full_res_logits(start, x, "cablenet-s2d4")
+        out = full_res_logits(tuned, x, "cablenet-s2d4")
+    assert float((out - ref).abs().max()) < 1e-3
+    # A shipped network by name: its widths and architecture are checked like a checkpoint's.
+    with pytest.raises(SystemExit) as exc:
+        main(["seg-train", "--data", str(dataset), "--out", str(tmp_path / "s"), "--quiet", "--steps", "1",
+              "--arch", "cablenet-s2d4", "--init", "cable-segmenter"])
+    assert exc.value.code == 2 and "--arch cablenet" in capsys.readouterr().err
+    assert not (tmp_path / "s").exists()
