@@ -157,6 +157,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "full-resolution CNN (cable-segmenter-fine)",
     )
     p.add_argument(
+        "--segmenter-model",
+        metavar="FILE.onnx|NAME",
+        help="with --segmenter learned: another network, an ONNX file from seg-train or a shipped one by "
+        "name (default cable-segmenter-fine)",
+    )
+    p.add_argument(
         "--views",
         type=int,
         choices=[1, 2],
@@ -205,6 +211,14 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--cable-ranges {args.cable_ranges} applies with --randomize-cable")
     if args.segmenter != "background" and args.observation != "tracked":
         raise ValueError(f"--segmenter applies to the tracked observation, not to {args.observation!r}")
+    if args.segmenter_model is not None:
+        from dyndlo_vision.policies.segmenter import SHIPPED_NAMES
+
+        if args.segmenter != "learned":
+            raise ValueError("--segmenter-model is for --segmenter learned")
+        if args.segmenter_model not in SHIPPED_NAMES and not Path(args.segmenter_model).is_file():
+            raise FileNotFoundError(f"--segmenter-model {args.segmenter_model} does not exist (shipped "
+                                    f"names: {', '.join(SHIPPED_NAMES)})")
     if args.views is not None and args.observation != "tracked":
         raise ValueError(f"--views applies to the tracked observation, not to {args.observation!r}")
     push = parse_push(args.push)
@@ -272,6 +286,7 @@ def run(args: argparse.Namespace) -> int:
                 video if i == 0 else None,
                 latency_s=1e-3 * args.latency_ms,
                 segmenter=args.segmenter,
+                segmenter_model=args.segmenter_model,
                 views=views,
                 goal_name=GOAL_NAMES[task],
                 actuation_latency_s=1e-3 * args.actuation_latency_ms,
@@ -302,6 +317,7 @@ def run(args: argparse.Namespace) -> int:
         "push": None if push is None else {"time_s": push.time_s, "impulse_n_s": list(push.impulse_n_s),
                                            "node": "middle"},
         "segmenter": args.segmenter,
+        "segmenter_model": args.segmenter_model,
         "views": views,
         **summarize(episodes),
         "cycle_ms_note": "controller time per 40 ms cycle: camera render + tracking + filter + policy + "
@@ -395,6 +411,7 @@ def film_episode(
     latency_s: float = 0.0,
     point_filter: Any = None,
     segmenter: str = "background",
+    segmenter_model: str | None = None,
     goal_name: str = "target",
     actuation_latency_s: float = 0.0,
     views: int | None = None,
@@ -438,6 +455,7 @@ def film_episode(
         watch=film if video is not None else None,
         open_camera=video is not None,
         segmenter=segmenter,
+        segmenter_model=segmenter_model,
         actuation_latency_s=actuation_latency_s,
         views=views,
     )

@@ -101,6 +101,7 @@ def run_loop_episode(
     segmenter: str = "background",
     actuation_latency_s: float = 0.0,
     views: int | None = None,
+    segmenter_model: str | None = None,
 ) -> dict[str, Any]:
     """One closed-loop episode from ``env.reset(seed=seed)``; returns its record.
 
@@ -118,6 +119,8 @@ def run_loop_episode(
         point_filter: Tracked observation: the tip filter (default: ``tracked_state``'s).
         watch: Called at every control cycle and at every instant after the last re-plan up to the outcome.
         segmenter: Tracked observation: ``"background"`` (classical) or ``"learned"`` (the shipped CNN).
+        segmenter_model: With ``"learned"``: a shipped network's name or an ONNX file (default
+            ``cable-segmenter-fine``).
         open_camera: Give ``watch`` a camera on the scene that renders the present (the tracker's own
             camera when tracking without delay).
         actuation_latency_s: The simulated arm executes every setpoint this long after its time
@@ -144,7 +147,7 @@ def run_loop_episode(
         from dyndlo_vision.control.sim_perception import tracked_state
 
         source, camera = tracked_state(env, camera_name, point_filter=point_filter, latency_s=latency_s,
-                                       segmenter=segmenter, views=views)
+                                       segmenter=segmenter, views=views, segmenter_model=segmenter_model)
     elif observation == "noisy":
         source = NoisyState(env, seed=seed)
     elif observation == "frozen":

@@ -76,8 +76,8 @@ def pixels_per_metre(camera: Any, point: NDArray[np.float64], plane: Plane = MOT
     return float(np.linalg.norm(uv[1] - uv[0]) / 0.1)
 
 
-def _camera_tracker(base: Any, camera_name: str, width: int, height: int,
-                    segmenter: str) -> tuple[MujocoCamera, CableTracker, Any]:
+def _camera_tracker(base: Any, camera_name: str, width: int, height: int, segmenter: str,
+                    segmenter_model: str | None = None) -> tuple[MujocoCamera, CableTracker, Any]:
     """A loop camera of the scene, its 2D-and-plane tracker (gripper masked), and the map from a world point
     to its pixel that also moves the gripper mask there."""
     camera = MujocoCamera(base.model, base.data, camera_name, width=width, height=height)
@@ -89,7 +89,7 @@ def _camera_tracker(base: Any, camera_name: str, width: int, height: int,
         from dyndlo_vision.tracking.learned import LearnedSegmenter
 
         # The full-resolution network: the loop camera's cable is 1.6 px wide (docs/RESULTS.md).
-        inner: Any = LearnedSegmenter(onnx_bytes(FINE_NAME))
+        inner: Any = LearnedSegmenter(onnx_bytes(segmenter_model or FINE_NAME))
     else:
         inner = BackgroundSegmenter(render_without_cable(camera), open_radius=0)
     masked = GripperMaskedSegmenter(inner, GRIPPER_MASK_RADIUS_M * scale)
@@ -119,19 +119,25 @@ def scene_views(env: Any) -> int:
 def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFilter | None = None,
                   width: int = 640, height: int = 480,
                   latency_s: float = 0.0, segmenter: str = "background",
-                  views: int | None = None) -> tuple[TrackedState, MujocoCamera]:
+                  views: int | None = None,
+                  segmenter_model: str | None = None) -> tuple[TrackedState, MujocoCamera]:
     """A :class:`TrackedState` on a MuJoCo camera of ``env`` (call after ``env.reset``).
 
     The background image is rendered now, with the cable hidden, so call it at the start of an episode. With
     ``latency_s`` > 0 the tracker sees each frame that long after it was rendered (:class:`DelayedCamera`)
     and the filter predicts across the delay. The camera returned renders the present (for videos).
     ``segmenter`` is one of :data:`LOOP_SEGMENTERS`; either way the gripper is masked by its projected pose.
+    ``segmenter_model``: the learned segmenter's network, a shipped name or an ONNX file (default
+    ``cable-segmenter-fine``).
     ``views``: 1 lifts the cable onto the motion plane from ``camera_name``; 2 also tracks it in the scene's
     second tracking camera and triangulates (:class:`StereoTrackedState`). None: as many as the scene has
     (:func:`scene_views`).
     """
     if segmenter not in LOOP_SEGMENTERS:
         raise ValueError(f"segmenter={segmenter!r}; expected one of {list(LOOP_SEGMENTERS)}")
+    if segmenter_model is not None and segmenter != "learned":
+        raise ValueError(f"segmenter_model={segmenter_model!r} is for the learned segmenter, not "
+                         f"{segmenter!r}")
     available = scene_views(env)
     views = available if views is None else views
     if views not in (1, 2):
@@ -143,7 +149,7 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
         raise ValueError(f"latency_s must be at most {MAX_LATENCY_S} s, got {latency_s!r}")
     base = as_sim_env(env)
     mujoco.mj_forward(base.model, base.data)
-    camera, tracker, project = _camera_tracker(base, camera_name, width, height, segmenter)
+    camera, tracker, project = _camera_tracker(base, camera_name, width, height, segmenter, segmenter_model)
 
     # The newest measurement is always at least the latency old, so the filter's coasting limit and the
     # frames the camera may miss in a row (the first ones have not arrived yet) grow with it.
@@ -164,7 +170,8 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
         source = TrackedState(frames, tracker, point_filter, point_index=point_index, project=project,
                               max_missing_frames=missing, cable_length_m=length)
         return source, camera
-    camera2, tracker2, project2 = _camera_tracker(base, SECOND_TRACKING_CAMERA_NAME, width, height, segmenter)
+    camera2, tracker2, project2 = _camera_tracker(base, SECOND_TRACKING_CAMERA_NAME, width, height, segmenter,
+                                                  segmenter_model)
     frames2 = DelayedCamera(camera2, latency_s) if latency_s > 0 else camera2
     stereo = StereoTrackedState(frames, frames2, tracker, tracker2, point_filter, point_index=point_index,
                                 project=project, second_project=project2, max_missing_frames=missing,

@@ -39,6 +39,27 @@ def test_demo_segmenter_needs_tracked_state(tmp_path: Path, capsys: pytest.Captu
     assert exc.value.code == 2
     assert "--segmenter" in capsys.readouterr().err
     assert not (tmp_path / "d").exists()
+    for extra, word in ((["--segmenter-model", "cable-segmenter"], "--segmenter learned"),
+                        (["--segmenter", "learned", "--segmenter-model", str(tmp_path / "no.onnx")],
+                         "does not exist")):
+        with pytest.raises(SystemExit) as exc:
+            main(["demo", *extra, "--out", str(tmp_path / "d")])
+        assert exc.value.code == 2
+        assert word in capsys.readouterr().err
+        assert not (tmp_path / "d").exists()
+
+
+def test_the_loop_runs_the_segmenter_model_it_is_given() -> None:
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    try:
+        env.reset(seed=0)
+        with pytest.raises(ValueError, match="segmenter_model"):
+            tracked_state(env, segmenter_model="cable-segmenter")
+        source, camera = tracked_state(env, segmenter="learned", segmenter_model="cable-segmenter")
+        camera.close()
+        assert not source.tracker.segmenter.base.blocks  # the half-resolution network, not the default
+    finally:
+        env.close()
 
 
 @pytest.mark.slow
