@@ -10,7 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from dyndlo_vision.learning.segdata import SegDataConfig
+from dyndlo_vision.learning.segdata import STYLES, SegDataConfig
 
 HELP = "render a domain-randomised cable image/mask dataset (resumable)"
 
@@ -33,6 +33,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--grey-floor-share", type=float, default=defaults.grey_floor_share,
                    help="share of rendered-floor samples with a neutral grey floor, the task scenes' look "
                    "(0: a random colour each; the shipped networks' data)")
+    p.add_argument("--style", choices=STYLES, default=defaults.style,
+                   help="random-scenes: random cables among random props from random cameras (the shipped "
+                   "networks' data); task-scenes: the control loop's own scenes (tip control, vaulting) "
+                   "through their loop cameras, the cable moved by random actions")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -43,7 +47,8 @@ def run(args: argparse.Namespace) -> int:
     from dyndlo_vision.learning.segdata import write_dataset
 
     config = SegDataConfig(width=args.width, height=args.height, texture_share=args.texture_share,
-                           lum_match_share=args.lum_match_share, grey_floor_share=args.grey_floor_share)
+                           lum_match_share=args.lum_match_share, grey_floor_share=args.grey_floor_share,
+                           style=args.style)
     config.check()
     if args.count < 1:
         raise ValueError(f"--count must be >= 1, got {args.count}")

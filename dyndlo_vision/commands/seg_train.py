@@ -14,7 +14,8 @@ HELP = "train the learned cable segmenter on a seg-data dataset (resumable), exp
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``seg-train``."""
-    p.add_argument("--data", required=True, metavar="DIR", help="dataset written by seg-data")
+    p.add_argument("--data", required=True, nargs="+", metavar="DIR",
+                   help="dataset(s) written by seg-data; several are pooled, every sample equally likely")
     p.add_argument("--out", required=True, metavar="DIR", help="run folder (checkpoint, ONNX, JSON)")
     p.add_argument("--steps", type=int, default=6000, help="optimiser steps")
     p.add_argument("--batch", type=int, default=8, help="images per step")
@@ -79,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     )
     try:
         meta = train(
-            Path(args.data),
+            [Path(d) for d in args.data],
             Path(args.out),
             cfg,
             resume=args.resume,
@@ -92,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
         ext = f" --external {args.external} --external-share {args.external_share}" if args.external else ""
         ext += f" --init {args.init}" if args.init else ""
         print(
-            f"interrupted; resume with: dyndlo-vision seg-train --resume --data {args.data} --out {args.out} "
+            f"interrupted; resume with: dyndlo-vision seg-train --resume --data {' '.join(args.data)} "
+            f"--out {args.out} "
             f"--steps {args.steps} --batch {args.batch} --lr {args.lr} --seed {args.seed} --arch {args.arch}"
             f" --widths {args.widths}{ext}",
             file=sys.stderr,

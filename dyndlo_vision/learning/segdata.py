@@ -33,7 +33,12 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["SegDataConfig", "SceneSampler", "procedural_background", "sample_path", "write_dataset"]
+__all__ = ["STYLES", "SegDataConfig", "SceneSampler", "TaskSceneSampler", "procedural_background",
+           "sample_path", "write_dataset"]
+
+
+#: Dataset styles: what :class:`SegDataConfig` renders.
+STYLES = ("random-scenes", "task-scenes")
 
 
 @dataclass(frozen=True)
@@ -54,6 +59,10 @@ class SegDataConfig:
     #: floor, the black void beyond it); the others get a random colour. 0 draws nothing more (datasets made
     #: before this option are reproduced sample for sample).
     grey_floor_share: float = 0.0
+    #: What is rendered (:data:`STYLES`): ``random-scenes``, random cables among random props seen from
+    #: random cameras (:class:`SceneSampler`, the shipped networks' data); ``task-scenes``, the control loop's
+    #: own scenes through their loop cameras (:class:`TaskSceneSampler`).
+    style: str = "random-scenes"
 
     def check(self) -> None:
         for name in ("width", "height", "samples_per_scene"):
@@ -65,6 +74,8 @@ class SegDataConfig:
         for name in ("texture_share", "lum_match_share", "grey_floor_share"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)!r}")
+        if self.style not in STYLES:
+            raise ValueError(f"style must be one of {list(STYLES)}, got {self.style!r}")
         if not 0.5 <= self.min_width_px <= self.max_width_px:
             raise ValueError(
                 f"cable widths must satisfy 0.5 <= min_width_px <= max_width_px, got "
@@ -246,6 +257,34 @@ def _motion_kernel(rng: np.random.Generator) -> NDArray[np.float32] | None:
     )
     s = float(k.sum())
     return k / s if s > 0 else None
+
+
+def _camera_effects(
+    rng: np.random.Generator, img: NDArray[np.float32], cover_u8: NDArray[np.uint8]
+) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
+    """A rendered image (float RGB) after random camera effects (motion blur, defocus, colour gains and
+    gamma, noise, JPEG), and its label from the cable's coverage ``cover_u8`` (blurred with the image)."""
+    cov = cover_u8.astype(np.float32) / 255.0
+    if rng.random() < 0.35:
+        k = _motion_kernel(rng)
+        if k is not None:
+            img = cv2.filter2D(img, -1, k)
+            cov = cv2.filter2D(cov, -1, k)
+    if rng.random() < 0.3:
+        sigma = float(rng.uniform(0.3, 1.2))
+        img = cv2.GaussianBlur(img, (0, 0), sigma)
+    img = img * rng.uniform(0.7, 1.3, 3).astype(np.float32) * float(rng.uniform(0.6, 1.3))
+    img = 255.0 * (np.clip(img, 0, 255) / 255.0) ** float(rng.uniform(0.7, 1.4))
+    img += rng.normal(0, float(rng.uniform(0, 8)), img.shape).astype(np.float32)
+    rgb = np.clip(img + 0.5, 0, 255).astype(np.uint8)
+    if rng.random() < 0.7:
+        ok, buf = cv2.imencode(".jpg", rgb[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(rng.integers(30, 96))])
+        rgb = np.ascontiguousarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])
+    # A pixel is cable where it is at least 40 % covered, or, across a line thinner than a pixel (whose
+    # coverage is split between neighbours), where it holds at least half of the local peak coverage.
+    peak = cv2.dilate(cov, np.ones((3, 3), np.uint8))
+    cable = (cov >= np.minimum(0.4, 0.5 * peak)) & (cov >= 0.12)
+    return rgb, np.where(cable, 255, 0).astype(np.uint8)
 
 
 def _look_at_quat(forward: NDArray[np.float64], roll: float) -> NDArray[np.float64]:
@@ -476,30 +515,7 @@ class SceneSampler:
                 y0 = int(rng.integers(0, h))
                 cv2.rectangle(img, (0, y0), (w, y0 + bw), col, -1)
                 cover_u8[y0 : y0 + bw + 1, :] = 0
-        # Camera effects.
-        cov = cover_u8.astype(np.float32) / 255.0
-        if rng.random() < 0.35:
-            k = _motion_kernel(rng)
-            if k is not None:
-                img = cv2.filter2D(img, -1, k)
-                cov = cv2.filter2D(cov, -1, k)
-        if rng.random() < 0.3:
-            sigma = float(rng.uniform(0.3, 1.2))
-            img = cv2.GaussianBlur(img, (0, 0), sigma)
-        img = img * rng.uniform(0.7, 1.3, 3).astype(np.float32) * float(rng.uniform(0.6, 1.3))
-        img = 255.0 * (np.clip(img, 0, 255) / 255.0) ** float(rng.uniform(0.7, 1.4))
-        img += rng.normal(0, float(rng.uniform(0, 8)), img.shape).astype(np.float32)
-        rgb = np.clip(img + 0.5, 0, 255).astype(np.uint8)
-        if rng.random() < 0.7:
-            ok, buf = cv2.imencode(
-                ".jpg", rgb[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(rng.integers(30, 96))]
-            )
-            rgb = np.ascontiguousarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])
-        # A pixel is cable where it is at least 40 % covered, or, across a line thinner than a pixel (whose
-        # coverage is split between neighbours), where it holds at least half of the local peak coverage.
-        peak = cv2.dilate(cov, np.ones((3, 3), np.uint8))
-        cable = (cov >= np.minimum(0.4, 0.5 * peak)) & (cov >= 0.12)
-        mask = np.where(cable, 255, 0).astype(np.uint8)
+        rgb, mask = _camera_effects(rng, img, cover_u8)
         meta = {
             "width_px": round(width_px, 2),
             "textured": textured,
@@ -507,6 +523,143 @@ class SceneSampler:
             "extra_cables": n_extra,
             "colour": [round(float(c), 3) for c in colour],
             "fovy_deg": round(fovy, 1),
+        }
+        return rgb, mask, meta
+
+
+#: The tasks whose loop scenes the ``task-scenes`` style renders, and their loop cameras.
+TASK_SCENE_CAMERAS = {"tip-control": ("tracking",), "vaulting": ("tracking", "tracking2")}
+
+
+class TaskSceneSampler:
+    """Renders the control loop's own scenes: tip control's and vaulting's, through their loop cameras
+    (moved a little), the cable driven by random multi-step actions.
+
+    Each sample draws its own camera pose (about 5 cm and 3 degrees off the loop camera's), field of view,
+    cable colour (the scene's red or any of :func:`_cable_colour`'s) and drawn width (0.6-2.5x), floor shade
+    (the scene's, a grey or a colour), lights, sometimes a procedural texture where the scene shows the black
+    void, and the camera effects of :func:`_camera_effects`. The gripper, the target and the obstacle stay
+    in view, unlabelled: the distractors the loop's segmenter meets. A group is one environment (task drawn
+    from the group's generator), reset from a seed drawn from it.
+    """
+
+    def __init__(self, config: SegDataConfig, seed: int, group: int) -> None:
+        from dyndlo_vision.sim.cable_look import CableLook
+        from dyndlo_vision.sim.rendering import make_renderer
+        from dyndlo_vision.tasks.registry import make_env
+
+        config.check()
+        self.config = config
+        self.rng = np.random.default_rng((int(seed), int(group)))
+        self.task = str(self.rng.choice(sorted(TASK_SCENE_CAMERAS)))
+        self.env = make_env(self.task, multi_step=True)
+        self.base = self.env.unwrapped
+        self._reset()
+        m = self.base.model
+        self.cable_look = CableLook.of(m)
+        self.floor_geom = int(m.geom("floor").id)
+        m.vis.global_.offwidth = max(int(m.vis.global_.offwidth), 2 * config.width)
+        m.vis.global_.offheight = max(int(m.vis.global_.offheight), 2 * config.height)
+        self.renderer: Any = make_renderer(m, 2 * config.height, 2 * config.width)
+        # What a sample changes, to put back (the drawn radius is also the chain's collision radius).
+        self.saved = {name: getattr(m, name).copy() for name in
+                      ("cam_pos", "cam_quat", "cam_fovy", "geom_rgba", "geom_size", "geom_rbound",
+                       "light_diffuse", "light_pos", "flex_rgba", "flex_radius")}
+        self.headlight = (m.vis.headlight.ambient.copy(), m.vis.headlight.diffuse.copy())
+
+    def close(self) -> None:
+        if self.renderer is not None:
+            self.renderer.close()
+            self.renderer = None
+        self.env.close()
+
+    def _reset(self) -> None:
+        self.env.reset(seed=int(self.rng.integers(2**31)))
+
+    def _move(self) -> None:
+        """A few random re-plans (40 ms each); a new episode where one ends. Sometimes none: the cable at
+        rest, as every loop episode starts."""
+        rng, env = self.rng, self.env
+        if rng.random() < 0.1:
+            self._reset()
+            return
+        for _ in range(int(rng.integers(1, 9))):
+            _, _, terminated, truncated, _ = env.step(rng.uniform(-1.0, 1.0, env.action_space.shape))
+            if terminated or truncated:
+                self._reset()
+
+    def _restore(self) -> None:
+        m = self.base.model
+        for name, value in self.saved.items():
+            getattr(m, name)[:] = value
+        m.vis.headlight.ambient[:], m.vis.headlight.diffuse[:] = self.headlight
+
+    def sample(self) -> tuple[NDArray[np.uint8], NDArray[np.uint8], dict[str, Any]]:
+        """One (RGB (H, W, 3) uint8, mask (H, W) uint8 0/255, metadata) sample."""
+        import mujoco
+
+        rng, cfg = self.rng, self.config
+        m, d = self.base.model, self.base.data
+        self._move()
+        camera = str(rng.choice(TASK_SCENE_CAMERAS[self.task]))
+        cam_id = int(m.camera(camera).id)
+        rot = np.zeros(9)
+        mujoco.mju_quat2Mat(rot, m.cam_quat[cam_id])
+        # The camera's frame is in its body's; the loop cameras hang on the world body.
+        forward = -rot.reshape(3, 3)[:, 2] + rng.normal(0.0, 0.05, 3)
+        roll = float(rng.normal(0.0, 0.05))
+        m.cam_pos[cam_id] += rng.normal(0.0, 0.05, 3)
+        m.cam_quat[cam_id] = _look_at_quat(forward, roll)
+        m.cam_fovy[cam_id] *= float(rng.uniform(0.85, 1.15))
+        radius_scale = float(np.exp(rng.uniform(math.log(0.6), math.log(2.5))))
+        self.cable_look.set_radius(m, radius_scale * self.base.scene.config.cable.radius_m)
+        own_colour = rng.random() < 0.4
+        if own_colour:
+            colour = np.clip(self.cable_look.rgba(m)[:3] * rng.uniform(0.8, 1.2, 3), 0.0, 1.0)
+        else:
+            colour = _cable_colour(rng)
+        self.cable_look.set_rgba(m, [*colour, 1.0])
+        floor = rng.choice(["scene", "grey", "colour"], p=[0.5, 0.35, 0.15])
+        if floor == "grey":
+            m.geom_rgba[self.floor_geom, :3] = rng.uniform(0.3, 1.0)
+        elif floor == "colour":
+            m.geom_rgba[self.floor_geom, :3] = rng.uniform(0.2, 1.0, 3)
+        gain = float(rng.uniform(0.7, 1.3))
+        m.light_diffuse[0] *= gain
+        m.light_pos[0] += rng.normal(0.0, 0.3, 3)
+        m.vis.headlight.ambient[:] *= gain
+        m.vis.headlight.diffuse[:] *= gain
+        try:
+            mujoco.mj_forward(m, d)
+            r = self.renderer
+            r.update_scene(d, camera=cam_id)
+            rgb2 = r.render().astype(np.float32)
+            r.enable_segmentation_rendering()
+            try:
+                r.update_scene(d, camera=cam_id)
+                seg = r.render()
+            finally:
+                r.disable_segmentation_rendering()
+        finally:
+            self._restore()
+            mujoco.mj_forward(m, d)
+        w, h = cfg.width, cfg.height
+        textured = bool(rng.random() < cfg.texture_share)
+        if textured:  # a wall where the scene shows the black void
+            void = (seg[..., 1] == -1).astype(np.float32)[..., None]
+            bg = cv2.resize(procedural_background(rng, h, w).astype(np.float32), (2 * w, 2 * h))
+            rgb2 = rgb2 * (1 - void) + bg * void
+        img = cv2.resize(rgb2, (w, h), interpolation=cv2.INTER_AREA)
+        cov = cv2.resize(self.cable_look.mask(seg).astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
+        rgb, mask = _camera_effects(rng, img, np.clip(cov * 255 + 0.5, 0, 255).astype(np.uint8))
+        meta = {
+            "task": self.task,
+            "camera": camera,
+            "radius_scale": round(radius_scale, 3),
+            "textured": textured,
+            "floor": str(floor),
+            "colour": [round(float(c), 3) for c in colour],
+            "own_colour": bool(own_colour),
         }
         return rgb, mask, meta
 
@@ -564,7 +717,9 @@ def write_dataset(out: Path, count: int, seed: int, config: SegDataConfig, progr
             if all(i in done for i in idx):
                 group += 1
                 continue
-            sampler = SceneSampler(config, seed, group)
+            sampler: SceneSampler | TaskSceneSampler = (
+                TaskSceneSampler(config, seed, group) if config.style == "task-scenes"
+                else SceneSampler(config, seed, group))
             try:
                 for i in idx:
                     rgb, mask, meta = sampler.sample()

@@ -342,7 +342,7 @@ def _atomic_save(obj: Any, path: Path) -> None:
 
 
 def train(
-    data: Path,
+    data: Path | list[Path],
     out: Path,
     config: TrainConfig,
     *,
@@ -396,7 +396,12 @@ def train(
         if init_widths != tuple(config.widths):
             raise ValueError(f"--init {init} holds a network of widths {init_widths}; train it with --widths "
                              f"{','.join(map(str, init_widths))}")
-    images, masks = load_dataset(Path(data))
+    folders = [Path(f) for f in (data if isinstance(data, (list, tuple)) else [data])]
+    images, masks = [], []
+    for folder in folders:  # every sample of every folder equally likely
+        folder_images, folder_masks = load_dataset(folder)
+        images += folder_images
+        masks += folder_masks
     ext_images: list[Any] = []
     ext_masks: list[Any] = []
     if external is not None and config.external_share > 0:
@@ -492,8 +497,9 @@ def train(
         "parameters": int(sum(p.numel() for p in net.parameters())),
         "input": _LAYOUTS[config.arch],
         "train_config": asdict(config),
-        "data": str(data),
-        "data_manifest": json.loads((Path(data) / "dataset.json").read_text()),
+        "data": str(folders[0]) if len(folders) == 1 else [str(f) for f in folders],
+        "data_manifest": json.loads((folders[0] / "dataset.json").read_text()) if len(folders) == 1
+        else [json.loads((f / "dataset.json").read_text()) for f in folders],
         "samples": len(images),
         "external_train_images": len(ext_images),
         "external_split": "dyndlo_vision.learning.segtrain.external_split: even positions train, odd held out"

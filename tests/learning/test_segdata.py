@@ -123,3 +123,39 @@ def test_a_dataset_from_before_an_option_resumes(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="another --out"):
         write_dataset(out, 3, 0, SegDataConfig(width=96, height=64, samples_per_scene=2,
                                                grey_floor_share=0.5))
+
+
+def test_task_scenes_render_the_loop_scene_and_put_the_cable_back() -> None:
+    """The ``task-scenes`` style renders a task's loop scene with a randomised look; the drawn radius (the
+    chain's collision radius too), colours, lights and camera are put back before the cable moves on, and a
+    group is reproducible."""
+    from dyndlo_vision.learning.segdata import TASK_SCENE_CAMERAS, TaskSceneSampler
+
+    cfg = SegDataConfig(width=160, height=120, style="task-scenes", texture_share=0.5)
+    a, b = TaskSceneSampler(cfg, 1, 0), TaskSceneSampler(cfg, 1, 0)
+    try:
+        assert a.task in TASK_SCENE_CAMERAS
+        m = a.base.model
+        found = 0
+        for _ in range(4):
+            rgb, mask, meta = a.sample()
+            assert rgb.shape == (120, 160, 3) and mask.shape == (120, 160)
+            assert meta["camera"] in TASK_SCENE_CAMERAS[a.task]
+            found += int(mask.any())
+            for name, value in a.saved.items():
+                np.testing.assert_array_equal(getattr(m, name), value, err_msg=name)
+            np.testing.assert_array_equal(m.vis.headlight.ambient, a.headlight[0])
+        assert found >= 3, "the loop camera sees the cable"
+        rgb_b, mask_b, _ = b.sample()
+        first = TaskSceneSampler(cfg, 1, 0)
+        try:
+            rgb_a, mask_a, _ = first.sample()
+        finally:
+            first.close()
+        np.testing.assert_array_equal(rgb_a, rgb_b)
+        np.testing.assert_array_equal(mask_a, mask_b)
+    finally:
+        a.close()
+        b.close()
+    with pytest.raises(ValueError, match="style"):
+        SegDataConfig(style="photos").check()

@@ -47,6 +47,14 @@ def test_train_resume_export(dataset: Path, tmp_path: Path) -> None:
         train(dataset, tmp_path / "none", cfg, resume=True, progress=False)
 
 
+def test_several_datasets_are_pooled(dataset: Path, tmp_path: Path) -> None:
+    assert main(["seg-train", "--data", str(dataset), str(dataset), "--out", str(tmp_path / "r"), "--quiet",
+                 "--steps", "1", "--batch", "1"]) == 0
+    meta = json.loads((tmp_path / "r" / "cable_segmenter.json").read_text())
+    assert meta["samples"] == 8 and meta["data"] == [str(dataset)] * 2
+    assert len(meta["data_manifest"]) == 2
+
+
 @pytest.mark.parametrize("arch", ARCHITECTURES)
 def test_onnx_matches_torch(arch: str) -> None:
     """What runs (cv2.dnn on the ONNX file, blocks laid out in numpy) is what was trained (torch)."""
