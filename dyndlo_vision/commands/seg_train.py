@@ -21,6 +21,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--batch", type=int, default=8, help="images per step")
     p.add_argument("--lr", type=float, default=3e-3, help="peak learning rate (cosine decay)")
     p.add_argument("--seed", type=int, default=0, help="seed of sampling and augmentation")
+    p.add_argument("--pos-weight", type=float, default=3.0,
+                   help="weight of cable pixels in the cross-entropy (higher: fewer missed cable pixels, "
+                   "more false ones)")
     p.add_argument(
         "--external", metavar="DIR", help="labelled real photos (shared/data/external) to fine-tune on"
     )
@@ -60,6 +63,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--steps and --batch must be >= 1, got {args.steps}, {args.batch}")
     if not 0.0 <= args.external_share <= 1.0:
         raise ValueError(f"--external-share must be in [0, 1], got {args.external_share}")
+    if not args.pos_weight > 0:
+        raise ValueError(f"--pos-weight must be > 0, got {args.pos_weight}")
     if args.threads < 1:
         raise ValueError(f"--threads must be >= 1, got {args.threads}")
     try:
@@ -74,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
         batch=args.batch,
         lr=args.lr,
         seed=args.seed,
+        pos_weight=args.pos_weight,
         external_share=args.external_share,
         arch=args.arch,
         frozen_batch_norm=bool(args.init) and is_onnx_init(args.init),
@@ -94,8 +100,8 @@ def run(args: argparse.Namespace) -> int:
         ext += f" --init {args.init}" if args.init else ""
         print(
             f"interrupted; resume with: dyndlo-vision seg-train --resume --data {' '.join(args.data)} "
-            f"--out {args.out} "
-            f"--steps {args.steps} --batch {args.batch} --lr {args.lr} --seed {args.seed} --arch {args.arch}"
+            f"--out {args.out} --steps {args.steps} --batch {args.batch} --lr {args.lr} --seed {args.seed} "
+            f"--pos-weight {args.pos_weight} --arch {args.arch}"
             f" --widths {args.widths}{ext}",
             file=sys.stderr,
         )

@@ -129,7 +129,8 @@ def test_external_split_halves(tmp_path: Path) -> None:
 def test_command_rejects_bad_options(
     dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    for extra, word in ((["--steps", "0"], "--steps"), (["--external-share", "0.5"], "--external")):
+    for extra, word in ((["--steps", "0"], "--steps"), (["--external-share", "0.5"], "--external"),
+                        (["--pos-weight", "0"], "--pos-weight")):
         with pytest.raises(SystemExit) as exc:
             main(["seg-train", "--data", str(dataset), "--out", str(tmp_path / "r"), "--quiet", *extra])
         assert exc.value.code == 2
