@@ -6,6 +6,10 @@ Three parts, all on data the learned segmenter was not trained on:
   mask DICE per image, mean per data set, and on the held-out half (``learning.segtrain.external_split``,
   odd positions) separately, because a fine-tuned model saw the even half.
 * ``flat``: flat-coloured synthetic cables 1-11 px wide on plain walls (640x480): median DICE per width.
+* ``phase``: a straight, nearly vertical 1.6 px line (anti-aliased) on plain grey walls, drawn at each of the
+  four horizontal offsets within the 4x4 pixel blocks ``cable-segmenter-fine`` reads: the median cable
+  probability on the line per offset, and the share of lines found (median > 0.5) at the worst and the best
+  offset. A network that depends on where a thin line falls in its blocks shows a gap between them.
 * ``renders``: the seg-data generator with seeds the training never used (``--render-seed``, default 1000):
   mask DICE.
 * ``loopcam``: the control loop's own camera view (tip control, 640x480, a 1.6 px red cable): mask DICE
@@ -126,6 +130,31 @@ def part_flat(seg) -> dict:
                 scores.append(dice(seg(rgb), truth))
         out[f"{width}px"] = {"median": float(np.median(scores)), "min": float(np.min(scores))}
     return out
+
+
+def part_phase(seg) -> dict:
+    colours = [(220, 40, 30), (30, 30, 30), (240, 240, 240), (40, 200, 40), (40, 60, 220)]
+    walls = [40, 90, 150, 210]
+    found = {offset: [] for offset in range(4)}
+    median_p: dict = {}
+    for wall in walls:
+        for colour in colours:
+            for offset in range(4):
+                img = np.full((480, 640, 3), wall, np.float32)
+                cover = np.zeros((480 * 4, 640 * 4), np.uint8)
+                # x from 320 + offset to 326 + offset over 300 rows: a slant of 1 px per 50 rows, so every
+                # row is anti-aliased alike; 16x supersampled coverage, area-averaged.
+                x0 = 4 * (320 + offset)
+                cv2.line(cover, (x0, 4 * 100), (x0 + 4 * 6, 4 * 400), 255, 6, cv2.LINE_AA)
+                c = cv2.resize(cover.astype(np.float32) / 255.0, (640, 480), interpolation=cv2.INTER_AREA)
+                img = img * (1 - c[..., None]) + np.asarray(colour, np.float32) * c[..., None]
+                rgb = np.clip(img + 0.5, 0, 255).astype(np.uint8)
+                p = float(np.median(seg.probability(rgb)[c > 0.4]))
+                median_p[f"{wall}/{colour}/{offset}"] = round(p, 3)
+                found[offset].append(p > 0.5)
+    shares = {offset: float(np.mean(v)) for offset, v in found.items()}
+    return {"found_share_by_offset": shares, "worst": min(shares.values()), "best": max(shares.values()),
+            "median_probability": median_p}
 
 
 def part_renders(seg, seed: int, n: int) -> dict:
@@ -501,6 +530,9 @@ def main() -> int:
     if "flat" in parts:
         report["flat"] = part_flat(seg)
         print(json.dumps(report["flat"], indent=1))
+    if "phase" in parts:
+        report["phase"] = part_phase(seg)
+        print(json.dumps({k: v for k, v in report["phase"].items() if k != "median_probability"}, indent=1))
     if "renders" in parts:
         report["renders"] = part_renders(seg, args.render_seed, args.renders)
         print(json.dumps(report["renders"], indent=1))
