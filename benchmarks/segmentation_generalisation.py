@@ -19,7 +19,8 @@ Three parts, all on data the learned segmenter was not trained on:
   of the shipped multi-step policy, and the loop's own tracker (``control.sim_perception.tracked_state``:
   gripper masked, centreline from the gripper, lifted to the motion plane). Median ms per frame of the
   segmenter alone and of ``CableTracker.process`` (segment + centreline + lift), learned (the loop's
-  ``cable-segmenter-fine``) and classical (the rendered background image), interleaved frame by frame.
+  ``cable-segmenter-loop``, or ``--model``) and classical (the rendered background image), interleaved
+  frame by frame.
 * ``whip``: rendered whip videos (640x480, 25 fps) of a dark cable 2-3 px wide held by a dark spherical
   gripper, in styles the generator never produced: ``plain`` (a plain light wall), ``textured-blur`` (a
   wood-grain wall, orange cable, motion blur: the mean of 8 renders over the 40 ms frame), ``occluded`` (a

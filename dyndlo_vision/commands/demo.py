@@ -154,13 +154,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         choices=["background", "learned"],
         default="background",
         help="tracked observation: the classical background segmenter (default) or the shipped "
-        "full-resolution CNN (cable-segmenter-fine)",
+        "full-resolution CNN fine-tuned on the loop's scenes (cable-segmenter-loop)",
     )
     p.add_argument(
         "--segmenter-model",
         metavar="FILE.onnx|NAME",
         help="with --segmenter learned: another network, an ONNX file from seg-train or a shipped one by "
-        "name (default cable-segmenter-fine)",
+        "name (default cable-segmenter-loop)",
     )
     p.add_argument(
         "--views",

@@ -45,7 +45,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "narrower runs faster")
     p.add_argument("--init", metavar="CHECKPOINT.pt|NET.onnx|NAME",
                    help="start from these weights (fine-tuning): a seg-train checkpoint, an exported ONNX "
-                   "network or a shipped one by name (cable-segmenter, cable-segmenter-fine); an ONNX "
+                   "network or a shipped one by name (cable-segmenter, cable-segmenter-fine, "
+                   "cable-segmenter-loop); an ONNX "
                    "network is fine-tuned with its batch norms frozen (the export folded their statistics "
                    "away)")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")

@@ -35,14 +35,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--model",
         metavar="FILE.onnx",
         help="learned: an ONNX file from seg-train, or a shipped network by name: cable-segmenter "
-        "(default) or cable-segmenter-fine (full resolution, for cables 1-3 px wide)",
+        "(default) or cable-segmenter-fine (full resolution, for cables 1-3 px wide; cable-segmenter-loop: "
+        "the same fine-tuned on the simulated loop's scenes)",
     )
     p.add_argument(
         "--short-side",
         type=int,
         default=None,
         help="learned: the image's shorter side is resized to this before the network (default: the "
-        "network's own: 240 for cable-segmenter, 480 for cable-segmenter-fine)",
+        "network's own: 240 for cable-segmenter, 480 for the other two)",
     )
     p.add_argument("--hsv-lower", default="0,80,60", help="hsv: lower H,S,V bound (OpenCV ranges)")
     p.add_argument("--hsv-upper", default="179,255,255", help="hsv: upper H,S,V bound")

@@ -135,7 +135,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--segmenter-model",
         metavar="FILE.onnx",
         help="learned: an ONNX file from seg-train, or a shipped network by name: cable-segmenter (default) "
-        "or cable-segmenter-fine (full resolution, for cables 1-3 px wide)",
+        "or cable-segmenter-fine (full resolution, for cables 1-3 px wide; cable-segmenter-loop: the same "
+        "fine-tuned on the simulated loop's scenes)",
     )
     p.add_argument("--hsv-lower", metavar="H,S,V", help="lower HSV bound (OpenCV: H 0-179, S, V 0-255)")
     p.add_argument("--hsv-upper", metavar="H,S,V", help="upper HSV bound; H lower > upper wraps through red")

@@ -120,7 +120,7 @@ def run_loop_episode(
         watch: Called at every control cycle and at every instant after the last re-plan up to the outcome.
         segmenter: Tracked observation: ``"background"`` (classical) or ``"learned"`` (the shipped CNN).
         segmenter_model: With ``"learned"``: a shipped network's name or an ONNX file (default
-            ``cable-segmenter-fine``).
+            ``cable-segmenter-loop``).
         open_camera: Give ``watch`` a camera on the scene that renders the present (the tracker's own
             camera when tracking without delay).
         actuation_latency_s: The simulated arm executes every setpoint this long after its time

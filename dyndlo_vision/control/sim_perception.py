@@ -39,7 +39,7 @@ GRIPPER_MASK_RADIUS_M = 0.03  # the 2 cm gripper sphere plus a margin
 LOOP_SIGMA_ACCEL = LOOP_FILTER.sigma_accel
 LATENT_LOOP_SIGMA_ACCEL = LATENT_LOOP_FILTER.sigma_accel
 #: Segmenters the loop can use: the classical background segmenter against the scene rendered without the
-#: cable (default), or the shipped full-resolution CNN ``cable-segmenter-fine`` (no background image needed).
+#: cable (default), or the shipped full-resolution CNN ``cable-segmenter-loop`` (no background image needed).
 LOOP_SEGMENTERS = ("background", "learned")
 #: Longest simulated camera latency (s): beyond a quarter second the loop re-plans on a past the cable has
 #: long left.
@@ -85,11 +85,12 @@ def _camera_tracker(base: Any, camera_name: str, width: int, height: int, segmen
     home = base.scene.gripper_home[0]
     scale = pixels_per_metre(calib, home)
     if segmenter == "learned":
-        from dyndlo_vision.policies.segmenter import FINE_NAME, onnx_bytes
+        from dyndlo_vision.policies.segmenter import LOOP_NAME, onnx_bytes
         from dyndlo_vision.tracking.learned import LearnedSegmenter
 
-        # The full-resolution network: the loop camera's cable is 1.6 px wide (docs/RESULTS.md).
-        inner: Any = LearnedSegmenter(onnx_bytes(segmenter_model or FINE_NAME))
+        # The full-resolution network fine-tuned on the loop's own scenes: the loop camera's cable is 1.6 px
+        # wide (docs/RESULTS.md, "A segmenter for the loop's own scenes").
+        inner: Any = LearnedSegmenter(onnx_bytes(segmenter_model or LOOP_NAME))
     else:
         inner = BackgroundSegmenter(render_without_cable(camera), open_radius=0)
     masked = GripperMaskedSegmenter(inner, GRIPPER_MASK_RADIUS_M * scale)
@@ -128,7 +129,7 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
     and the filter predicts across the delay. The camera returned renders the present (for videos).
     ``segmenter`` is one of :data:`LOOP_SEGMENTERS`; either way the gripper is masked by its projected pose.
     ``segmenter_model``: the learned segmenter's network, a shipped name or an ONNX file (default
-    ``cable-segmenter-fine``).
+    ``cable-segmenter-loop``).
     ``views``: 1 lifts the cable onto the motion plane from ``camera_name``; 2 also tracks it in the scene's
     second tracking camera and triangulates (:class:`StereoTrackedState`). None: as many as the scene has
     (:func:`scene_views`).

@@ -10,6 +10,7 @@ import pytest
 
 from dyndlo_vision.cli import main
 from dyndlo_vision.control.sim_perception import tracked_state
+from dyndlo_vision.policies.segmenter import FINE_NAME, LOOP_NAME, onnx_bytes
 from dyndlo_vision.tracking.learned import LearnedSegmenter
 from dyndlo_vision.tracking.segmentation import BackgroundSegmenter
 
@@ -58,18 +59,28 @@ def test_the_loop_runs_the_segmenter_model_it_is_given() -> None:
         source, camera = tracked_state(env, segmenter="learned", segmenter_model="cable-segmenter")
         camera.close()
         assert not source.tracker.segmenter.base.blocks  # the half-resolution network, not the default
+        source, camera = tracked_state(env, segmenter="learned")  # the default: the loop's own network
+        try:
+            rgb = camera.read().rgb
+        finally:
+            camera.close()
+        own = LearnedSegmenter(onnx_bytes(LOOP_NAME))(rgb)
+        assert own.any()
+        np.testing.assert_array_equal(source.tracker.segmenter.base(rgb), own)
+        assert not np.array_equal(LearnedSegmenter(onnx_bytes(FINE_NAME))(rgb), own)
     finally:
         env.close()
 
 
 @pytest.mark.slow
 def test_the_learned_loop_tracks_the_thin_cable() -> None:
-    """The loop's learned option runs the full-resolution network on the loop camera's 1.6 px cable.
+    """The loop's learned option runs a full-resolution network on the loop camera's 1.6 px cable.
 
-    Measured on seeds 100000-100002 with the shipped tip-control policy: per-episode estimate RMSE 21, 14 and
-    12 mm with ``cable-segmenter-fine``, 34, 101 and 74 mm with the default ``cable-segmenter``, whose
-    half-resolution mask cuts the cable into pieces (docs/RESULTS.md, "Learned cable segmenter: full
-    resolution"). The bound sits between them.
+    Measured on seeds 100000-100002 with the shipped tip-control policy: per-episode estimate RMSE 3.5, 9.6
+    and 14.5 mm with ``cable-segmenter-loop`` (the default here; 13.8, 15.6 and 23.1 mm with
+    ``cable-segmenter-fine``, session 23), 34, 101 and 74 mm with ``cable-segmenter``, whose half-resolution
+    mask cuts the cable into pieces (docs/RESULTS.md, "Learned cable segmenter: full resolution"). The bound
+    sits between them.
     """
     from dyndlo_vision import policies
     from dyndlo_vision.control.episode import run_loop_episode

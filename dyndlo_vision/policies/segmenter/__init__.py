@@ -1,6 +1,6 @@
 """The shipped learned cable segmenters: ONNX networks and the JSON beside each (how it was made).
 
-Two networks, for two kinds of picture (docs/RESULTS.md, "Learned cable segmenter"):
+Three networks, for three kinds of picture (docs/RESULTS.md, "Learned cable segmenter"):
 
 * ``cable-segmenter`` (the default of ``segment``, ``track --segmenter learned`` and the real robot): RGB at a
   short side of 240 px, mask at half that. The better of the two on renders and on cables several pixels
@@ -8,6 +8,9 @@ Two networks, for two kinds of picture (docs/RESULTS.md, "Learned cable segmente
 * ``cable-segmenter-fine`` (the simulated loop's ``--segmenter learned``): the frame in 4x4 blocks at 480 px,
   mask at the frame's full resolution. Made for cables 1-3 px wide, such as the loop camera's 1.6 px
   cable, which the first network cuts into fragments; weaker on wide, flat-coloured cables.
+* ``cable-segmenter-loop`` (the simulated loop's ``--segmenter learned``): ``cable-segmenter-fine``
+  fine-tuned on renders of the loop's own scenes (``seg-data --style task-scenes``). In the loop its tip
+  estimate is closer to the truth than the fine network's; on other scenes and real photos it is weaker.
 
 This module only hands out the bytes and the metadata (``policies`` imports nothing above ``tasks``); the
 network runs in :class:`dyndlo_vision.tracking.learned.LearnedSegmenter`::
@@ -24,11 +27,12 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-__all__ = ["FINE_NAME", "SHIPPED_NAME", "SHIPPED_NAMES", "onnx_bytes", "segmenter_metadata"]
+__all__ = ["FINE_NAME", "LOOP_NAME", "SHIPPED_NAME", "SHIPPED_NAMES", "onnx_bytes", "segmenter_metadata"]
 
 SHIPPED_NAME = "cable-segmenter"
 FINE_NAME = "cable-segmenter-fine"
-SHIPPED_NAMES = (SHIPPED_NAME, FINE_NAME)
+LOOP_NAME = "cable-segmenter-loop"
+SHIPPED_NAMES = (SHIPPED_NAME, FINE_NAME, LOOP_NAME)
 
 
 def _shipped(name: str, suffix: str) -> Any:
