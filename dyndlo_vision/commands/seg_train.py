@@ -46,9 +46,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--init", metavar="CHECKPOINT.pt|NET.onnx|NAME",
                    help="start from these weights (fine-tuning): a seg-train checkpoint, an exported ONNX "
                    "network or a shipped one by name (cable-segmenter, cable-segmenter-fine, "
-                   "cable-segmenter-loop); an ONNX "
-                   "network is fine-tuned with its batch norms frozen (the export folded their statistics "
-                   "away)")
+                   "cable-segmenter-loop); an ONNX network, or a checkpoint of a run from one, is "
+                   "fine-tuned with its batch norms frozen (the export folded their statistics away)")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     p.add_argument("--resume", action="store_true", help="continue OUT/checkpoint.pt")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -58,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     """Trains; 0 on success, 130 on Ctrl-C (checkpoint saved)."""
     import sys
 
-    from dyndlo_vision.learning.segtrain import TrainConfig, is_onnx_init, train
+    from dyndlo_vision.learning.segtrain import TrainConfig, needs_frozen_batch_norm, train
 
     if args.steps < 1 or args.batch < 1:
         raise ValueError(f"--steps and --batch must be >= 1, got {args.steps}, {args.batch}")
@@ -83,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
         pos_weight=args.pos_weight,
         external_share=args.external_share,
         arch=args.arch,
-        frozen_batch_norm=bool(args.init) and is_onnx_init(args.init),
+        frozen_batch_norm=bool(args.init) and needs_frozen_batch_norm(args.init),
     )
     try:
         meta = train(

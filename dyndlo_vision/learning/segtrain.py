@@ -38,6 +38,7 @@ __all__ = [
     "build_net",
     "export_onnx",
     "is_onnx_init",
+    "needs_frozen_batch_norm",
     "net_from_onnx",
     "external_split",
     "full_res_logits",
@@ -172,7 +173,10 @@ def net_from_onnx(data: bytes) -> tuple[Any, str, tuple[int, int, int]]:
     except ImportError as e:  # pragma: no cover - the train-segmenter extra
         raise ImportError("reading an ONNX network needs the onnx package: pip install onnx") from e
     torch = _torch()
-    model = onnx.load_from_string(data)
+    try:
+        model = onnx.load_from_string(data)
+    except Exception as e:  # protobuf's DecodeError and kin
+        raise ValueError(f"not an ONNX file ({type(e).__name__}: {e})") from e
     weights = {t.name: np.array(numpy_helper.to_array(t)) for t in model.graph.initializer}
     convs = [n for n in model.graph.node if n.op_type == "Conv"]
     if len(convs) != 9 or not all(len(n.input) == 3 and n.input[1] in weights for n in convs):
@@ -334,6 +338,15 @@ def is_onnx_init(init: str | Path) -> bool:
     return str(init) in SHIPPED_NAMES or Path(init).suffix.lower() == ".onnx"
 
 
+def needs_frozen_batch_norm(init: str | Path) -> bool:
+    """Whether fine-tuning from ``init`` must keep the batch norms frozen: an ONNX network (its statistics
+    were folded away), or a checkpoint of a run that froze them (its statistics are still the identities)."""
+    if is_onnx_init(init):
+        return True
+    state = _torch().load(Path(init), weights_only=False)
+    return bool(state.get("config", {}).get("frozen_batch_norm", False))
+
+
 def _atomic_save(obj: Any, path: Path) -> None:
     torch = _torch()
     tmp = path.with_name(path.name + ".tmp")
@@ -388,6 +401,9 @@ def train(
             init_weights = init_net.state_dict()
         else:
             init_state = torch.load(Path(init), weights_only=False)
+            if init_state.get("config", {}).get("frozen_batch_norm", False) and not config.frozen_batch_norm:
+                raise ValueError(f"--init {init} comes from a run with frozen batch norms (its statistics "
+                                 "are identities): fine-tune it with frozen_batch_norm=True")
             init_weights = init_state["net"]
             init_arch = init_state.get("config", {}).get("arch", "cablenet")  # before the choice: cablenet
             init_widths = tuple(init_state.get("config", {}).get("widths", DEFAULT_WIDTHS))

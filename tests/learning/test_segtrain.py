@@ -243,6 +243,15 @@ def test_fine_tuning_an_onnx_network_keeps_its_batch_norms_frozen(dataset: Path,
         ref = full_res_logits(start, x, "cablenet-s2d4")
         out = full_res_logits(tuned, x, "cablenet-s2d4")
     assert float((out - ref).abs().max()) < 1e-3
+    # Its checkpoint goes on with frozen batch norms: the command sees it, the library insists.
+    with pytest.raises(ValueError, match="frozen_batch_norm"):
+        train(dataset, tmp_path / "refused2", cfg, progress=False, init=tmp_path / "ft" / "checkpoint.pt")
+    assert main(["seg-train", "--data", str(dataset), "--out", str(tmp_path / "ft2"), "--quiet",
+                 "--steps", "1", "--batch", "2", "--init", str(tmp_path / "ft" / "checkpoint.pt")]) == 0
+    assert json.loads((tmp_path / "ft2" / "cable_segmenter.json").read_text())["train_config"][
+        "frozen_batch_norm"] is True
+    with pytest.raises(ValueError, match="not an ONNX file"):
+        net_from_onnx(b"not a network")
     # A shipped network by name: its widths and architecture are checked like a checkpoint's.
     with pytest.raises(SystemExit) as exc:
         main(["seg-train", "--data", str(dataset), "--out", str(tmp_path / "s"), "--quiet", "--steps", "1",
