@@ -19,6 +19,10 @@ The label is MuJoCo's segmentation render of the cable flex (plus the drawn cabl
 output size and area-averaged, so the image is anti-aliased like a photo. Everything a sample is made of
 is drawn from ``numpy.random.default_rng((seed, group))``: a dataset is reproducible, and generation resumes
 by regenerating the group of the first missing sample.
+
+That is the ``random-scenes`` style (:class:`SceneSampler`). The ``task-scenes`` style
+(:class:`TaskSceneSampler`) renders the control loop's own scenes instead, through their loop cameras, with
+the same labels and camera effects: the data for fine-tuning a network to the scenes it will run in.
 """
 
 from __future__ import annotations
