@@ -27,7 +27,9 @@ Time handling (per node):
 
 Model: state ``[x, y, z, vx, vy, vz]``; transition ``F = [[I, dt I], [0, I]]``; process noise from a
 piecewise-constant white acceleration of standard deviation ``sigma_accel``
-(``filterpy.common.Q_discrete_white_noise`` with ``block_size=3``, ordered by derivative); measurement
+(``filterpy.common.Q_discrete_white_noise`` with ``block_size=3``, ordered by derivative), or with
+``accel_psd`` a continuous white acceleration of that spectral density (``q [[dt^3/3, dt^2/2], [dt^2/2, dt]]``
+per axis; :attr:`~dyndlo_vision.tracking.params.FilterParams.accel_psd` says why); measurement
 ``H = [I 0]`` with covariance ``sigma_meas**2 I`` unless a covariance is given; the update in Joseph form.
 
 Speed (``benchmarks/tracking_speed.py``, one core): an update and a latency-compensated read of N = 20
@@ -71,25 +73,34 @@ def cv_transition(dt: float) -> NDArray[np.float64]:
     return F
 
 
-def cv_process_noise(dt: float, sigma_accel: float) -> NDArray[np.float64]:
-    """Process noise (6, 6) of a piecewise-constant white acceleration, std ``sigma_accel``.
+def cv_process_noise(dt: float, sigma_accel: float, accel_psd: float | None = None) -> NDArray[np.float64]:
+    """Process noise (6, 6) of a piecewise-constant white acceleration, std ``sigma_accel``; with
+    ``accel_psd``, of a continuous white acceleration of that spectral density (``sigma_accel`` unused).
 
     Uses ``|dt|`` so that predicting backwards also grows the uncertainty.
     """
-    return Q_discrete_white_noise(dim=2, dt=abs(dt), var=sigma_accel**2, block_size=3, order_by_dim=False)
+    adt = abs(dt)
+    if accel_psd is None:
+        return Q_discrete_white_noise(dim=2, dt=adt, var=sigma_accel**2, block_size=3, order_by_dim=False)
+    q = np.zeros((6, 6))
+    q[_POS, _POS] = accel_psd * adt**3 / 3.0
+    q[_POS, _VEL] = q[_VEL, _POS] = accel_psd * adt**2 / 2.0
+    q[_VEL, _VEL] = accel_psd * adt
+    return q
 
 
 @functools.lru_cache(maxsize=256)
-def _cached_process_noise(adt: float, sigma_accel: float) -> NDArray[np.float64]:
+def _cached_process_noise(adt: float, sigma_accel: float, accel_psd: float | None) -> NDArray[np.float64]:
     """:func:`cv_process_noise` for ``|dt|`` = ``adt``, memoised (frames at a fixed rate repeat their time
     steps, and filterpy builds Q in Python); read-only."""
-    q = cv_process_noise(adt, sigma_accel)
+    q = cv_process_noise(adt, sigma_accel, accel_psd)
     q.setflags(write=False)
     return q
 
 
 def _propagate_batch(
-    x: NDArray[np.float64], P: NDArray[np.float64], dt: NDArray[np.float64], sigma_accel: float
+    x: NDArray[np.float64], P: NDArray[np.float64], dt: NDArray[np.float64], sigma_accel: float,
+    accel_psd: float | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Constant-velocity prediction of N states (N, 6) / (N, 6, 6) by per-node ``dt`` (N,): ``F x`` and
     ``F P F^T + Q`` with ``F`` as :func:`cv_transition` (stacked per node) and ``Q`` from
@@ -101,11 +112,11 @@ def _propagate_batch(
     adt = np.abs(dt)
     if adt.size and adt.min() == adt.max():
         if adt[0] != 0:
-            Pn += _cached_process_noise(float(adt[0]), sigma_accel)
+            Pn += _cached_process_noise(float(adt[0]), sigma_accel, accel_psd)
         return xn, Pn
     for value in np.unique(adt):
         if value != 0:  # Q(0) = 0
-            Pn[adt == value] += _cached_process_noise(float(value), sigma_accel)
+            Pn[adt == value] += _cached_process_noise(float(value), sigma_accel, accel_psd)
     return xn, Pn
 
 
@@ -263,7 +274,8 @@ class MultiPointFilter:
         v0 = np.zeros((self.n, 3))
         upd = (valid & ~lost).nonzero()[0]
         if upd.size:
-            x, P = _propagate_batch(self.x[upd], self.P[upd], t - self.t_state[upd], p.sigma_accel)
+            x, P = _propagate_batch(self.x[upd], self.P[upd], t - self.t_state[upd], p.sigma_accel,
+                                    p.accel_psd)
             R_u = Rm[upd]
             S = P[:, :3, :3] + R_u
             y = zz[upd] - x[:, :3]
@@ -357,7 +369,7 @@ class MultiPointFilter:
         """Predicts all nodes to ``t_query`` without changing the filter (NaN for nodes never initialised)."""
         t_query = float(t_query)
         dt = np.where(self.initialized, t_query - self.t_state, 0.0)
-        x, P = _propagate_batch(self.x, self.P, dt, self.params.sigma_accel)
+        x, P = _propagate_batch(self.x, self.P, dt, self.params.sigma_accel, self.params.accel_psd)
         pos = x[:, :3].copy()
         vel = x[:, 3:].copy()
         if not self.initialized.all():

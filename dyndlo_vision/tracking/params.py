@@ -36,6 +36,13 @@ class FilterParams:
             the loop accepts (0.25 s).
         reinit_speed: Two consecutive gated measurements closer than this speed (m/s) re-initialise the node:
             faster than any cable point moves, so two agreeing measurements are the target, not outliers.
+        accel_psd: When given, the process noise is a *continuous* white acceleration of this spectral
+            density (m^2/s^3) instead of :attr:`sigma_accel`'s piecewise-constant one. Why: a filter that
+            follows every measurement (large process noise) tends, with the piecewise-constant model, to
+            the alpha-beta gains alpha = 1, beta = 2, whose velocity estimate oscillates undamped (each
+            velocity is twice the last step's finite difference minus the previous velocity): a missed frame
+            is then bridged with a velocity several m/s off. The continuous model's gains tend to beta =
+            1.27, a damped velocity (docs/RESULTS.md, "The loop filter's velocity").
     """
 
     sigma_accel: float = 20.0
@@ -45,6 +52,7 @@ class FilterParams:
     init_speed_sigma: float = 2.0
     history_s: float = 0.5
     reinit_speed: float = 10.0
+    accel_psd: float | None = None
 
     def __post_init__(self) -> None:
         if not (self.sigma_accel > 0 and self.sigma_meas > 0):
@@ -56,6 +64,10 @@ class FilterParams:
         for name in ("sigma_accel", "sigma_meas", "gate_prob", "max_coast_s", "init_speed_sigma", "history_s",
                      "reinit_speed"):
             object.__setattr__(self, name, float(getattr(self, name)))
+        if self.accel_psd is not None:
+            if not self.accel_psd > 0:
+                raise ValueError(f"accel_psd must be > 0 (or None), got {self.accel_psd}")
+            object.__setattr__(self, "accel_psd", float(self.accel_psd))
 
     def scaled(self, units_per_metre: float) -> FilterParams:
         """The same filter in other length units (e.g. pixels): every length-carrying parameter times
@@ -67,6 +79,7 @@ class FilterParams:
             sigma_meas=self.sigma_meas * k,
             init_speed_sigma=self.init_speed_sigma * k,
             reinit_speed=self.reinit_speed * k,
+            accel_psd=None if self.accel_psd is None else self.accel_psd * k * k,
         )
 
 
@@ -74,8 +87,10 @@ class FilterParams:
 #: latency. A whipped tip accelerates at hundreds of m/s^2: with the default 20 m/s^2 fast measurements are
 #: gated out and the estimate coasts off (tip RMSE median 50 mm over 4 demo episodes); at 2000 m/s^2 it
 #: follows the measurements and bridges missed frames (12.7 mm). Measured with the single-step SAC policy,
-#: seeds 100000-100003, tracked observation.
-LOOP_FILTER = FilterParams(sigma_accel=2000.0)
+#: seeds 100000-100003, tracked observation. Since session 23 that process noise is continuous
+#: (:attr:`FilterParams.accel_psd` = 2000^2 x 0.04: the same velocity variance per 40 ms frame), so that a
+#: missed frame is bridged with a damped velocity, not an oscillating one.
+LOOP_FILTER = FilterParams(sigma_accel=2000.0, accel_psd=2000.0**2 * 0.04)
 #: The loop's tip filter behind a camera latency (``max_coast_s`` is then lengthened by the latency). The
 #: filter must predict across the delay, and a constant-velocity model predicts a whip badly: at sigma_accel
 #: 2000 the estimate's p95 error per episode is 168 mm (40 ms) and 551 mm (80 ms), at 20 it is 93 and 160 mm
