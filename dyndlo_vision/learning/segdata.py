@@ -291,6 +291,19 @@ def _camera_effects(
     return rgb, np.where(cable, 255, 0).astype(np.uint8)
 
 
+def _render_with_segmentation(renderer: Any, data: Any, camera: int) -> tuple[NDArray[np.float32], Any]:
+    """The camera's colour render (float RGB) and its segmentation render (object id, object type)."""
+    renderer.update_scene(data, camera=camera)
+    rgb = renderer.render().astype(np.float32)
+    renderer.enable_segmentation_rendering()
+    try:
+        renderer.update_scene(data, camera=camera)
+        seg = renderer.render()
+    finally:
+        renderer.disable_segmentation_rendering()
+    return rgb, seg
+
+
 def _look_at_quat(forward: NDArray[np.float64], roll: float) -> NDArray[np.float64]:
     import mujoco
 
@@ -457,15 +470,7 @@ class SceneSampler:
             m.vis.headlight.ambient[:] = self.scene_lights[2] * gain
             m.vis.headlight.diffuse[:] = self.scene_lights[3] * gain
         mujoco.mj_forward(m, d)
-        r = self.renderer
-        r.update_scene(d, camera=self.cam_id)
-        rgb2 = r.render().astype(np.float32)
-        r.enable_segmentation_rendering()
-        try:
-            r.update_scene(d, camera=self.cam_id)
-            seg = r.render()
-        finally:
-            r.disable_segmentation_rendering()
+        rgb2, seg = _render_with_segmentation(self.renderer, d, self.cam_id)
         ids, types = seg[..., 0], seg[..., 1]
         cable2 = self.cable_look.mask(seg).astype(np.float32)
         bg2 = (types == -1) | ((types == int(mujoco.mjtObj.mjOBJ_GEOM)) & (ids == self.floor_geom))
@@ -635,15 +640,7 @@ class TaskSceneSampler:
         m.vis.headlight.diffuse[:] *= gain
         try:
             mujoco.mj_forward(m, d)
-            r = self.renderer
-            r.update_scene(d, camera=cam_id)
-            rgb2 = r.render().astype(np.float32)
-            r.enable_segmentation_rendering()
-            try:
-                r.update_scene(d, camera=cam_id)
-                seg = r.render()
-            finally:
-                r.disable_segmentation_rendering()
+            rgb2, seg = _render_with_segmentation(self.renderer, d, cam_id)
         finally:
             self._restore()
             mujoco.mj_forward(m, d)
