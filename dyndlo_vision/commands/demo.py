@@ -212,13 +212,11 @@ def run(args: argparse.Namespace) -> int:
     if args.segmenter != "background" and args.observation != "tracked":
         raise ValueError(f"--segmenter applies to the tracked observation, not to {args.observation!r}")
     if args.segmenter_model is not None:
-        from dyndlo_vision.policies.segmenter import SHIPPED_NAMES
+        from dyndlo_vision.policies.segmenter import check_network
 
         if args.segmenter != "learned":
             raise ValueError("--segmenter-model is for --segmenter learned")
-        if args.segmenter_model not in SHIPPED_NAMES and not Path(args.segmenter_model).is_file():
-            raise FileNotFoundError(f"--segmenter-model {args.segmenter_model} does not exist (shipped "
-                                    f"names: {', '.join(SHIPPED_NAMES)})")
+        check_network(args.segmenter_model, "--segmenter-model")
     if args.views is not None and args.observation != "tracked":
         raise ValueError(f"--views applies to the tracked observation, not to {args.observation!r}")
     push = parse_push(args.push)

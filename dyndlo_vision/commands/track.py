@@ -60,7 +60,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from dyndlo_vision.policies.segmenter import SHIPPED_NAMES as SHIPPED_SEGMENTERS
+from dyndlo_vision.policies.segmenter import check_network
 from dyndlo_vision.tracking.masks import (
     MAX_WIDTH_RATIO,
     MIN_CUT_RADIUS_PX,
@@ -437,10 +437,8 @@ def _settings(args: argparse.Namespace) -> _Settings:
     model = None if args.segmenter_model is None else Path(args.segmenter_model)
     if model is not None and args.segmenter != "learned":
         raise ValueError("--segmenter-model is for --segmenter learned")
-    if model is not None and not model.is_file() and str(model) not in SHIPPED_SEGMENTERS:
-        raise FileNotFoundError(
-            f"--segmenter-model {model} does not exist (shipped names: {', '.join(SHIPPED_SEGMENTERS)})"
-        )
+    if model is not None:
+        check_network(model, "--segmenter-model")
     if args.open_radius < 0:
         raise ValueError(f"--open-radius must be >= 0, got {args.open_radius}")
     if args.nodes < 2:

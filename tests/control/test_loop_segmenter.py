@@ -42,7 +42,7 @@ def test_demo_segmenter_needs_tracked_state(tmp_path: Path, capsys: pytest.Captu
     assert not (tmp_path / "d").exists()
     for extra, word in ((["--segmenter-model", "cable-segmenter"], "--segmenter learned"),
                         (["--segmenter", "learned", "--segmenter-model", str(tmp_path / "no.onnx")],
-                         "does not exist")):
+                         f"--segmenter-model {tmp_path / 'no.onnx'} does not exist")):  # refused up front
         with pytest.raises(SystemExit) as exc:
             main(["demo", *extra, "--out", str(tmp_path / "d")])
         assert exc.value.code == 2

@@ -27,7 +27,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-__all__ = ["FINE_NAME", "LOOP_NAME", "SHIPPED_NAME", "SHIPPED_NAMES", "onnx_bytes", "segmenter_metadata"]
+__all__ = ["FINE_NAME", "LOOP_NAME", "SHIPPED_NAME", "SHIPPED_NAMES", "check_network", "onnx_bytes",
+           "segmenter_metadata"]
 
 SHIPPED_NAME = "cable-segmenter"
 FINE_NAME = "cable-segmenter-fine"
@@ -44,6 +45,17 @@ def _shipped(name: str, suffix: str) -> Any:
 def segmenter_metadata(name: str = SHIPPED_NAME) -> dict[str, Any]:
     """A shipped segmenter's JSON (the commands and data that produced it, and its measured scores)."""
     return dict(json.loads(_shipped(name, ".json").read_text()))
+
+
+def check_network(path: str | Path, option: str) -> None:
+    """Refuses a command's ``option`` value, before anything is written, unless it is a shipped name or an
+    existing file (what :func:`onnx_bytes` reads).
+
+    Raises:
+        FileNotFoundError: naming the option, the value and the shipped names.
+    """
+    if str(path) not in SHIPPED_NAMES and not Path(path).is_file():
+        raise FileNotFoundError(f"{option} {path} does not exist (shipped names: {', '.join(SHIPPED_NAMES)})")
 
 
 def onnx_bytes(path: str | Path | None = None) -> bytes:
