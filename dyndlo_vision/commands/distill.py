@@ -84,6 +84,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "simulation (it knows the cable; the student does not)",
     )
     p.add_argument(
+        "--teacher-commit",
+        type=int,
+        default=None,
+        metavar="K",
+        help="privileged teacher that commits late: follow the teacher's plan for K decisions, then correct "
+        "it for the episode's cable and state by search in simulation (the student has seen the cable move "
+        "by then); not with --teacher-search (default: off)",
+    )
+    p.add_argument(
         "--student-noise",
         type=float,
         default=0.0,
@@ -187,6 +196,7 @@ def run(args: argparse.Namespace) -> int:
         expert_speed_limit_m_s=args.expert_speed_limit,
         cable_ranges=args.cable_ranges,
         teacher_search=args.teacher_search,
+        teacher_commit_decision=args.teacher_commit,
         student_noise=args.student_noise,
         dagger_beta=args.dagger_beta,
         expert_noise=args.expert_noise,

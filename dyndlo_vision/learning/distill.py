@@ -72,6 +72,7 @@ _LATER_OPTIONS = {
     "decision_clock": False,
     "expert_replan_anchor": "plan",
     "expert_replan_score": "coast",
+    "teacher_commit_decision": None,
 }
 #: Options a resumed run may change: how many rounds of each kind run from here on, and how many processes
 #: collect (every episode is seeded on its own, so the data do not depend on it).
@@ -480,6 +481,8 @@ def run_mixed_episode(
     replan: ReplanSearch | None = None,
     replan_residual_m: float = 0.002,
     replan_anchor: str = "plan",
+    commit: ReplanSearch | None = None,
+    commit_decision: int = 0,
 ) -> dict[str, Any]:
     """One multi-step episode: the student acts with probability ``1 - beta`` per decision, else the expert.
 
@@ -494,6 +497,16 @@ def run_mixed_episode(
     good plans the expert chose for the episode, which the student cannot see once it is off that plan;
     labels anchored on the student depend only on its observation and the true state (docs/RESULTS.md,
     session 21).
+
+    With ``commit`` the teacher commits late: its plan (``teacher``'s, made without the cable) is followed
+    for the first ``commit_decision`` decisions; at that decision, from wherever the episode is and whoever
+    acted, ``commit`` searches the nearest good correction of the plan-following label (privileged: the true
+    cable and state; none when coasting on the label already succeeds or a limit is broken), and the expert
+    follows that plan from then on. Until the cable has moved, nothing the student observes tells it the
+    cable, so a plan made for the cable at t = 0 labels look-alike early states differently (docs/RESULTS.md,
+    session 21: the episode's plan explained half of the labels' conflict); here the labels before the
+    commitment are the same for every cable, and the cable-dependent part comes when the cable has shown how
+    it moves.
 
     ``student_noise`` is the standard deviation of Gaussian noise added to the student's executed action (in
     the normalised [-1, 1] action units, then clipped): it drives the roll-in to states the noiseless student
@@ -517,6 +530,9 @@ def run_mixed_episode(
     done, k, info, replans = False, 0, {}, 0
     if replan_anchor not in ("plan", "student"):
         raise ValueError(f"replan_anchor {replan_anchor!r}; expected 'plan' or 'student'")
+    if commit is not None and (isinstance(commit_decision, bool) or not isinstance(commit_decision, int)
+                               or commit_decision < 1):
+        raise ValueError(f"commit_decision must be a decision index >= 1, got {commit_decision!r}")
     while not done:
         student_action = None
         if student is not None and rng.random() >= beta:
@@ -533,6 +549,12 @@ def run_mixed_episode(
             label = expert.act(t, *commanded)
             rms.append(expert.last_rms_m)
         # Once a limit is broken no continuation can score below 1 (an avoid condition stays): no search.
+        if commit is not None and k == commit_decision and not u.monitor.any_avoid:
+            found = commit.search(u, label, seed)
+            if commit.last_score < commit.last_start_score:
+                label = found.astype(np.float32)
+                expert.adopt(label, t, *commanded)
+                replans += 1
         if replan is not None and not u.monitor.any_avoid:
             if replan_anchor == "student" and student_action is not None:
                 label = replan.search(u, student_action, seed).astype(np.float32)
@@ -642,6 +664,8 @@ def _collect_chunk(job: dict[str, Any], on_episode: Callable[[int, bool], None] 
     expert = PlanFollowingExpert(
         env.unwrapped.spec_actions, speed_limit_m_s=job["speed_limit"], smoothing=job.get("smoothing", 0.0)
     )
+    commit_decision = job.get("commit_decision")
+    commit = ReplanSearch() if commit_decision is not None else None
     replan_mm = job.get("replan_mm")
     replan = None
     if replan_mm is not None:
@@ -661,6 +685,8 @@ def _collect_chunk(job: dict[str, Any], on_episode: Callable[[int, bool], None] 
             replan,
             1e-3 * replan_mm if replan_mm is not None else 0.0,
             job.get("replan_anchor", "plan"),
+            commit,
+            commit_decision or 0,
         )
         if on_episode is not None:
             on_episode(int(seed), ep["success"])
@@ -705,6 +731,7 @@ def collect(
     replan_residual_mm: float | None = None,
     replan_anchor: str = "plan",
     replan_score: str = "coast",
+    commit_decision: int | None = None,
 ) -> Episodes:
     """Run one DAgger round's episodes (one per seed) in ``workers`` processes.
 
@@ -732,6 +759,9 @@ def collect(
             (the student's action, at every decision it takes; see :func:`run_mixed_episode`).
         replan_score: How the search scores a candidate: ``"coast"`` (its plan followed to the end) or
             ``"student"`` (the student re-planning after it; :class:`ReplanSearch`'s ``follower``).
+        commit_decision: The teacher commits late: its plan is followed until this decision, where a
+            privileged search corrects it for the episode's cable and state (see :func:`run_mixed_episode`);
+            None: never.
         on_episode: Called in this process with ``(seed, success)`` of every episode as it ends, in the order
             they end (e.g. for a progress bar). The returned data do not depend on it.
     """
@@ -755,6 +785,7 @@ def collect(
             "replan_mm": None if replan_residual_mm is None else float(replan_residual_mm),
             "replan_anchor": replan_anchor,
             "replan_score": replan_score,
+            "commit_decision": commit_decision,
         }
         for i in range(workers)
     ]
@@ -918,6 +949,12 @@ class DistillConfig:
         expert_replan_score: How the re-planning expert scores a candidate: ``"coast"`` (its plan followed
             to the end, open loop) or ``"student"`` (the student re-planning every decision after it, from the
             true observation; :class:`ReplanSearch`'s ``follower``).
+        teacher_commit_decision: K: the teacher commits late. The expert follows the teacher's own plan
+            (made without the cable) for K decisions; at decision K a privileged search
+            (:class:`ReplanSearch`, from the true cable and state) corrects it where coasting on it fails, and
+            the expert follows the correction from then on (:func:`run_mixed_episode`). The student's labels
+            then depend on the cable only once the cable has moved for K x 40 ms. None (default): off. Not
+            with ``teacher_search``, which makes the plan for the cable at t = 0.
     """
 
     teacher: str = "tip-control-single-step"
@@ -944,6 +981,7 @@ class DistillConfig:
     decision_clock: bool = False
     expert_replan_anchor: str = "plan"
     expert_replan_score: str = "coast"
+    teacher_commit_decision: int | None = None
 
     def __post_init__(self) -> None:
         for name in ("rounds", "episodes", "first_round_episodes", "workers", "epochs", "expert_rounds"):
@@ -987,6 +1025,15 @@ class DistillConfig:
                 raise ValueError(f"{name} must be {default!r} or {other!r}, got {value!r}")
             if value != default and replan is None:
                 raise ValueError(f"{name} {value!r} needs the re-planning expert (expert_replan_mm)")
+        commit = self.teacher_commit_decision
+        if commit is not None:
+            if isinstance(commit, bool) or not isinstance(commit, int) or commit < 1:
+                raise ValueError(f"teacher_commit_decision must be a decision index >= 1 or None (off), "
+                                 f"got {commit!r}")
+            if self.teacher_search:
+                raise ValueError("teacher_commit_decision and teacher_search exclude each other: the search "
+                                 "makes the plan for the cable at t = 0, the late commitment after K "
+                                 "decisions")
         if not isinstance(self.decision_clock, bool):
             raise ValueError(f"decision_clock must be True or False, got {self.decision_clock!r}")
         if not self.net_arch or any(int(n) < 1 for n in self.net_arch):
@@ -1134,6 +1181,7 @@ def distill(
                         replan_residual_mm=None if expert else config.expert_replan_mm,
                         replan_anchor=config.expert_replan_anchor,
                         replan_score=config.expert_replan_score,
+                        commit_decision=config.teacher_commit_decision,
                     )
                 episodes.save(round_file)
             collect_s = time.monotonic() - start

@@ -874,3 +874,79 @@ def test_replan_search_answers_with_the_nearest_good_action(monkeypatch) -> None
     drawn.clear()
     assert np.array_equal(search.search(env, np.full(9, 0.5), seed=3), np.full(9, 0.5))
     assert search.last_rollouts == 1
+
+
+@pytest.mark.parametrize("better", [True, False])
+def test_a_late_commitment_searches_once_from_the_plan_label_and_the_expert_follows_it(better: bool) -> None:
+    """commit_decision=K: the teacher's own plan is followed (labels as without the commitment) up to decision
+    K, where one search starts from the plan-following label. Where it scores better, its action is the label
+    at K and the expert follows that plan afterwards (the later labels change); where not, no label changes."""
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    spec = env.unwrapped.spec_actions
+    teacher = PolicyTeacher(policies.load("tip-control-single-step"))
+    plain = run_mixed_episode(env, teacher, PlanFollowingExpert(spec), seed=100001)
+    k = 3
+    marker = np.full(spec.size, 0.123)
+    fake = _RecordingSearch(marker, start_score=1.0, score=0.5 if better else 1.0)
+    adopted: list[np.ndarray] = []
+
+    class Recording(PlanFollowingExpert):
+        def adopt(self, action: Any, *args: Any) -> None:
+            adopted.append(np.asarray(action).copy())
+            super().adopt(action, *args)
+
+    ep = run_mixed_episode(env, teacher, Recording(spec), seed=100001, commit=fake, commit_decision=k)
+    assert len(fake.starts) == 1 and len(adopted) == int(better)
+    if better:
+        np.testing.assert_allclose(adopted[0], marker, atol=1e-6)
+    np.testing.assert_allclose(fake.starts[0], plain["actions"][k], atol=1e-6)
+    np.testing.assert_array_equal(ep["actions"][:k], plain["actions"][:k])
+    if better:
+        assert ep["replans"] == 1 and np.allclose(ep["actions"][k], 0.123)
+        n = min(len(ep["actions"]), len(plain["actions"]))
+        assert n > k + 1 and not np.allclose(ep["actions"][k + 1:n], plain["actions"][k + 1:n], atol=1e-3)
+    else:
+        assert ep["replans"] == 0
+        np.testing.assert_array_equal(ep["actions"], plain["actions"])
+    env.close()
+
+
+def test_a_late_commitment_is_not_searched_once_a_limit_is_broken() -> None:
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    teacher = PolicyTeacher(policies.load("tip-control-single-step"))
+    fake = _RecordingSearch(np.zeros(env.unwrapped.spec_actions.size), 1.0, 0.5)
+    violent = type("Violent", (), {"predict": lambda self, obs, deterministic=True: (np.ones(9), None)})()
+    ep = run_mixed_episode(env, teacher, PlanFollowingExpert(env.unwrapped.spec_actions), seed=100001,
+                           student=violent, beta=0.0, commit=fake, commit_decision=20)  # broken at 15
+    assert ep["avoid"] and fake.starts == []
+    with pytest.raises(ValueError, match="commit_decision"):
+        run_mixed_episode(env, teacher, PlanFollowingExpert(env.unwrapped.spec_actions), seed=100001,
+                          commit=fake, commit_decision=0)
+    env.close()
+
+
+def test_teacher_commit_option_reaches_every_round_and_is_checked(tmp_path, monkeypatch) -> None:
+    seen: list[Any] = []
+
+    def recording(seeds: Any, *args: Any, commit_decision: Any = None, **kwargs: Any) -> Episodes:
+        seen.append(commit_decision)
+        return _fake_collect(seeds, *args, **kwargs)
+
+    monkeypatch.setattr(distill_module, "collect", recording)
+    fast = ["--workers", "1", "--first-round-episodes", "2", "--episodes", "2", "--epochs", "1", "--quiet"]
+    out = str(tmp_path / "r")
+    assert main(["distill", *fast, "--rounds", "2", "--teacher-commit", "6", "--out", out]) == 0
+    assert seen == [6, 6]
+    assert json.loads((tmp_path / "r" / "config.json").read_text())["teacher_commit_decision"] == 6
+    for bad in (0, -2, True, 2.5, "6"):
+        with pytest.raises(ValueError, match="teacher_commit_decision"):
+            DistillConfig(teacher_commit_decision=bad)
+    with pytest.raises(ValueError, match="exclude each other"):
+        DistillConfig(teacher_commit_decision=6, teacher_search=True)
+    # a run stored before the option existed resumes as a run without it
+    old = tmp_path / "old"
+    assert main(["distill", *fast, "--out", str(old)]) == 0
+    stored = json.loads((old / "config.json").read_text())
+    del stored["teacher_commit_decision"]
+    (old / "config.json").write_text(json.dumps(stored))
+    assert main(["distill", *fast, "--rounds", "2", "--resume", "--out", str(old)]) == 0
