@@ -59,22 +59,20 @@ def episode_plans(data: Episodes) -> np.ndarray:
 
 def episode_cables(data: Episodes, config: dict[str, Any]) -> np.ndarray | None:
     """Each decision's cable factors (length, mass, Young's modulus, damping), None without random cables."""
-    from dyndlo_vision.tasks.wrappers import CableRandomization
+    from dyndlo_vision.tasks.wrappers import cable_for_seed, cable_ranges_for
 
     ranges = config.get("cable_ranges")
     if ranges is None:
         return None
-    env = make_distill_env(config.get("task_options", {}), None, ranges, config.get("task", "tip-control"))
-    wrapper = env
-    while not isinstance(wrapper, CableRandomization):
-        wrapper = wrapper.env
+    task = config.get("task", "tip-control")
+    env = make_distill_env(config.get("task_options", {}), None, None, task)
+    n = env.unwrapped.task.cable
+    env.close()
     rows = {}
     for seed in dict.fromkeys(data.seeds.tolist()):
-        env.reset(seed=int(seed))
-        c, n = wrapper.cable, wrapper.nominal
+        c = cable_for_seed(n, cable_ranges_for(task, ranges), seed)
         rows[seed] = [c.length_m / n.length_m, c.mass_kg / n.mass_kg, c.young_pa / n.young_pa,
                       c.damping_s / n.damping_s]
-    env.close()
     return np.array([rows[s] for s in data.seeds.tolist()])
 
 

@@ -40,6 +40,7 @@ __all__ = [
     "StudentFeatures",
     "StudentFeaturesWrapper",
     "draw_cable",
+    "cable_for_seed",
 ]
 
 # Mixed into the reset seed so that the cable draws differ from the environment's own random stream.
@@ -182,6 +183,17 @@ def draw_cable(nominal: CableParams, ranges: dict[str, tuple[float, float]],
     return replace(nominal, **changes)
 
 
+def cable_for_seed(nominal: CableParams, ranges: dict[str, tuple[float, float]], seed: int) -> CableParams:
+    """The cable :class:`CableRandomization` draws at a reset with ``seed`` when a cable is due (every reset
+    with ``every_episodes=1``, as in ``demo``, ``evaluate`` and ``distill`` with random cables), without
+    building or resetting an environment."""
+    return draw_cable(nominal, ranges, _cable_rng(seed))
+
+
+def _cable_rng(seed: int) -> np.random.Generator:
+    return np.random.default_rng([int(seed), _CABLE_STREAM])
+
+
 class CableRandomization(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32],
                                      NDArray[np.float32]]):
     """Domain randomisation: a new cable (length, mass, Young's modulus, damping) every few episodes.
@@ -213,7 +225,7 @@ class CableRandomization(gym.Wrapper[NDArray[np.float32], NDArray[np.float32], N
     ) -> tuple[NDArray[np.float32], dict[str, Any]]:
         """Draw a new cable when due, then reset the environment with it."""
         if seed is not None:
-            self._rng = np.random.default_rng([int(seed), _CABLE_STREAM])
+            self._rng = _cable_rng(seed)
         elif self._rng is None:
             self._rng = np.random.default_rng()
         if self._episodes % self.every_episodes == 0:

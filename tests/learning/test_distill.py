@@ -878,9 +878,10 @@ def test_replan_search_answers_with_the_nearest_good_action(monkeypatch) -> None
 
 @pytest.mark.parametrize("better", [True, False])
 def test_a_late_commitment_searches_once_from_the_plan_label_and_the_expert_follows_it(better: bool) -> None:
-    """commit_decision=K: the teacher's own plan is followed (labels as without the commitment) up to decision
-    K, where one search starts from the plan-following label. Where it scores better, its action is the label
-    at K and the expert follows that plan afterwards (the later labels change); where not, no label changes."""
+    """commit_decision=K: the teacher's own plan is followed (labels as without the commitment) up to
+    decision K, where one search starts from the plan-following label. Where it scores better, its action is
+    the label at K and the expert follows that plan afterwards (the later labels change); where not, no label
+    changes."""
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
     spec = env.unwrapped.spec_actions
     teacher = PolicyTeacher(policies.load("tip-control-single-step"))

@@ -82,3 +82,17 @@ def test_reset_refuses_a_cable_that_is_not_cable_parameters() -> None:
     env = gym.make("DynDLO/TipControl-v0")
     with pytest.raises(ValueError, match="options\\['cable'\\] must be a CableParams, got dict"):
         env.reset(seed=0, options={"cable": {"length_m": 0.6}})
+
+
+def test_cable_for_seed_is_the_cable_a_seeded_reset_draws() -> None:
+    """What benchmarks and diagnostics use to know an episode's cable without resetting an environment."""
+    from dyndlo_vision.tasks.wrappers import CableRandomization, cable_for_seed, cable_ranges_for
+
+    ranges = cable_ranges_for("tip-control", "beyond")
+    env = CableRandomization(gym.make("DynDLO/TipControl-v0"), ranges=ranges, every_episodes=1)
+    nominal = env.unwrapped.task.cable
+    for seed in (100000, 100001):
+        _, info = env.reset(seed=seed)
+        assert info["cable"] == cable_for_seed(nominal, ranges, seed)
+    assert cable_for_seed(nominal, ranges, 100000) != cable_for_seed(nominal, ranges, 100001)
+    env.close()
