@@ -89,8 +89,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         metavar="K",
         help="privileged teacher that commits late: follow the teacher's plan for K decisions, then correct "
-        "it for the episode's cable and state by search in simulation (the student has seen the cable move "
-        "by then); not with --teacher-search (default: off)",
+        "it for the episode's cable and state by search in simulation; pick K from when P_DLO shows the "
+        "cable (benchmarks/cable_visibility.py); not with --teacher-search (default: off)",
     )
     p.add_argument(
         "--student-noise",
