@@ -830,14 +830,20 @@ def test_student_anchor_needs_the_replanning_expert() -> None:
         "expert_replan_anchor"] == "student"
 
 
-def test_expert_replan_option_reaches_dagger_rounds_only(tmp_path, monkeypatch, capsys) -> None:
+def _record_collect_option(monkeypatch, option: str) -> list[Any]:
+    """Replace :func:`collect` with :func:`_fake_collect`; the returned list gets each call's ``option``."""
     seen: list[Any] = []
 
-    def recording(seeds: Any, *args: Any, replan_residual_mm: Any = None, **kwargs: Any) -> Episodes:
-        seen.append(replan_residual_mm)
+    def recording(seeds: Any, *args: Any, **kwargs: Any) -> Episodes:
+        seen.append(kwargs.pop(option, None))
         return _fake_collect(seeds, *args, **kwargs)
 
     monkeypatch.setattr(distill_module, "collect", recording)
+    return seen
+
+
+def test_expert_replan_option_reaches_dagger_rounds_only(tmp_path, monkeypatch, capsys) -> None:
+    seen = _record_collect_option(monkeypatch, "replan_residual_mm")
     fast = ["--workers", "1", "--first-round-episodes", "2", "--episodes", "2", "--epochs", "1", "--quiet"]
     out = str(tmp_path / "r")
     assert main(["distill", *fast, "--rounds", "2", "--expert-replan", "2.5", "--out", out]) == 0
@@ -927,13 +933,7 @@ def test_a_late_commitment_is_not_searched_once_a_limit_is_broken() -> None:
 
 
 def test_teacher_commit_option_reaches_every_round_and_is_checked(tmp_path, monkeypatch) -> None:
-    seen: list[Any] = []
-
-    def recording(seeds: Any, *args: Any, commit_decision: Any = None, **kwargs: Any) -> Episodes:
-        seen.append(commit_decision)
-        return _fake_collect(seeds, *args, **kwargs)
-
-    monkeypatch.setattr(distill_module, "collect", recording)
+    seen = _record_collect_option(monkeypatch, "commit_decision")
     fast = ["--workers", "1", "--first-round-episodes", "2", "--episodes", "2", "--epochs", "1", "--quiet"]
     out = str(tmp_path / "r")
     assert main(["distill", *fast, "--rounds", "2", "--teacher-commit", "6", "--out", out]) == 0
