@@ -68,9 +68,10 @@ def episode_cables(data: Episodes, config: dict[str, Any]) -> np.ndarray | None:
     env = make_distill_env(config.get("task_options", {}), None, None, task)
     n = env.unwrapped.task.cable
     env.close()
+    factors = cable_ranges_for(task, ranges)
     rows = {}
     for seed in dict.fromkeys(data.seeds.tolist()):
-        c = cable_for_seed(n, cable_ranges_for(task, ranges), seed)
+        c = cable_for_seed(n, factors, seed)
         rows[seed] = [c.length_m / n.length_m, c.mass_kg / n.mass_kg, c.young_pa / n.young_pa,
                       c.damping_s / n.damping_s]
     return np.array([rows[s] for s in data.seeds.tolist()])
