@@ -19,11 +19,10 @@ import platform
 from pathlib import Path
 
 import numpy as np
+from label_conflict import episode_cables  # the run's cables, drawn again from its seeds
 
 import dyndlo_vision  # noqa: F401  (before mujoco)
 from dyndlo_vision.learning.distill import Episodes
-from dyndlo_vision.tasks.registry import make_env
-from dyndlo_vision.tasks.wrappers import cable_for_seed, cable_ranges_for
 
 P_DLO = slice(6, 9)  # table II for one gripper: TCP position (3), velocity (3), P_DLO (3), goal (3)
 
@@ -65,15 +64,11 @@ def main() -> None:
         raise SystemExit(f"{args.run} ran on the nominal cable: there is no cable to tell apart")
     data = Episodes.concatenate([Episodes.load(f) for f in sorted(args.run.glob("round*.npz"))])
     task = config.get("task", "tip-control")
-    env = make_env(task, multi_step=True, **config.get("task_options", {}))
-    nominal = env.unwrapped.task.cable
-    env.close()
-    ranges = cable_ranges_for(task, config["cable_ranges"])
     seeds = list(dict.fromkeys(data.seeds.tolist()))
-    cables = [cable_for_seed(nominal, ranges, s) for s in seeds]
-    targets = {"length": np.array([c.length_m for c in cables]),
-               "log E": np.log(np.array([c.young_pa for c in cables]))}
     rows = {s: np.flatnonzero(data.seeds == s) for s in seeds}
+    # Factors of the nominal cable (length, mass, E, damping); R^2 does not change with the nominal's scale.
+    factors = episode_cables(data, config)[[r[0] for r in rows.values()]]
+    targets = {"length": factors[:, 0], "log E": np.log(factors[:, 2])}
     shortest = min(len(r) for r in rows.values())
     report = {"run": str(args.run), "task": task, "episodes": len(seeds), "machine": platform.machine(),
               "rows": []}

@@ -503,10 +503,10 @@ def run_mixed_episode(
     acted, ``commit`` searches the nearest good correction of the plan-following label (privileged: the true
     cable and state; none when coasting on the label already succeeds or a limit is broken), and the expert
     follows that plan from then on. Until the cable has moved, nothing the student observes tells it the
-    cable, so a plan made for the cable at t = 0 labels look-alike early states differently (docs/RESULTS.md,
-    session 21: the episode's plan explained half of the labels' conflict); here the labels before the
-    commitment are the same for every cable, and the cable-dependent part comes when the cable has shown how
-    it moves.
+    cable's stiffness, so a plan made for it at t = 0 labels look-alike early states differently
+    (docs/RESULTS.md, session 21: the episode's plan explained half of the labels' conflict); here the labels
+    before the commitment are the same for every cable of a length, and the cable-dependent part comes when
+    the cable has shown how it moves.
 
     ``student_noise`` is the standard deviation of Gaussian noise added to the student's executed action (in
     the normalised [-1, 1] action units, then clipped): it drives the roll-in to states the noiseless student
