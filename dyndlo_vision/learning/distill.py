@@ -416,7 +416,12 @@ class ReplanSearch:
 # ---------------------------------------------------------------------------------------------- episodes
 @dataclass
 class Episodes:
-    """What :func:`collect` gathered: observations with the expert's actions, and how the episodes ended."""
+    """What :func:`collect` gathered: observations with the expert's actions, and how the episodes ended.
+
+    Rows (``observations`` to ``seeds``) are decisions, each episode's in time order. The per-episode arrays
+    (``successes`` and after) are in the order the episodes' seeds first appear in ``seeds``
+    (:attr:`episode_seeds`), which is the order the workers' chunks were joined in, not sorted.
+    """
 
     observations: NDArray[np.float32]
     true_observations: NDArray[np.float32]
@@ -427,6 +432,12 @@ class Episodes:
     fit_rms_m: NDArray[np.float64]
     #: Per episode: labels that came from :class:`ReplanSearch` (0 for files written before it existed).
     replans: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+
+    @property
+    def episode_seeds(self) -> NDArray[np.int64]:
+        """The seed of each episode, in the order of the per-episode arrays."""
+        _, first = np.unique(self.seeds, return_index=True)
+        return self.seeds[np.sort(first)]
 
     @staticmethod
     def concatenate(parts: Sequence[Episodes]) -> Episodes:

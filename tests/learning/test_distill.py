@@ -951,3 +951,14 @@ def test_teacher_commit_option_reaches_every_round_and_is_checked(tmp_path, monk
     del stored["teacher_commit_decision"]
     (old / "config.json").write_text(json.dumps(stored))
     assert main(["distill", *fast, "--rounds", "2", "--resume", "--out", str(old)]) == 0
+
+
+def test_episode_seeds_follow_the_per_episode_arrays_when_chunks_are_joined_unsorted() -> None:
+    """Two workers' chunks joined as they finished: the per-episode arrays are in chunk order, and
+    ``episode_seeds`` names each entry's episode (np.unique would sort them and pair them wrongly)."""
+    later = _fake_collect([11, 13])
+    earlier = _fake_collect([10, 12, 14])
+    data = Episodes.concatenate([later, earlier])
+    assert data.episode_seeds.tolist() == [11, 13, 10, 12, 14]
+    assert dict(zip(data.episode_seeds.tolist(), data.successes.tolist(), strict=True)) == {
+        11: False, 13: False, 10: True, 12: True, 14: True}
