@@ -93,6 +93,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "cable (benchmarks/cable_visibility.py); not with --teacher-search (default: off)",
     )
     p.add_argument(
+        "--search-candidates",
+        choices=("episode", "shared"),
+        default="episode",
+        help="the offsets the privileged search (--teacher-commit, --expert-replan) tries: new ones for "
+        "every episode (default), or the same ones in every search, so that look-alike states get the same "
+        "correction",
+    )
+    p.add_argument(
         "--student-noise",
         type=float,
         default=0.0,
@@ -197,6 +205,7 @@ def run(args: argparse.Namespace) -> int:
         cable_ranges=args.cable_ranges,
         teacher_search=args.teacher_search,
         teacher_commit_decision=args.teacher_commit,
+        search_candidates=args.search_candidates,
         student_noise=args.student_noise,
         dagger_beta=args.dagger_beta,
         expert_noise=args.expert_noise,

@@ -73,6 +73,7 @@ _LATER_OPTIONS = {
     "expert_replan_anchor": "plan",
     "expert_replan_score": "coast",
     "teacher_commit_decision": None,
+    "search_candidates": "episode",
 }
 #: Options a resumed run may change: how many rounds of each kind run from here on, and how many processes
 #: collect (every episode is seeded on its own, so the data do not depend on it).
@@ -335,18 +336,31 @@ class ReplanSearch:
     open loop. A follower with student features (a P_DLO history or clock) gets its own copy of them for every
     roll-out: it goes on from the episode's history and comes back unchanged.
 
+    Which candidates a search draws: ``candidates="episode"`` (default) draws new offsets for every episode
+    and decision. Where many offsets succeed, the nearest of them then points anywhere, and two look-alike
+    cables get unrelated labels: on the vault the corrections at the late commitment had no common direction
+    (docs/RESULTS.md, session 25). ``"shared"`` draws the same offsets in every search, so that look-alike
+    states pick the same correction.
+
     Args:
         population: Candidates per ring.
         sigmas: Standard deviations of the rings (normalised action units), searched in this order.
         good_enough_m: A score below this is a success (``start`` itself: no search).
         follower: What acts after the candidate (``predict(obs, deterministic=True)``); None: coast.
+        candidates: ``"episode"`` or ``"shared"`` (above).
     """
 
+    #: The values of ``candidates``.
+    CANDIDATES = ("episode", "shared")
+
     def __init__(self, population: int = 12, sigmas: Sequence[float] = (0.05, 0.1, 0.2, 0.4),
-                 good_enough_m: float = 0.03, follower: Any = None) -> None:
+                 good_enough_m: float = 0.03, follower: Any = None, candidates: str = "episode") -> None:
         if population < 1 or not sigmas or any(not 0 < sg < float("inf") for sg in sigmas):
             raise ValueError(f"need population >= 1 and positive finite sigmas; got population={population}, "
                              f"sigmas={sigmas!r}")
+        if candidates not in self.CANDIDATES:
+            raise ValueError(f"candidates {candidates!r}; expected one of {list(self.CANDIDATES)}")
+        self.candidates = candidates
         self.population = int(population)
         self.sigmas = tuple(float(sg) for sg in sigmas)
         self.good_enough_m = float(good_enough_m)
@@ -394,7 +408,8 @@ class ReplanSearch:
             origin = np.clip(np.asarray(start, dtype=np.float64), -1.0, 1.0)
             best, best_score = origin, self._score(env, snapshot, origin)
             self.last_start_score, self.last_rollouts = best_score, 1
-            rng = np.random.default_rng([int(seed), int(round(env.scene.time * 1000)), 0x5EA])
+            episode = [int(seed), int(round(env.scene.time * 1000)), 0x5EA]
+            rng = np.random.default_rng(0x5EA if self.candidates == "shared" else episode)
             for sigma in self.sigmas:
                 if best_score < self.good_enough_m:
                     break
@@ -676,11 +691,13 @@ def _collect_chunk(job: dict[str, Any], on_episode: Callable[[int, bool], None] 
         env.unwrapped.spec_actions, speed_limit_m_s=job["speed_limit"], smoothing=job.get("smoothing", 0.0)
     )
     commit_decision = job.get("commit_decision")
-    commit = ReplanSearch() if commit_decision is not None else None
+    candidates = job.get("search_candidates", "episode")
+    commit = ReplanSearch(candidates=candidates) if commit_decision is not None else None
     replan_mm = job.get("replan_mm")
     replan = None
     if replan_mm is not None:
-        replan = ReplanSearch(follower=student if job.get("replan_score") == "student" else None)
+        replan = ReplanSearch(follower=student if job.get("replan_score") == "student" else None,
+                              candidates=candidates)
     parts = []
     for seed in job["seeds"]:
         ep = run_mixed_episode(
@@ -743,6 +760,7 @@ def collect(
     replan_anchor: str = "plan",
     replan_score: str = "coast",
     commit_decision: int | None = None,
+    search_candidates: str = "episode",
 ) -> Episodes:
     """Run one DAgger round's episodes (one per seed) in ``workers`` processes.
 
@@ -773,6 +791,7 @@ def collect(
         commit_decision: The teacher commits late: its plan is followed until this decision, where a
             privileged search corrects it for the episode's cable and state (see :func:`run_mixed_episode`);
             None: never.
+        search_candidates: :class:`ReplanSearch`'s ``candidates`` for those searches.
         on_episode: Called in this process with ``(seed, success)`` of every episode as it ends, in the order
             they end (e.g. for a progress bar). The returned data do not depend on it.
     """
@@ -797,6 +816,7 @@ def collect(
             "replan_anchor": replan_anchor,
             "replan_score": replan_score,
             "commit_decision": commit_decision,
+            "search_candidates": search_candidates,
         }
         for i in range(workers)
     ]
@@ -966,6 +986,9 @@ class DistillConfig:
             the expert follows the correction from then on (:func:`run_mixed_episode`). The student's labels
             then depend on the cable only once the cable has moved for K x 40 ms. None (default): off. Not
             with ``teacher_search``, which makes the plan for the cable at t = 0.
+        search_candidates: :class:`ReplanSearch`'s ``candidates`` wherever it searches (the late commitment,
+            the re-planning expert): ``"episode"`` (default) new offsets in every search, ``"shared"`` the
+            same offsets in every search, so that look-alike states get the same correction.
     """
 
     teacher: str = "tip-control-single-step"
@@ -993,6 +1016,7 @@ class DistillConfig:
     expert_replan_anchor: str = "plan"
     expert_replan_score: str = "coast"
     teacher_commit_decision: int | None = None
+    search_candidates: str = "episode"
 
     def __post_init__(self) -> None:
         for name in ("rounds", "episodes", "first_round_episodes", "workers", "epochs", "expert_rounds"):
@@ -1045,6 +1069,13 @@ class DistillConfig:
                 raise ValueError("teacher_commit_decision and teacher_search exclude each other: the search "
                                  "makes the plan for the cable at t = 0, the late commitment after K "
                                  "decisions")
+        if self.search_candidates not in ReplanSearch.CANDIDATES:
+            raise ValueError(f"search_candidates must be one of {list(ReplanSearch.CANDIDATES)}, got "
+                             f"{self.search_candidates!r}")
+        if self.search_candidates != "episode" and commit is None and replan is None:
+            raise ValueError(f"search_candidates {self.search_candidates!r} needs a search: the late "
+                             "commitment (teacher_commit_decision) or the re-planning expert "
+                             "(expert_replan_mm)")
         if not isinstance(self.decision_clock, bool):
             raise ValueError(f"decision_clock must be True or False, got {self.decision_clock!r}")
         if not self.net_arch or any(int(n) < 1 for n in self.net_arch):
@@ -1193,6 +1224,7 @@ def distill(
                         replan_anchor=config.expert_replan_anchor,
                         replan_score=config.expert_replan_score,
                         commit_decision=config.teacher_commit_decision,
+                        search_candidates=config.search_candidates,
                     )
                 episodes.save(round_file)
             collect_s = time.monotonic() - start

@@ -962,3 +962,73 @@ def test_episode_seeds_follow_the_per_episode_arrays_when_chunks_are_joined_unso
     assert data.episode_seeds.tolist() == [11, 13, 10, 12, 14]
     assert dict(zip(data.episode_seeds.tolist(), data.successes.tolist(), strict=True)) == {
         11: False, 13: False, 10: True, 12: True, 14: True}
+
+
+@pytest.mark.parametrize("candidates", ["episode", "shared"])
+def test_shared_candidates_are_the_same_offsets_in_every_search(monkeypatch, candidates: str) -> None:
+    """``candidates="shared"``: every search (any seed, any time) tries the same offsets around its start, so
+    two look-alike states pick the same correction; ``"episode"`` draws new offsets per episode and time."""
+    drawn: list[np.ndarray] = []
+
+    def score(env: Any, snapshot: Any, action: np.ndarray) -> float:
+        drawn.append(np.asarray(action).copy())
+        return 1.0  # nothing is good: every ring is searched
+
+    monkeypatch.setattr(ReplanSearch, "coasted_score", staticmethod(score))
+    offsets = []
+    for seed, time_s, start in ((1, 0.32, np.zeros(9)), (2, 0.32, np.full(9, 0.1)), (1, 0.12, np.zeros(9))):
+        env = type("Env", (), {"snapshot": lambda self: None, "restore": lambda self, s: None,
+                               "scene": type("Scene", (), {"time": time_s})()})()
+        drawn.clear()
+        ReplanSearch(population=4, sigmas=(0.05, 0.1), candidates=candidates).search(env, start, seed=seed)
+        offsets.append(np.array(drawn[1:]) - start)  # drawn[0] is the start itself
+    same = [np.allclose(offsets[0], other) for other in offsets[1:]]
+    assert same == ([True, True] if candidates == "shared" else [False, False])
+    with pytest.raises(ValueError, match="candidates"):
+        ReplanSearch(candidates="fixed")
+
+
+def test_search_candidates_option_reaches_the_collected_rounds(tmp_path, monkeypatch, capsys) -> None:
+    seen = _record_collect_option(monkeypatch, "search_candidates")
+    fast = ["--workers", "1", "--first-round-episodes", "2", "--episodes", "2", "--epochs", "1", "--quiet"]
+    out = str(tmp_path / "r")
+    shared = ["--teacher-commit", "6", "--search-candidates", "shared"]
+    assert main(["distill", *fast, *shared, "--out", out]) == 0
+    assert seen == ["shared"]
+    assert json.loads((tmp_path / "r" / "config.json").read_text())["search_candidates"] == "shared"
+    with pytest.raises(ValueError, match="search_candidates"):
+        DistillConfig(teacher_commit_decision=6, search_candidates="fixed")
+    with pytest.raises(ValueError, match="needs a search"):
+        DistillConfig(search_candidates="shared")
+    # a run stored before the option existed resumes as a run without it
+    stored = json.loads((tmp_path / "r" / "config.json").read_text())
+    del stored["search_candidates"]
+    (tmp_path / "r" / "config.json").write_text(json.dumps(stored))
+    assert main(["distill", *fast, "--teacher-commit", "6", "--rounds", "2", "--expert-rounds", "2",
+                 "--resume", "--out", out]) == 0
+    assert seen[-1] == "episode"
+
+
+def test_collect_jobs_build_their_searches_with_the_candidates_asked_for(monkeypatch) -> None:
+    """The worker's searches (late commitment and re-planning expert) get the run's ``search_candidates``."""
+    built: list[str] = []
+    original = ReplanSearch.__init__
+
+    def recording(self: Any, *args: Any, **kwargs: Any) -> None:
+        built.append(kwargs.get("candidates", "episode"))
+        original(self, *args, **kwargs)
+
+    class Stop(Exception):
+        pass
+
+    def stop(*_: Any, **__: Any) -> None:
+        raise Stop  # before any episode runs
+
+    monkeypatch.setattr(ReplanSearch, "__init__", recording)
+    monkeypatch.setattr(distill_module, "run_mixed_episode", stop)
+    job = {"seeds": [5], "teacher": "tip-control-single-step", "student": None, "beta": 1.0,
+           "noise_model": None, "task_options": {}, "round": 0, "speed_limit": None, "commit_decision": 3,
+           "replan_mm": 2.0, "search_candidates": "shared"}
+    with pytest.raises(Stop):
+        distill_module._collect_chunk(job)
+    assert built == ["shared", "shared"]
