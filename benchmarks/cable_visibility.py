@@ -19,10 +19,9 @@ import platform
 from pathlib import Path
 
 import numpy as np
-from label_conflict import episode_cables  # the run's cables, drawn again from its seeds
+from label_conflict import episode_cables, load_rounds  # the run's cables, drawn again from its seeds
 
 import dyndlo_vision  # noqa: F401  (before mujoco)
-from dyndlo_vision.learning.distill import Episodes
 
 P_DLO = slice(6, 9)  # table II for one gripper: TCP position (3), velocity (3), P_DLO (3), goal (3)
 
@@ -62,9 +61,9 @@ def main() -> None:
     config = json.loads((args.run / "config.json").read_text())
     if not config.get("cable_ranges"):
         raise SystemExit(f"{args.run} ran on the nominal cable: there is no cable to tell apart")
-    data = Episodes.concatenate([Episodes.load(f) for f in sorted(args.run.glob("round*.npz"))])
+    data = load_rounds(args.run, None)
     task = config.get("task", "tip-control")
-    seeds = list(dict.fromkeys(data.seeds.tolist()))
+    seeds = data.episode_seeds.tolist()
     rows = {s: np.flatnonzero(data.seeds == s) for s in seeds}
     # Factors of the nominal cable (length, mass, E, damping); R^2 does not change with the nominal's scale.
     factors = episode_cables(data, config)[[r[0] for r in rows.values()]]

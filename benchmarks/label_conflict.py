@@ -70,7 +70,7 @@ def episode_cables(data: Episodes, config: dict[str, Any]) -> np.ndarray | None:
     env.close()
     factors = cable_ranges_for(task, ranges)
     rows = {}
-    for seed in dict.fromkeys(data.seeds.tolist()):
+    for seed in data.episode_seeds.tolist():
         c = cable_for_seed(n, factors, seed)
         rows[seed] = [c.length_m / n.length_m, c.mass_kg / n.mass_kg, c.young_pa / n.young_pa,
                       c.damping_s / n.damping_s]

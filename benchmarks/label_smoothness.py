@@ -41,7 +41,7 @@ from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
 def relabel(data: Episodes, spec: Any, home: np.ndarray, weight: float) -> tuple[np.ndarray, np.ndarray]:
     """Labels of the expert with ``smoothing=weight`` for ``data``'s states, and its fit residuals (m)."""
     labels, residuals = [], []
-    for seed in dict.fromkeys(data.seeds.tolist()):
+    for seed in data.episode_seeds.tolist():
         rows = np.flatnonzero(data.seeds == seed)
         expert = PlanFollowingExpert(spec, smoothing=weight)
         labels.append(expert.start(data.actions[rows[0]], home))
@@ -81,7 +81,7 @@ def main() -> None:
 
     config = json.loads((args.run / "config.json").read_text())
     data = Episodes.load(args.run / "round0.npz")
-    seeds = list(dict.fromkeys(data.seeds.tolist()))[: args.episodes]
+    seeds = data.episode_seeds.tolist()[: args.episodes]
     keep = np.isin(data.seeds, seeds)
     n = len(seeds)
     data = Episodes(

@@ -71,10 +71,9 @@ def summarise(rows: list[dict], sigmas: tuple[float, ...]) -> dict:
         sel = [r for r, k in zip(rows, tercile, strict=True) if t is None or k == t]
         entry: dict = {"cables": len(sel), "plan_success": sum(r["plan_success"] for r in sel)}
         for s in sigmas:
-            outcomes = [r["perturbed"][str(s)] for r in sel]
-            flips = [x != r["plan_success"] for r, xs in zip(sel, outcomes, strict=True) for x in xs]
-            wins = [x for xs in outcomes for x in xs]
-            pairs = list(zip(sel, outcomes, strict=True))
+            pairs = [(r, r["perturbed"][str(s)]) for r in sel]
+            flips = [x != r["plan_success"] for r, xs in pairs for x in xs]
+            wins = [x for _, xs in pairs for x in xs]
             mixed = sum(0 < sum(xs) + r["plan_success"] < len(xs) + 1 for r, xs in pairs)
             failing_won = sum(not r["plan_success"] and any(xs) for r, xs in pairs)
             entry[f"sigma {s}"] = {"flipped": float(np.mean(flips)) if flips else None,
