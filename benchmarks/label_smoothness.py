@@ -2,13 +2,21 @@
 
 Takes the round-0 episodes of a ``dyndlo-vision distill`` run (the expert acted), relabels their states
 offline with :class:`~dyndlo_vision.learning.distill.PlanFollowingExpert` at each ``--weights`` value
-(the teacher's plan is the episode's first label; each later decision is fitted from the true TCP state at
-``k * 40 ms``), and for the recorded labels and each relabelling reports:
+(the teacher's plan is the episode's first label; each later decision is fitted from the *commanded* TCP
+state at ``k * 40 ms``, rebuilt with a :class:`~dyndlo_vision.trajectory.replanner.Replanner` from the
+recorded labels, which is what the expert fitted from when it acted), and for the recorded labels and each
+relabelling reports:
 
 - roughness: the mean squared change between consecutive labels of an episode (normalised action units);
 - the expert's fit residual (median and 90th percentile over decisions, mm);
 - a fresh student (the run's network) fitted on them: training and validation MSE (a fifth of the episodes
-  held out, the same for every row).
+  held out, the same for every row);
+- how far the relabels are from the recorded labels (largest absolute difference): at the run's own
+  smoothing this replays the expert, so it must be ~0 (a check of the replay; session 25 found the earlier
+  relabelling from the *true* TCP state up to 0.065 off).
+
+Episodes that a late-committing teacher (``--teacher-commit``) corrected are left out: after the correction
+they follow another plan than the first label's.
 
     python benchmarks/label_smoothness.py RUN [--episodes 20] [--weights 0,0.003,0.01,0.03,0.1] [--out F.json]
 
@@ -36,19 +44,30 @@ from dyndlo_vision.learning.distill import (
     new_student,
 )
 from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
+from dyndlo_vision.trajectory.replanner import Replanner
 
 
-def relabel(data: Episodes, spec: Any, home: np.ndarray, weight: float) -> tuple[np.ndarray, np.ndarray]:
-    """Labels of the expert with ``smoothing=weight`` for ``data``'s states, and its fit residuals (m)."""
+def relabel(
+    data: Episodes, spec: Any, home: np.ndarray, weight: float, speed_limit_m_s: float | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Labels of the expert with ``smoothing=weight`` for ``data``'s states, and its fit residuals (m).
+
+    ``home`` holds every gripper's start (gripper 0 follows the plan). The state each label is fitted from is
+    the commanded one, rebuilt by re-planning with the recorded labels (the executed actions of an expert
+    round), so only the labels change, not the roll-out.
+    """
     labels, residuals = [], []
     for seed in data.episode_seeds.tolist():
         rows = np.flatnonzero(data.seeds == seed)
-        expert = PlanFollowingExpert(spec, smoothing=weight)
-        labels.append(expert.start(data.actions[rows[0]], home))
+        expert = PlanFollowingExpert(spec, speed_limit_m_s=speed_limit_m_s, smoothing=weight)
+        planner = Replanner(spec, home)
+        labels.append(expert.start(data.actions[rows[0]], home[0]))
+        planner.replan(data.actions[rows[0]], 0.0)
         for k, i in enumerate(rows[1:], start=1):
-            state = data.true_observations[i].astype(np.float64)
-            labels.append(expert.act(k * CONTROL_PERIOD_S, state[0:3], state[3:6]))
+            t = k * CONTROL_PERIOD_S
+            labels.append(expert.act(t, *planner.commanded_state(t)))
             residuals.append(expert.last_rms_m)
+            planner.replan(data.actions[i], t)
     return np.array(labels, dtype=np.float32), np.array(residuals)
 
 
@@ -81,23 +100,29 @@ def main() -> None:
 
     config = json.loads((args.run / "config.json").read_text())
     data = Episodes.load(args.run / "round0.npz")
-    seeds = data.episode_seeds.tolist()[: args.episodes]
+    # Episodes the late-committing teacher corrected (--teacher-commit) follow another plan after the
+    # correction, which a plan-following relabelling would pull back: they are left out.
+    first = data.episode_seeds[: args.episodes]
+    corrected = first[data.replans[: args.episodes] > 0]
+    seeds = [int(s) for s in first if s not in set(corrected.tolist())]
     keep = np.isin(data.seeds, seeds)
-    n = len(seeds)
+    chosen = np.isin(data.episode_seeds, seeds)
     data = Episodes(
         data.observations[keep],
         data.true_observations[keep],
         data.actions[keep],
         data.seeds[keep],
-        data.successes[:n],
-        data.avoided[:n],
-        data.fit_rms_m[:n],
+        data.successes[chosen],
+        data.avoided[chosen],
+        data.fit_rms_m[chosen],
+        data.replans[chosen],
     )
+    n = len(seeds)
     env = make_distill_env(
         config["task_options"], None, config.get("cable_ranges"), config.get("task", "tip-control")
     )
     env.reset(seed=int(seeds[0]))
-    spec, home = env.unwrapped.spec_actions, env.unwrapped.scene.gripper_home[0].copy()
+    spec, home = env.unwrapped.spec_actions, env.unwrapped.scene.gripper_home.copy()
 
     rows = [
         {
@@ -109,7 +134,7 @@ def main() -> None:
     ]
     for weight in (float(w) for w in args.weights.split(",")):
         start = time.monotonic()
-        labels, residuals = relabel(data, spec, home, weight)
+        labels, residuals = relabel(data, spec, home, weight, config.get("expert_speed_limit_m_s"))
         relabelled = replace(data, actions=labels)
         rows.append(
             {
@@ -118,22 +143,30 @@ def main() -> None:
                 "roughness": roughness(relabelled),
                 "fit_rms_mm_median": 1000 * float(np.median(residuals)),
                 "fit_rms_mm_p90": 1000 * float(np.quantile(residuals, 0.9)),
+                "max_change_from_recorded": float(np.abs(labels - data.actions).max()),
                 "relabel_s": round(time.monotonic() - start, 1),
                 **student_fit(relabelled, env, config["net_arch"]),
             }
         )
     env.close()
-    print(f"{args.run}: {n} episodes, {len(data.actions)} labels ({platform.machine()}, {platform.node()})")
-    print("| labels | smoothing | roughness | fit residual median / p90 (mm) | student train / val. MSE |")
-    print("|---|---|---|---|---|")
+    print(
+        f"{args.run}: {n} episodes (of the first {args.episodes}, {len(corrected)} corrected left out), "
+        f"{len(data.actions)} labels ({platform.machine()}, {platform.node()})"
+    )
+    print("| labels | smoothing | roughness | fit residual median / p90 (mm) | student train / val. MSE "
+          "| largest change from recorded |")
+    print("|---|---|---|---|---|---|")
     for r in rows:
         fit = f"{r['fit_rms_mm_median']:.2f} / {r['fit_rms_mm_p90']:.2f}" if "fit_rms_mm_median" in r else "-"
         print(
             f"| {r['labels']} | {r['weight']} | {r['roughness']:.4f} | {fit} | "
-            f"{r['train_mse']:.4f} / {r['validation_mse']:.4f} |"
+            f"{r['train_mse']:.4f} / {r['validation_mse']:.4f} | "
+            f"{r.get('max_change_from_recorded', 0.0):.5f} |"
         )
     if args.out:
-        args.out.write_text(json.dumps({"run": str(args.run), "episodes": n, "rows": rows}, indent=2))
+        summary = {"run": str(args.run), "episodes": n, "left_out_corrected": corrected.tolist()}
+        summary["rows"] = rows
+        args.out.write_text(json.dumps(summary, indent=2))
 
 
 if __name__ == "__main__":
