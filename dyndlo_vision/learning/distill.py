@@ -1106,7 +1106,8 @@ def distill(
     """Run DAgger rounds into ``out``.
 
     Each finished round leaves ``round<r>.npz``, ``model.zip`` (also kept as ``model_round<r>.zip``),
-    ``model.json`` and ``history.json``.
+    ``model.json`` (and ``model_round<r>.json``, so that each round's student loads as the multi-step policy
+    it is) and ``history.json``.
 
     An interrupted run resumes (``resume=True``) after its last finished round, reusing the data of a round
     that was collected but not yet trained on; a finished run resumed with more ``rounds`` goes on.
@@ -1256,6 +1257,7 @@ def distill(
             history.append(entry)
             write_atomic(history_file, lambda tmp: Path(tmp).write_text(json.dumps(history, indent=2)))
             _write_metadata(out, config, history)
+            _write_metadata(out, config, history, f"model_round{r}.json")
             log(json.dumps(entry))
     except Exception:
         # A new run that saved nothing but its config would block the same command ("not empty"): undo it.
@@ -1302,8 +1304,12 @@ def _success_counter(bar: Any) -> Callable[[int, bool], None]:
     return on_episode
 
 
-def _write_metadata(out: Path, config: DistillConfig, history: list[dict[str, Any]]) -> None:
-    """``model.json`` beside ``model.zip``: what ``policies.load`` and ``evaluate`` read."""
+def _write_metadata(
+    out: Path, config: DistillConfig, history: list[dict[str, Any]], name: str = "model.json"
+) -> None:
+    """``name`` (``model.json`` beside ``model.zip``, or a round's): what ``policies.load`` and ``evaluate``
+    read. Without it a round's ``model_round<r>.zip`` would be described by the run's ``config.json``, which
+    does not say that the student is multi-step, and would be run as a single-step plan."""
     from dyndlo_vision._atomic import write_atomic
 
     meta = {
@@ -1330,4 +1336,4 @@ def _write_metadata(out: Path, config: DistillConfig, history: list[dict[str, An
         "samples": history[-1]["total_samples"] if history else 0,
         "episodes": sum(h["episodes"] for h in history),
     }
-    write_atomic(out / "model.json", lambda tmp: Path(tmp).write_text(json.dumps(meta, indent=2)))
+    write_atomic(out / name, lambda tmp: Path(tmp).write_text(json.dumps(meta, indent=2)))

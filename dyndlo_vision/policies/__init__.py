@@ -91,6 +91,8 @@ def resolve(name_or_path: str | Path) -> tuple[Path, dict[str, Any]]:
                       "decision_clock")
             if k in config
         }
+        if "first_round_episodes" in config:  # a distill run's student (from before model_round<r>.json)
+            meta.setdefault("multi_step", True)
     return path, meta
 
 

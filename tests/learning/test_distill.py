@@ -374,6 +374,13 @@ def test_distill_adds_expert_rounds_to_a_finished_run(tmp_path) -> None:
     assert [h["acting"] for h in history] == ["expert", "expert"]
     assert [h["episodes"] for h in history] == [2, 2]  # first_round_episodes, not episodes
     assert history[1]["total_samples"] == history[0]["samples"] + history[1]["samples"]
+    # Every round's student is described as the multi-step policy it is (without its JSON, the run's
+    # config.json would describe it, and demo ran it as a single-step plan).
+    for r, episodes in ((0, 2), (1, 4)):
+        _, meta = policies.resolve(out / f"model_round{r}.zip")
+        assert meta["multi_step"] is True and meta["episodes"] == episodes and meta["rounds"] == r + 1
+    (out / "model_round0.json").unlink()  # a run from before these files: its config.json says it, too
+    assert policies.resolve(out / "model_round0.zip")[1]["multi_step"] is True
 
     round0, round1 = Episodes.load(out / "round0.npz"), Episodes.load(out / "round1.npz")
     assert set(np.unique(round1.seeds)) == {7_010_000, 7_010_001}
