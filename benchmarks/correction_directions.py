@@ -24,12 +24,11 @@ from pathlib import Path
 
 import numpy as np
 from label_conflict import episode_cables  # the run's cables, drawn again from its seeds
+from label_smoothness import replay_expert
 
 import dyndlo_vision  # noqa: F401  (before mujoco)
 from dyndlo_vision import policies
 from dyndlo_vision.learning.distill import Episodes, PlanFollowingExpert, make_distill_env
-from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
-from dyndlo_vision.trajectory.replanner import Replanner
 
 
 def corrections(run: Path) -> dict:
@@ -52,16 +51,9 @@ def corrections(run: Path) -> dict:
         if len(rows) <= k_commit:
             continue  # ended before the commitment
         labels = data.actions[rows]
-        planner = Replanner(u.spec_actions, home)
         plan, _ = teacher.predict(data.true_observations[rows[0]], deterministic=True)
-        expected = expert.start(plan, home[0])
-        for k in range(k_commit + 1):
-            t = k * CONTROL_PERIOD_S
-            if k:
-                expected = expert.act(t, *planner.commanded_state(t))
-            if k < k_commit:
-                planner.replan(labels[k], t)
-        delta = labels[k_commit] - expected
+        replayed, _ = replay_expert(expert, u.spec_actions, home, labels, plan, k_commit + 1)
+        delta = labels[k_commit] - replayed[k_commit]
         if np.abs(delta).max() > 1e-3:
             found.append(delta)
             factors.append(cables[rows[0]] if cables is not None else np.full(4, np.nan))

@@ -47,27 +47,39 @@ from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
 from dyndlo_vision.trajectory.replanner import Replanner
 
 
+def replay_expert(
+    expert: PlanFollowingExpert, spec: Any, home: np.ndarray, executed: np.ndarray, plan: np.ndarray,
+    decisions: int | None = None,
+) -> tuple[list[np.ndarray], list[float]]:
+    """The expert's labels along one recorded episode, and its fit residuals (m) from decision 1 on.
+
+    It starts from ``plan`` (the single-step plan, normalised); each later decision ``k`` is fitted from the
+    commanded state, rebuilt by re-planning from ``home`` (every gripper's start; gripper 0 follows the
+    plan) with the recorded ``executed`` actions of decisions ``0..k-1``. So only the labels change, not the
+    roll-out. ``decisions``: how many labels (default: one per executed action).
+    """
+    planner = Replanner(spec, home)
+    labels, residuals = [expert.start(plan, home[0])], []
+    for k in range(1, len(executed) if decisions is None else decisions):
+        planner.replan(executed[k - 1], (k - 1) * CONTROL_PERIOD_S)
+        t = k * CONTROL_PERIOD_S
+        labels.append(expert.act(t, *planner.commanded_state(t)))
+        residuals.append(expert.last_rms_m)
+    return labels, residuals
+
+
 def relabel(
     data: Episodes, spec: Any, home: np.ndarray, weight: float, speed_limit_m_s: float | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Labels of the expert with ``smoothing=weight`` for ``data``'s states, and its fit residuals (m).
-
-    ``home`` holds every gripper's start (gripper 0 follows the plan). The state each label is fitted from is
-    the commanded one, rebuilt by re-planning with the recorded labels (the executed actions of an expert
-    round), so only the labels change, not the roll-out.
-    """
+    """Labels of the expert with ``smoothing=weight`` for ``data``'s states (the teacher's plan is each
+    episode's first label; :func:`replay_expert`), and its fit residuals (m)."""
     labels, residuals = [], []
     for seed in data.episode_seeds.tolist():
-        rows = np.flatnonzero(data.seeds == seed)
+        executed = data.actions[data.seeds == seed]
         expert = PlanFollowingExpert(spec, speed_limit_m_s=speed_limit_m_s, smoothing=weight)
-        planner = Replanner(spec, home)
-        labels.append(expert.start(data.actions[rows[0]], home[0]))
-        planner.replan(data.actions[rows[0]], 0.0)
-        for k, i in enumerate(rows[1:], start=1):
-            t = k * CONTROL_PERIOD_S
-            labels.append(expert.act(t, *planner.commanded_state(t)))
-            residuals.append(expert.last_rms_m)
-            planner.replan(data.actions[i], t)
+        episode_labels, episode_residuals = replay_expert(expert, spec, home, executed, executed[0])
+        labels += episode_labels
+        residuals += episode_residuals
     return np.array(labels, dtype=np.float32), np.array(residuals)
 
 
