@@ -114,9 +114,8 @@ def main() -> None:
     data = Episodes.load(args.run / "round0.npz")
     # Episodes the late-committing teacher corrected (--teacher-commit) follow another plan after the
     # correction, which a plan-following relabelling would pull back: they are left out.
-    first = data.episode_seeds[: args.episodes]
-    corrected = first[data.replans[: args.episodes] > 0]
-    seeds = [int(s) for s in first if s not in set(corrected.tolist())]
+    first, first_replans = data.episode_seeds[: args.episodes], data.replans[: args.episodes]
+    corrected, seeds = first[first_replans > 0], first[first_replans == 0].tolist()
     keep = np.isin(data.seeds, seeds)
     chosen = np.isin(data.episode_seeds, seeds)
     data = Episodes(
