@@ -11,8 +11,15 @@ plan-following label, so that the correction is ``label[K] - plan-following labe
 - the mean cosine between the corrections of all pairs of corrected episodes (0: no common direction);
 - the mean cosine between each corrected episode and the corrected episode whose cable is nearest to it
   (log Young's modulus, length and log mass factors, standardised): alike cables, alike corrections?
+- for a run made with ``--search-candidates shared``: which of the shared offsets each correction is
+  (``ReplanSearch.offsets``; ring 1 is the narrowest), how many distinct ones were chosen and how often.
+  A student that must tell from P_DLO which correction a cable needs learns a class per offset from this
+  many examples.
 
-    python benchmarks/correction_directions.py RUN [RUN ...] [--out F.json]
+``--rounds N`` reads the first N rounds (each must be an expert round: the expert acted, so its commanded
+state can be rebuilt from the labels); default 1.
+
+    python benchmarks/correction_directions.py RUN [RUN ...] [--rounds N] [--out F.json]
 """
 
 from __future__ import annotations
@@ -28,16 +35,22 @@ from label_smoothness import replay_expert
 
 import dyndlo_vision  # noqa: F401  (before mujoco)
 from dyndlo_vision import policies
-from dyndlo_vision.learning.distill import Episodes, PlanFollowingExpert, make_distill_env
+from dyndlo_vision.learning.distill import Episodes, PlanFollowingExpert, ReplanSearch, make_distill_env
 
 
-def corrections(run: Path) -> dict:
-    """The corrections of ``run``'s round 0 at its commitment decision, with each episode's cable."""
+def corrections(run: Path, rounds: int = 1) -> dict:
+    """The corrections of ``run``'s first ``rounds`` rounds at its commitment decision, with each episode's
+    cable (and, with shared candidates, which offset each correction is)."""
     config = json.loads((run / "config.json").read_text())
     k_commit = config.get("teacher_commit_decision")
     if k_commit is None:
         raise SystemExit(f"{run} was not made with --teacher-commit")
-    data = Episodes.load(run / "round0.npz")
+    expert_rounds = config.get("expert_rounds", 1)
+    if not 1 <= rounds <= expert_rounds:
+        raise SystemExit(f"--rounds {rounds}: {run} has {expert_rounds} expert round(s); "
+                         f"expected 1..{expert_rounds}")
+    data = Episodes.concatenate([Episodes.load(run / f"round{r}.npz") for r in range(rounds)])
+    shared = config.get("search_candidates") == "shared"
     cables = episode_cables(data, config)
     env = make_distill_env(config.get("task_options", {}), None, None, config["task"])
     u = env.unwrapped
@@ -45,7 +58,8 @@ def corrections(run: Path) -> dict:
     expert = PlanFollowingExpert(u.spec_actions, speed_limit_m_s=config.get("expert_speed_limit_m_s"),
                                  smoothing=config.get("expert_smoothing", 0.0))
     home = u.scene.gripper_home
-    found, factors = [], []
+    offsets = ReplanSearch(candidates="shared").offsets(u.action_space.shape[0]) if shared else None
+    found, factors, chosen, match_error = [], [], [], []
     for seed in data.episode_seeds:
         rows = np.flatnonzero(data.seeds == seed)
         if len(rows) <= k_commit:
@@ -57,10 +71,25 @@ def corrections(run: Path) -> dict:
         if np.abs(delta).max() > 1e-3:
             found.append(delta)
             factors.append(cables[rows[0]] if cables is not None else np.full(4, np.nan))
+            if offsets is not None:  # the label is clip(plan-following label + offset)
+                origin = np.clip(np.asarray(replayed[k_commit], dtype=np.float64), -1.0, 1.0)
+                error = np.abs(np.clip(origin + offsets, -1.0, 1.0) - labels[k_commit]).max(axis=1)
+                chosen.append(int(np.argmin(error)))
+                match_error.append(float(error.min()))
     env.close()
     found_arr, factors_arr = np.array(found), np.array(factors)
-    result: dict = {"run": str(run), "commit_decision": k_commit, "episodes": len(data.successes),
-                    "corrected": len(found)}
+    result: dict = {"run": str(run), "rounds": rounds, "commit_decision": k_commit,
+                    "episodes": len(data.successes), "corrected": len(found)}
+    if chosen:
+        population = ReplanSearch().population
+        index, count = np.unique(chosen, return_counts=True)
+        order = np.argsort(-count, kind="stable")
+        result.update({
+            "offset_match_error_max": max(match_error),  # ~0: every correction is one of the offsets
+            "distinct_offsets": len(index),
+            "offsets_chosen": {f"ring {i // population + 1} #{i % population}": int(c)
+                               for i, c in zip(index[order], count[order], strict=True)},
+        })
     if len(found) >= 2:
         unit = found_arr / np.linalg.norm(found_arr, axis=1, keepdims=True)
         cos = unit @ unit.T
@@ -81,9 +110,10 @@ def corrections(run: Path) -> dict:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("runs", nargs="+", type=Path)
+    p.add_argument("--rounds", type=int, default=1, help="the first N rounds, all expert rounds (default 1)")
     p.add_argument("--out")
     args = p.parse_args()
-    results = [corrections(run) for run in args.runs]
+    results = [corrections(run, args.rounds) for run in args.runs]
     for r in results:
         print(json.dumps({k: v for k, v in r.items() if k != "young_factor_of_corrected"}))
     if args.out:

@@ -369,6 +369,15 @@ class ReplanSearch:
         self.last_start_score = float("nan")
         self.last_score = float("nan")
 
+    def offsets(self, size: int, key: Sequence[int] | None = None) -> NDArray[np.float64]:
+        """Every offset a search may try, ring after ring in ``sigmas`` order (``population`` rows each):
+        ``(len(sigmas) * population, size)``. ``"shared"`` candidates are the same for every search (``key``
+        is ignored); ``"episode"`` ones are drawn from ``key`` (the search's seed and time)."""
+        if self.candidates == "episode" and key is None:
+            raise ValueError("episode candidates are drawn from a key (seed, time in ms, 0x5EA); got None")
+        rng = np.random.default_rng(0x5EA if self.candidates == "shared" else list(key or ()))
+        return np.concatenate([sigma * rng.standard_normal((self.population, size)) for sigma in self.sigmas])
+
     @staticmethod
     def coasted_score(env: Any, snapshot: Any, action: NDArray[np.floating[Any]]) -> float:
         """The score of re-planning with ``action`` at ``snapshot`` and coasting to the episode's end."""
@@ -409,11 +418,11 @@ class ReplanSearch:
             best, best_score = origin, self._score(env, snapshot, origin)
             self.last_start_score, self.last_rollouts = best_score, 1
             episode = [int(seed), int(round(env.scene.time * 1000)), 0x5EA]
-            rng = np.random.default_rng(0x5EA if self.candidates == "shared" else episode)
-            for sigma in self.sigmas:
+            rings = self.offsets(origin.size, episode).reshape(len(self.sigmas), self.population, origin.size)
+            for ring in rings:
                 if best_score < self.good_enough_m:
                     break
-                actions = np.clip(origin + sigma * rng.standard_normal((self.population, origin.size)), -1, 1)
+                actions = np.clip(origin + ring, -1, 1)
                 scores = np.array([self._score(env, snapshot, a) for a in actions])
                 self.last_rollouts += len(actions)
                 good = np.flatnonzero(scores < self.good_enough_m)

@@ -987,10 +987,18 @@ def test_shared_candidates_are_the_same_offsets_in_every_search(monkeypatch, can
         env = type("Env", (), {"snapshot": lambda self: None, "restore": lambda self, s: None,
                                "scene": type("Scene", (), {"time": time_s})()})()
         drawn.clear()
-        ReplanSearch(population=4, sigmas=(0.05, 0.1), candidates=candidates).search(env, start, seed=seed)
+        search = ReplanSearch(population=4, sigmas=(0.05, 0.1), candidates=candidates)
+        search.search(env, start, seed=seed)
         offsets.append(np.array(drawn[1:]) - start)  # drawn[0] is the start itself
+        # offsets() names what the search tried, ring by ring (what benchmarks map corrections onto)
+        listed = search.offsets(9, [seed, round(time_s * 1000), 0x5EA])
+        assert listed.shape == (8, 9) and np.allclose(offsets[-1], listed, atol=1e-7)
+        assert np.std(listed[4:]) > 1.3 * np.std(listed[:4])  # the second ring is the wider one
     same = [np.allclose(offsets[0], other) for other in offsets[1:]]
     assert same == ([True, True] if candidates == "shared" else [False, False])
+    if candidates == "episode":
+        with pytest.raises(ValueError, match="key"):
+            ReplanSearch(candidates=candidates).offsets(9)
     with pytest.raises(ValueError, match="candidates"):
         ReplanSearch(candidates="fixed")
 
