@@ -59,7 +59,7 @@ def corrections(run: Path, rounds: int = 1) -> dict:
                                  smoothing=config.get("expert_smoothing", 0.0))
     home = u.scene.gripper_home
     offsets = ReplanSearch(candidates="shared").offsets(u.action_space.shape[0]) if shared else None
-    found, factors, chosen, match_error = [], [], [], []
+    found, factors, chosen, match_error, corrected_seeds = [], [], [], [], []
     for seed in data.episode_seeds:
         rows = np.flatnonzero(data.seeds == seed)
         if len(rows) <= k_commit:
@@ -70,6 +70,7 @@ def corrections(run: Path, rounds: int = 1) -> dict:
         delta = labels[k_commit] - replayed[k_commit]
         if np.abs(delta).max() > 1e-3:
             found.append(delta)
+            corrected_seeds.append(int(seed))
             factors.append(cables[rows[0]] if cables is not None else np.full(4, np.nan))
             if offsets is not None:  # the label is clip(plan-following label + offset)
                 origin = np.clip(np.asarray(replayed[k_commit], dtype=np.float64), -1.0, 1.0)
@@ -79,7 +80,8 @@ def corrections(run: Path, rounds: int = 1) -> dict:
     env.close()
     found_arr, factors_arr = np.array(found), np.array(factors)
     result: dict = {"run": str(run), "rounds": rounds, "commit_decision": k_commit,
-                    "episodes": len(data.successes), "corrected": len(found)}
+                    "episodes": len(data.successes), "corrected": len(found),
+                    "corrected_seeds": corrected_seeds}
     if chosen:
         population = ReplanSearch().population
         index, count = np.unique(chosen, return_counts=True)
@@ -115,7 +117,8 @@ def main() -> None:
     args = p.parse_args()
     results = [corrections(run, args.rounds) for run in args.runs]
     for r in results:
-        print(json.dumps({k: v for k, v in r.items() if k != "young_factor_of_corrected"}))
+        long_lists = ("young_factor_of_corrected", "corrected_seeds")
+        print(json.dumps({k: v for k, v in r.items() if k not in long_lists}))
     if args.out:
         with open(args.out, "w") as f:
             json.dump({"command": vars(args) | {"runs": [str(r) for r in args.runs]},
