@@ -405,13 +405,21 @@ def _start_forkserver_ignoring_sigint() -> None:
         signal.signal(signal.SIGINT, previous)
 
 
-def close_vec_env(vec: Any) -> None:
-    """Close a vectorised environment, also when some of its worker processes are already gone.
+def close_vec_env(vec: Any, grace_s: float = 2.0) -> None:
+    """Close a vectorised environment, also when some of its worker processes are already gone, and also
+    when a Ctrl-C struck while this process was reading the workers' step results.
 
     SubprocVecEnv.close() talks to every worker and raises EOFError or BrokenPipeError if one has died
     (killed, or struck by a signal meant for this process), which would hide the run's own outcome (a
     checkpoint and a resume hint) behind a traceback: stop the remaining workers instead.
+
+    A Ctrl-C inside ``step_wait`` leaves the environment ``waiting`` with some workers' results already
+    read; close() would then wait for those again, for ever (a CI run hung so, session 27). So the results
+    still on their way are read first, until none has arrived for ``grace_s``, and ``waiting`` is cleared.
     """
+    if getattr(vec, "waiting", False) and getattr(vec, "remotes", None):
+        _drain_interrupted_step(vec.remotes, grace_s)
+        vec.waiting = False
     try:
         vec.close()
     except (EOFError, OSError) as err:
@@ -424,6 +432,24 @@ def close_vec_env(vec: Any) -> None:
         for remote in getattr(vec, "remotes", []):
             remote.close()
         vec.closed = True
+
+
+def _drain_interrupted_step(remotes: list[Any], grace_s: float) -> None:
+    """Read the one step result each worker may still owe, giving up on a worker silent for ``grace_s``
+    (its result was read before the interrupt, or it is stuck: close() and its fallback deal with it)."""
+    from multiprocessing.connection import wait
+
+    pending = list(remotes)
+    while pending:
+        ready = wait(pending, timeout=grace_s)
+        if not ready:
+            return
+        for remote in ready:
+            try:
+                remote.recv()
+            except Exception:  # noqa: BLE001  a dead worker, or a message the interrupt left half read
+                log.debug("an interrupted step result could not be read", exc_info=True)
+            pending.remove(remote)
 
 
 def _raise_keyboard_interrupt(signum: int, frame: Any) -> None:

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 import dyndlo_vision
@@ -226,6 +227,30 @@ def test_close_vec_env_copes_with_a_dead_worker() -> None:
     os.kill(victim.pid, signal.SIGKILL)  # as a signal meant for the trainer could, or the OOM killer
     victim.join()
     close_vec_env(vec)  # SubprocVecEnv.close() alone: BrokenPipeError
+    assert vec.closed and not any(p.is_alive() for p in vec.processes)
+
+
+@pytest.mark.slow
+def test_close_vec_env_after_a_ctrl_c_inside_step_wait_does_not_hang() -> None:
+    """Ctrl-C while the trainer reads the workers' step results (SubprocVecEnv.step_wait) leaves ``waiting``
+    set with some results already read. SubprocVecEnv.close() then waits for those again, for ever: a CI run
+    hung 600 s after "interrupted at step 2" (session 27)."""
+    import threading
+
+    from dyndlo_vision.learning.envs import make_vec_env
+
+    vec = make_vec_env(_config(n_envs=2, vec_env="subproc"), 2, 0, None, "subproc")
+    vec.reset()
+    vec.step_async(np.array([vec.action_space.sample() for _ in range(2)]))
+    vec.remotes[0].recv()  # step_wait interrupted after the first worker's result
+    closer = threading.Thread(target=close_vec_env, args=(vec,), daemon=True)
+    closer.start()
+    closer.join(timeout=60)
+    hung = closer.is_alive()
+    if hung:  # leave no workers behind
+        for process in vec.processes:
+            process.kill()
+    assert not hung, "close_vec_env waited for a step result that had already been read"
     assert vec.closed and not any(p.is_alive() for p in vec.processes)
 
 
