@@ -58,7 +58,8 @@ def corrections(run: Path, rounds: int = 1) -> dict:
     expert = PlanFollowingExpert(u.spec_actions, speed_limit_m_s=config.get("expert_speed_limit_m_s"),
                                  smoothing=config.get("expert_smoothing", 0.0))
     home = u.scene.gripper_home
-    offsets = ReplanSearch(candidates="shared").offsets(u.action_space.shape[0]) if shared else None
+    search = ReplanSearch(candidates="shared")  # distill's searches use the default rings and population
+    offsets = search.offsets(u.action_space.shape[0]) if shared else None
     found, factors, chosen, match_error, corrected_seeds = [], [], [], [], []
     for seed in data.episode_seeds:
         rows = np.flatnonzero(data.seeds == seed)
@@ -83,7 +84,7 @@ def corrections(run: Path, rounds: int = 1) -> dict:
                     "episodes": len(data.successes), "corrected": len(found),
                     "corrected_seeds": corrected_seeds}
     if chosen:
-        population = ReplanSearch().population
+        population = search.population
         index, count = np.unique(chosen, return_counts=True)
         order = np.argsort(-count, kind="stable")
         result.update({

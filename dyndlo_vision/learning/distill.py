@@ -373,9 +373,12 @@ class ReplanSearch:
         """Every offset a search may try, ring after ring in ``sigmas`` order (``population`` rows each):
         ``(len(sigmas) * population, size)``. ``"shared"`` candidates are the same for every search (``key``
         is ignored); ``"episode"`` ones are drawn from ``key`` (the search's seed and time)."""
-        if self.candidates == "episode" and key is None:
+        if self.candidates == "shared":
+            rng = np.random.default_rng(0x5EA)
+        elif key is None:
             raise ValueError("episode candidates are drawn from a key (seed, time in ms, 0x5EA); got None")
-        rng = np.random.default_rng(0x5EA if self.candidates == "shared" else list(key or ()))
+        else:
+            rng = np.random.default_rng(list(key))
         return np.concatenate([sigma * rng.standard_normal((self.population, size)) for sigma in self.sigmas])
 
     @staticmethod
