@@ -137,7 +137,8 @@ class ControlLoop:
         if replan and reading.lost:
             log.error("no P_DLO estimate to plan from at t=%.3f s", state.t)
         if replan and not reading.lost:
-            obs = observation_vector(state.position, state.velocity, reading.position, self.goal)
+            seen = state if reading.observed_tcp is None else reading.observed_tcp
+            obs = observation_vector(seen.position, seen.velocity, reading.position, self.goal)
             t0 = time.perf_counter()
             action = np.asarray(self.policy(obs), dtype=np.float32)
             t1 = time.perf_counter()

@@ -44,6 +44,8 @@ class PDloReading:
             disappears (the polyline was shorter than the known cable:
             :func:`~dyndlo_vision.tracking.tracker.tip_from_polyline`), or an inner point was interpolated
             across a gap in the tracked cable (:func:`bridged_point`).
+        observed_tcp: The gripper state the policy is to see in place of the robot's own, when the source
+            models what the robot reports (:class:`NoisyState` with TCP noise); None: the robot's.
     """
 
     position: NDArray[np.float64]
@@ -55,6 +57,7 @@ class PDloReading:
     polyline_uv: NDArray[np.float64] | None = None
     frame: Any = None
     continued: bool = False
+    observed_tcp: TcpState | None = None
 
 
 def bridged_point(measurement: Any, index: int) -> NDArray[np.float64] | None:
@@ -116,7 +119,8 @@ class NoisyState:
     """The simulator's P_DLO corrupted by a fitted observation-noise model, as in noisy-observation training.
 
     The same :class:`~dyndlo_vision.tasks.noise.NoiseProcess` as noisy-observation training (latency, bias,
-    speed-dependent noise, dropouts that coast), one draw per control cycle.
+    speed-dependent noise, dropouts that coast), one draw per control cycle. A model with TCP noise also
+    gives the gripper state the policy sees (``PDloReading.observed_tcp``), as the training wrapper does.
 
     Args:
         env: The DynDLO environment (after ``reset``).
@@ -139,9 +143,13 @@ class NoisyState:
         self.noise.reset(self.seed)
 
     def read(self, t_now: float, tcp: TcpState) -> PDloReading:
-        """The corrupted P_DLO for now."""
+        """The corrupted P_DLO for now, and the corrupted TCP state where the model has TCP noise."""
         p, measured = self.noise.corrupt(self.env.p_dlo())
-        return PDloReading(p, t_now, measured=measured)
+        observed_tcp = None
+        if self.noise.model.tcp_position_std_m or self.noise.model.tcp_velocity_std_m_s:
+            position, velocity = self.noise.corrupt_tcp(tcp.position, tcp.velocity)
+            observed_tcp = TcpState(position, velocity, tcp.t)
+        return PDloReading(p, t_now, measured=measured, observed_tcp=observed_tcp)
 
 
 class TrackedState:

@@ -51,13 +51,15 @@ class NoisyObservation(
     gym.ObservationWrapper[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]],
     gym.utils.RecordConstructorArgs,
 ):
-    """Corrupts P_DLO in the observations of a DynDLO environment with a fitted noise model.
+    """Corrupts P_DLO (and the TCP state) in the observations of a DynDLO environment with a noise model.
 
     One draw of a :class:`~dyndlo_vision.tasks.noise.NoiseProcess` per observation (one per control step of
     ``control_period_s``, 40 ms in multi-step mode). In single-step mode (``env.unwrapped.multi_step`` False)
     an episode has only the observations before and after the whole trajectory, so no latency is applied.
     The random stream is seeded from the seed given to :meth:`reset` (same seed, same noise); without one
-    ever given it is seeded from the OS. ``info["p_dlo_true"]`` carries the uncorrupted P_DLO.
+    ever given it is seeded from the OS. ``info["p_dlo_true"]`` carries the uncorrupted P_DLO. The gripper
+    positions and velocities get the model's white TCP noise (``tcp_position_std_m``,
+    ``tcp_velocity_std_m_s``), from a stream of its own.
 
     Args:
         env: A DynDLO environment (observation of length ``6 n_g + 6``).
@@ -83,6 +85,8 @@ class NoisyObservation(
         self.process = NoiseProcess(model, control_period_s, multi_step)
         self.model = self.process.model
         n_g = (shape[0] - 6) // 6
+        self._tcp_position = slice(0, 3 * n_g)
+        self._tcp_velocity = slice(3 * n_g, 6 * n_g)
         self._p_dlo = slice(6 * n_g, 6 * n_g + 3)
 
     def reset(
@@ -101,10 +105,13 @@ class NoisyObservation(
         return obs, reward, terminated, truncated, {**info, "p_dlo_true": self.process.last_true.copy()}
 
     def observation(self, observation: NDArray[np.float32]) -> NDArray[np.float32]:
-        """The observation with P_DLO replaced by its corrupted value."""
+        """The observation with P_DLO and the TCP state replaced by their corrupted values."""
         obs = np.array(observation, dtype=np.float32, copy=True)
         p_dlo, _ = self.process.corrupt(obs[self._p_dlo].astype(np.float64))
         obs[self._p_dlo] = p_dlo.astype(np.float32)
+        if self.model.tcp_position_std_m or self.model.tcp_velocity_std_m_s:
+            p, v = self.process.corrupt_tcp(obs[self._tcp_position], obs[self._tcp_velocity])
+            obs[self._tcp_position], obs[self._tcp_velocity] = p.astype(np.float32), v.astype(np.float32)
         return obs
 
 

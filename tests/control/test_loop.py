@@ -357,6 +357,35 @@ def test_noisy_state_with_an_identity_model_is_the_truth_and_the_fitted_one_is_n
     assert np.any(errors["fitted"] > 0.0)
 
 
+def test_noisy_state_gives_the_policy_the_models_tcp_noise_and_the_robot_its_own_state() -> None:
+    """With TCP noise in the model the policy sees the robot's TCP state plus noise, as the training wrapper
+    gives it; without, exactly the robot's. The replanning still starts from the robot's own state."""
+    from dyndlo_vision.control.state_sources import NoisyState
+    from dyndlo_vision.tasks.noise import ObservationNoiseModel
+
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    action = np.full(env.action_space.shape, 0.3, np.float32)
+    for tcp_std in (0.0, 2e-3):
+        env.reset(seed=5)
+        seen: list[np.ndarray] = []
+
+        def policy(obs: np.ndarray, seen: list[np.ndarray] = seen) -> np.ndarray:
+            seen.append(np.array(obs, dtype=np.float64))
+            return action
+
+        model = ObservationNoiseModel(tcp_position_std_m=tcp_std, tcp_velocity_std_m_s=10 * tcp_std)
+        loop, _ = _loop(env, NoisyState(env, model, seed=5), policy)
+        result = loop.run(duration_s=0.4)
+        robot_tcp = np.array([c.tcp_position for c in result.cycles if c.action is not None])
+        offsets = np.array(seen)[:, :3] - robot_tcp
+        assert len(seen) >= 8
+        if tcp_std == 0.0:
+            assert np.all(np.abs(offsets) < 1e-6)  # float32 rounding of the observation only
+        else:
+            assert 0.5 * tcp_std < offsets.std() < 2 * tcp_std
+            assert np.all(np.abs(offsets) < 6 * tcp_std)
+
+
 class WallClockRobot:
     """A robot whose clock is the wall clock and whose send returns at once, like a real driver."""
 

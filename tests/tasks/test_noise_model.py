@@ -152,6 +152,8 @@ def full_model(**overrides: Any) -> ObservationNoiseModel:
         "max_coast_steps": 7,
         "n_samples": 1234,
         "source": "test",
+        "tcp_position_std_m": 3e-4,
+        "tcp_velocity_std_m_s": 4e-3,
     }
     values.update(overrides)
     return ObservationNoiseModel(**values)
@@ -162,7 +164,7 @@ def test_save_load_round_trip(tmp_path: Path) -> None:
     path = tmp_path / "model.json"
     model.save(path)
     data = json.loads(path.read_text())
-    assert data["format"] == "dyndlo_vision.observation_noise" and data["version"] == 1
+    assert data["format"] == "dyndlo_vision.observation_noise" and data["version"] == 2
     loaded = ObservationNoiseModel.load(path)
     assert loaded == model and loaded.source == "test"
     assert [p.name for p in tmp_path.iterdir()] == ["model.json"]  # no temporary file left behind
@@ -195,6 +197,9 @@ def test_bad_files_give_clear_errors(tmp_path: Path, content: str, match: str) -
         (lambda d: d.update(dropout_prob=1.0), r"dropout_prob must be in \[0, 1\)"),
         (lambda d: d.update(dropout_prob=0.9, dropout_mean_run=2.0), "impossible"),
         (lambda d: d.update(latency_s="40 ms"), "latency_s must be a number"),
+        (lambda d: d.update(tcp_position_std_m=-1e-4), r"tcp_position_std_m must be in \[0, 10\]"),
+        (lambda d: d.pop("tcp_velocity_std_m_s"), r"missing key\(s\) \['tcp_velocity_std_m_s'\]"),
+        (lambda d: d.update(version=1), r"unknown key\(s\) \['tcp_position_std_m', 'tcp_velocity_std_m_s'\]"),
     ],
 )
 def test_bad_values_give_clear_errors(tmp_path: Path, edit: Any, match: str) -> None:
@@ -206,6 +211,30 @@ def test_bad_values_give_clear_errors(tmp_path: Path, edit: Any, match: str) -> 
         ObservationNoiseModel.load(path)
 
 
+def test_a_version_1_file_reads_with_no_tcp_noise(tmp_path: Path) -> None:
+    """Files written before the TCP noise existed (version 1, without its keys) still load, and mean none."""
+    data = full_model().to_dict()
+    for key in ("tcp_position_std_m", "tcp_velocity_std_m_s"):
+        data.pop(key)
+    data["version"] = 1
+    path = tmp_path / "old.json"
+    path.write_text(json.dumps(data))
+    loaded = ObservationNoiseModel.load(path)
+    assert loaded == full_model(tcp_position_std_m=0.0, tcp_velocity_std_m_s=0.0)
+
+
+def test_fit_stores_the_default_tcp_noise_and_the_identity_needs_none() -> None:
+    from dyndlo_vision.tasks.noise import DEFAULT_TCP_POSITION_STD_M, DEFAULT_TCP_VELOCITY_STD_M_S
+
+    rng = np.random.default_rng(0)
+    rec = synthetic_records(rng, np.zeros(3), np.full(3, 0.002), 0.0, 0.0, 0.0, 1.0, episodes=2, steps=50)
+    fitted = ObservationNoiseModel.fit(rec["truth"], rec["estimate"], rec["velocity"])
+    assert (fitted.tcp_position_std_m, fitted.tcp_velocity_std_m_s) == (
+        DEFAULT_TCP_POSITION_STD_M, DEFAULT_TCP_VELOCITY_STD_M_S)
+    assert 0 < DEFAULT_TCP_POSITION_STD_M <= 1e-3 and 0 < DEFAULT_TCP_VELOCITY_STD_M_S <= 0.02
+    assert not ObservationNoiseModel(tcp_velocity_std_m_s=1e-3).is_identity
+
+
 def test_missing_file_raises_file_not_found(tmp_path: Path) -> None:
     with pytest.raises(FileNotFoundError):
         ObservationNoiseModel.load(tmp_path / "absent.json")
@@ -214,6 +243,8 @@ def test_missing_file_raises_file_not_found(tmp_path: Path) -> None:
 def test_packaged_model_loads() -> None:
     model = ObservationNoiseModel.load(packaged_noise_model_path())
     assert model.n_samples > 0 and not model.is_identity
+    # The TCP state must not reach a learner exactly: the simulator's micrometre sag fingerprints the cable.
+    assert model.tcp_position_std_m >= 1e-4 and model.tcp_velocity_std_m_s >= 1e-3
 
 
 # ---------------------------------------------------------------------------- wrapper, fake environment
@@ -273,6 +304,31 @@ def test_wrapper_noise_statistics_match_the_model() -> None:
         resid.mean(axis=0), model.bias_m, atol=5 * expected_std.max() / math.sqrt(n) + 1e-7
     )
     np.testing.assert_allclose(resid.std(axis=0), expected_std, rtol=5 / math.sqrt(2 * n), atol=1e-7)
+
+
+def test_wrapper_tcp_noise_has_the_model_spread_and_leaves_p_dlo_numbers_alone() -> None:
+    """The gripper state gets white noise of the model's spread, from its own stream: P_DLO, its noise and
+    the goal are those of the same model without TCP noise, number for number."""
+    base = full_model(tcp_position_std_m=0.0, tcp_velocity_std_m_s=0.0)
+    with_tcp = full_model(tcp_position_std_m=3e-4, tcp_velocity_std_m_s=4e-3)
+
+    def observations(model: ObservationNoiseModel) -> np.ndarray:
+        env = NoisyObservation(LineEnv(curve), model)
+        obs = [env.reset(seed=7)[0]]
+        obs += [env.step(np.zeros(1, dtype=np.float32))[0] for _ in range(4000)]
+        return np.array(obs, dtype=np.float64)
+
+    plain, noisy = observations(base), observations(with_tcp)
+    np.testing.assert_array_equal(noisy[:, 6:], plain[:, 6:])
+    assert np.all(plain[:, :6] == 0.0)  # LineEnv's gripper rests at the origin
+    n = len(noisy)
+    for cols, std in ((slice(0, 3), 3e-4), (slice(3, 6), 4e-3)):
+        np.testing.assert_allclose(noisy[:, cols].std(axis=0), std, rtol=5 / math.sqrt(2 * n))
+        np.testing.assert_allclose(noisy[:, cols].mean(axis=0), 0.0, atol=5 * std / math.sqrt(n))
+    # White: consecutive draws uncorrelated; the position and velocity noise independent.
+    x = noisy[:, 0]
+    assert abs(np.corrcoef(x[1:], x[:-1])[0, 1]) < 5 / math.sqrt(n)
+    assert abs(np.corrcoef(noisy[:, 0], noisy[:, 3])[0, 1]) < 5 / math.sqrt(n)
 
 
 def test_wrapper_dropouts_coast_at_constant_velocity_then_hold() -> None:
