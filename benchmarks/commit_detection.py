@@ -11,7 +11,8 @@ perfect ranking) of ridge regression and of k nearest neighbours (``cable_visibi
 - ``P_DLO + plan``: the same and the plan (the episode's first label: the teacher's plan, made from the
   observation at t = 0; the student's own first action tells it);
 - ``P_DLO + TCP (noisy)``: the same and the TCP position and velocity of decisions 0..k with Gaussian noise
-  of ``--tcp-noise POS,VEL`` (m, m/s; default 0.2 mm and 5 mm/s, about what a robot reports);
+  of ``--tcp-noise POS,VEL`` added to the simulator's TCP state (m, m/s; default 0.2 mm and 5 mm/s, the
+  packaged noise model's TCP noise since session 28);
 - ``TCP exact``: the TCP state of decisions 0..k as the simulator gives it. A warning row: the gripper
   settles under the cable's load by micrometres, so the exact TCP position at t = 0 already fingerprints the
   cable (standardised features amplify it). Nothing a real arm reports resolves that;
@@ -72,7 +73,7 @@ def main() -> None:
     if cables is None:
         raise SystemExit(f"{args.run} ran on the nominal cable: there is no cable to tell apart")
     factors = cables[[rows[s][0] for s in seeds]]
-    noisy = data.observations.copy()
+    noisy = data.true_observations.copy()  # the simulator's TCP state: the only noise on it is added here
     rng = np.random.default_rng(0)
     noisy[:, 0:3] += rng.normal(0.0, pos_sd, noisy[:, 0:3].shape)
     noisy[:, 3:6] += rng.normal(0.0, vel_sd, noisy[:, 3:6].shape)
