@@ -100,8 +100,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         choices=["tracked", "true", "noisy", "frozen"],
         default="tracked",
         help="where P_DLO comes from: camera + tracker + filter (default), the simulator, the simulator "
-        "through the fitted noise model, or the simulator's P_DLO frozen at reset (the ablation: what the "
-        "policy does without feedback)",
+        "through the packaged noise model (which also perturbs the gripper state the policy sees), or the "
+        "simulator's P_DLO frozen at reset (the ablation: what the policy does without "
+        "feedback)",
     )
     p.add_argument(
         "--randomize-cable",
