@@ -146,7 +146,7 @@ class NoisyState:
         """The corrupted P_DLO for now, and the corrupted TCP state where the model has TCP noise."""
         p, measured = self.noise.corrupt(self.env.p_dlo())
         observed_tcp = None
-        if self.noise.model.tcp_position_std_m or self.noise.model.tcp_velocity_std_m_s:
+        if self.noise.model.perturbs_tcp:
             position, velocity = self.noise.corrupt_tcp(tcp.position, tcp.velocity)
             observed_tcp = TcpState(position, velocity, tcp.t)
         return PDloReading(p, t_now, measured=measured, observed_tcp=observed_tcp)

@@ -237,9 +237,13 @@ class ObservationNoiseModel:
             and self.std_per_speed_s == 0.0
             and self.latency_s == 0.0
             and self.dropout_prob == 0.0
-            and self.tcp_position_std_m == 0.0
-            and self.tcp_velocity_std_m_s == 0.0
+            and not self.perturbs_tcp
         )
+
+    @property
+    def perturbs_tcp(self) -> bool:
+        """Whether the model puts noise on the observed gripper (TCP) state."""
+        return self.tcp_position_std_m > 0.0 or self.tcp_velocity_std_m_s > 0.0
 
     @property
     def dropout_enter_prob(self) -> float:
@@ -490,7 +494,7 @@ class NoiseProcess:
         p = np.array(positions, dtype=np.float64)
         v = np.array(velocities, dtype=np.float64)
         m = self.model
-        if m.tcp_position_std_m == 0.0 and m.tcp_velocity_std_m_s == 0.0:
+        if not m.perturbs_tcp:
             return p, v
         if self._tcp_rng is None:  # used without reset()
             self._tcp_rng = np.random.default_rng()

@@ -109,7 +109,7 @@ class NoisyObservation(
         obs = np.array(observation, dtype=np.float32, copy=True)
         p_dlo, _ = self.process.corrupt(obs[self._p_dlo].astype(np.float64))
         obs[self._p_dlo] = p_dlo.astype(np.float32)
-        if self.model.tcp_position_std_m or self.model.tcp_velocity_std_m_s:
+        if self.model.perturbs_tcp:
             p, v = self.process.corrupt_tcp(obs[self._tcp_position], obs[self._tcp_velocity])
             obs[self._tcp_position], obs[self._tcp_velocity] = p.astype(np.float32), v.astype(np.float32)
         return obs
