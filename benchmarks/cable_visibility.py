@@ -8,7 +8,11 @@ through the run's noise model) is regressed onto each episode's cable (drawn aga
 drew it), by ridge regression (linear) and by k nearest neighbours (not linear), 10-fold cross-validated
 over episodes. R^2 near 0: the trajectory tells nothing about that parameter yet; near 1: it shows it.
 
-    python benchmarks/cable_visibility.py RUN [--decisions 0,1,2,3,4,6,8,12] [--out F.json]
+    python benchmarks/cable_visibility.py RUN [--decisions 0,1,2,3,4,6,8,12] [--obs-noise F.json]
+        [--out F.json]
+
+``--obs-noise F.json`` ("as seen" through another noise model): the episodes' true observations are drawn
+again through it (``learning.distill.with_noise``), as a student trained for that tracker would see them.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ import argparse
 import json
 import platform
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from label_conflict import episode_cables, load_rounds  # the run's cables, drawn again from its seeds
@@ -24,6 +29,17 @@ from label_conflict import episode_cables, load_rounds  # the run's cables, draw
 import dyndlo_vision  # noqa: F401  (before mujoco)
 
 P_DLO = slice(6, 9)  # table II for one gripper: TCP position (3), velocity (3), P_DLO (3), goal (3)
+
+
+def renoised(data: Any, obs_noise: str | None) -> Any:
+    """``data`` with its observations drawn again through the noise model ``obs_noise`` (a JSON file or
+    ``"packaged"``); None: unchanged (as the run's student saw them)."""
+    if obs_noise is None:
+        return data
+    from dyndlo_vision.learning.distill import with_noise
+    from dyndlo_vision.tasks.noise import packaged_noise_model_path
+
+    return with_noise(data, packaged_noise_model_path() if obs_noise == "packaged" else obs_noise)
 
 
 def cv_predictions(x: np.ndarray, y: np.ndarray, method: str, folds: int = 10, ridge: float = 1e-2,
@@ -56,12 +72,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("run", type=Path)
     ap.add_argument("--decisions", default="0,1,2,3,4,6,8,12")
+    ap.add_argument("--obs-noise", default=None, help="noise model (JSON or 'packaged') to see P_DLO through "
+                    "instead of the run's")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
     config = json.loads((args.run / "config.json").read_text())
     if not config.get("cable_ranges"):
         raise SystemExit(f"{args.run} ran on the nominal cable: there is no cable to tell apart")
-    data = load_rounds(args.run, None)
+    data = renoised(load_rounds(args.run, None), args.obs_noise)
     task = config.get("task", "tip-control")
     seeds = data.episode_seeds.tolist()
     rows = {s: np.flatnonzero(data.seeds == s) for s in seeds}
@@ -70,7 +88,7 @@ def main() -> None:
     targets = {"length": factors[:, 0], "log E": np.log(factors[:, 2])}
     shortest = min(len(r) for r in rows.values())
     report = {"run": str(args.run), "task": task, "episodes": len(seeds), "machine": platform.machine(),
-              "rows": []}
+              "obs_noise": args.obs_noise or config.get("noise_model"), "rows": []}
     print(f"{args.run}: {len(seeds)} episodes of {task}, cable ranges {config['cable_ranges']}")
     for k in (int(v) for v in args.decisions.split(",")):
         if k >= shortest:

@@ -7,7 +7,8 @@ each decision k this measures how well it does: the cross-validated AUC (0.5: no
 perfect ranking) of ridge regression and of k nearest neighbours (``cable_visibility.cv_predictions``,
 10-fold over episodes, features standardised on each fold) predicting "corrected" from:
 
-- ``P_DLO``: P_DLO of decisions 0..k as the student saw it (through the run's noise model);
+- ``P_DLO``: P_DLO of decisions 0..k as the student saw it (through the run's noise model, or through
+  ``--obs-noise F.json``: drawn again from the true state, as a student for that tracker would see it);
 - ``P_DLO + plan``: the same and the plan (the episode's first label: the teacher's plan, made from the
   observation at t = 0; the student's own first action tells it);
 - ``P_DLO + TCP (noisy)``: the same and the TCP position and velocity of decisions 0..k with Gaussian noise
@@ -23,7 +24,7 @@ The corrected episodes are found by replaying the expert (``correction_direction
 expert rounds are read (``--rounds N``: the first N, default all of the run's expert rounds).
 
     python benchmarks/commit_detection.py RUN [--rounds N] [--decisions 0,2,4,6,8] [--tcp-noise 2e-4,5e-3]
-        [--out F.json]
+        [--obs-noise F.json] [--out F.json]
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ import platform
 from pathlib import Path
 
 import numpy as np
-from cable_visibility import cv_predictions
+from cable_visibility import cv_predictions, renoised
 from correction_directions import corrections
 from label_conflict import episode_cables, load_rounds
 
@@ -59,13 +60,15 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=None, help="first N rounds (default: all expert rounds)")
     ap.add_argument("--decisions", default="0,2,4,6,8")
     ap.add_argument("--tcp-noise", default="2e-4,5e-3", help="POS,VEL standard deviations (m, m/s)")
+    ap.add_argument("--obs-noise", default=None, help="noise model (JSON or 'packaged') to see P_DLO through "
+                    "instead of the run's")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
     config = json.loads((args.run / "config.json").read_text())
     rounds = args.rounds or config.get("expert_rounds", 1)
     pos_sd, vel_sd = (float(v) for v in args.tcp_noise.split(","))
     found = corrections(args.run, rounds)
-    data = load_rounds(args.run, list(range(rounds)))
+    data = renoised(load_rounds(args.run, list(range(rounds))), args.obs_noise)
     seeds = data.episode_seeds.tolist()
     rows = {s: np.flatnonzero(data.seeds == s) for s in seeds}
     corrected = np.isin(seeds, found["corrected_seeds"])
@@ -82,6 +85,7 @@ def main() -> None:
     report = {"run": str(args.run), "rounds": rounds, "episodes": len(seeds),
               "corrected": int(corrected.sum()),
               "commit_decision": k_commit, "tcp_noise": [pos_sd, vel_sd], "machine": platform.machine(),
+              "obs_noise": args.obs_noise or config.get("noise_model"),
               "rows": []}
     print(f"{args.run}: {len(seeds)} expert episodes, {corrected.sum()} corrected at decision {k_commit}")
 

@@ -49,7 +49,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--obs-noise",
         default=None,
         help="observation-noise model (JSON) the student sees P_DLO through; 'packaged' for the "
-        "shipped tracker model (default: true state)",
+        "shipped tracker model (default: true state). With --resume it may change: every fit draws all "
+        "rounds' observations again through it",
     )
     p.add_argument(
         "--env-option",
@@ -175,6 +176,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--out", default=None, help="run folder (default: runs/<task>-multi-step-distill-s<seed>)"
     )
     p.add_argument("--resume", action="store_true", help="continue the run in --out after its last round")
+    p.add_argument(
+        "--refit",
+        action="store_true",
+        help="with --resume: fit the student again from new weights on the finished rounds (as the run did, "
+        "round by round), through --obs-noise now, without collecting them again; then go on",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bars on stderr")
 
 
@@ -218,7 +225,7 @@ def run(args: argparse.Namespace) -> int:
     )
     out = Path(args.out or f"runs/{args.task}-multi-step-distill-s{args.seed}")
     try:
-        history = distill(config, out, resume=args.resume, progress=not args.quiet)
+        history = distill(config, out, resume=args.resume, progress=not args.quiet, refit=args.refit)
     except KeyboardInterrupt:
         if (out / "config.json").is_file():
             print(

@@ -21,7 +21,11 @@ the current position and velocity.
   result is an ordinary PPO zip that ``policies.load``, ``evaluate`` and the control loop take.
 
 With ``noise_model`` the episodes run under :class:`~dyndlo_vision.tasks.wrappers.NoisyObservation`: the
-student sees the corrupted P_DLO (and learns to act on it), the expert is unaffected (it reads no P_DLO).
+student sees the corrupted P_DLO (and learns to act on it), the expert is unaffected (it reads the true
+state).
+The student is fitted on the rounds' observations drawn again from their true state through the run's noise
+model (:func:`with_noise`), so a resumed run may change the model (``--obs-noise``, for another tracker): its
+earlier demonstrations then teach the student to read P_DLO as the new tracker gives it.
 """
 
 from __future__ import annotations
@@ -75,9 +79,10 @@ _LATER_OPTIONS = {
     "teacher_commit_decision": None,
     "search_candidates": "episode",
 }
-#: Options a resumed run may change: how many rounds of each kind run from here on, and how many processes
-#: collect (every episode is seeded on its own, so the data do not depend on it).
-_GROWABLE_OPTIONS = ("rounds", "expert_rounds", "workers")
+#: Options a resumed run may change: how many rounds of each kind run from here on, how many processes
+#: collect (every episode is seeded on its own, so the data do not depend on it), and the noise model (every
+#: fit draws the observations again through it, :func:`with_noise`).
+_CHANGEABLE_OPTIONS = ("rounds", "expert_rounds", "workers", "noise_model")
 
 #: The tasks distillation runs on: single-arm tasks without a fixed final point, whose one single-step plan
 #: from t = 0 the expert can follow (task IV appends the goal to every plan; hooking is not measured).
@@ -504,6 +509,49 @@ def with_history(data: Episodes, length: int, clock: bool = False) -> Episodes:
 
     features = StudentFeatures(data.observations.shape[1], length, clock)
     return replace(data, observations=features.stack(data.observations, data.seeds))
+
+
+def with_noise(data: Episodes, model: Any) -> Episodes:
+    """``data`` with its observations drawn again from ``true_observations`` through another noise model.
+
+    Each episode gets what :class:`~dyndlo_vision.tasks.wrappers.NoisyObservation` would have given it under
+    ``model`` (an :class:`~dyndlo_vision.tasks.noise.ObservationNoiseModel`, or the path of one; ``None``:
+    the true observations): one draw per decision, in time order, from the noise stream of the episode's
+    seed. The expert's labels never depended on the noise (the expert reads the true state), so a run's
+    demonstrations can teach a student for a tracker other than the one they were collected under. What the
+    episodes visited still depends on the student that drove them, through the noise it saw then.
+    Re-noising with the model the episodes were collected under gives back their observations exactly.
+    """
+    from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
+    from dyndlo_vision.tasks.noise import NoiseProcess
+
+    true_obs = data.true_observations
+    if model is None:
+        return replace(data, observations=true_obs.copy())
+    width = true_obs.shape[1]
+    if width < 12 or (width - 6) % 6:
+        raise ValueError(f"expected DynDLO observations of length 6 * n_grippers + 6, got width {width}")
+    n_g = (width - 6) // 6
+    tcp_p, tcp_v, p_dlo = slice(0, 3 * n_g), slice(3 * n_g, 6 * n_g), slice(6 * n_g, 6 * n_g + 3)
+    process = NoiseProcess(model, CONTROL_PERIOD_S, multi_step=True)
+    out = true_obs.copy()
+    for seed in data.episode_seeds:
+        process.reset(int(seed))
+        for row in np.flatnonzero(data.seeds == seed):  # an episode's rows are in time order
+            obs = true_obs[row]
+            p, _ = process.corrupt(obs[p_dlo].astype(np.float64))
+            out[row, p_dlo] = p.astype(np.float32)
+            if process.model.perturbs_tcp:
+                q, v = process.corrupt_tcp(obs[tcp_p], obs[tcp_v])
+                out[row, tcp_p], out[row, tcp_v] = q.astype(np.float32), v.astype(np.float32)
+    return replace(data, observations=out)
+
+
+def _noise_model_file(noise_model: str | None) -> str | None:
+    """A run's stored noise model as a file :func:`with_noise` reads (``"packaged"``: the shipped one)."""
+    from dyndlo_vision.tasks.noise import packaged_noise_model_path
+
+    return str(packaged_noise_model_path()) if noise_model == "packaged" else noise_model
 
 
 def run_mixed_episode(
@@ -1114,6 +1162,7 @@ def distill(
     resume: bool = False,
     log: Callable[[str], Any] = print,
     progress: bool = False,
+    refit: bool = False,
 ) -> list[dict[str, Any]]:
     """Run DAgger rounds into ``out``.
 
@@ -1133,6 +1182,11 @@ def distill(
         config: The run's configuration (stored as ``config.json``).
         out: The run folder: new or empty, or with ``resume`` the folder of the same configuration.
         resume: Continue the run in ``out``.
+        refit: With ``resume``: fit the student again from new weights on the run's finished rounds, round by
+            round as the run did (each fit on the rounds up to it, warm-started from the last), through the
+            run's noise model now, without collecting them again; then go on to any rounds beyond them. For a
+            run whose noise model changed: the student it leaves is the one the whole run would have given
+            under the new model wherever the expert acted in every round.
         log: Called with a line at the start and end of every round.
         progress: Show progress bars on stderr: every round's episodes, then its regression epochs.
 
@@ -1140,8 +1194,9 @@ def distill(
         The per-round history (also ``history.json``).
 
     Raises:
-        ValueError: ``out`` is not empty (without ``resume``) or holds another configuration, or the teacher
-            cannot be distilled (see :func:`check_teacher`).
+        ValueError: ``out`` is not empty (without ``resume``) or holds another configuration, the teacher
+            cannot be distilled (see :func:`check_teacher`), or ``refit`` without ``resume``, without finished
+            rounds, or with fewer ``rounds`` than finished.
         FileNotFoundError: Nothing to resume in ``out``, or no such teacher.
     """
     import torch
@@ -1151,6 +1206,8 @@ def distill(
     from dyndlo_vision.tasks.noise import portable_noise_model
 
     out = Path(out)
+    if refit and not resume:
+        raise ValueError("refit re-fits a run's finished rounds: it needs resume")
     config_file, history_file = out / "config.json", out / "history.json"
     # Everything that can refuse the run comes before the first write into ``out``.
     if resume:
@@ -1160,13 +1217,16 @@ def distill(
         # A run stored before "packaged" was kept as the word holds the shipped model's path in its install.
         stored["noise_model"] = portable_noise_model(stored.get("noise_model"))
         wanted = json.loads(json.dumps(config.to_json()))
-        if {k: v for k, v in stored.items() if k not in _GROWABLE_OPTIONS} != {
-            k: v for k, v in wanted.items() if k not in _GROWABLE_OPTIONS
+        if {k: v for k, v in stored.items() if k not in _CHANGEABLE_OPTIONS} != {
+            k: v for k, v in wanted.items() if k not in _CHANGEABLE_OPTIONS
         }:
             raise ValueError(
                 f"{config_file} holds another configuration ({stored}); resume with the same options "
-                "(only --rounds, --expert-rounds and --workers may change)"
+                "(only --rounds, --expert-rounds, --workers and --obs-noise may change)"
             )
+        if stored["noise_model"] != wanted["noise_model"]:
+            log(f"noise model changed from {stored['noise_model']} to {wanted['noise_model']}: the student "
+                "is fitted on every round's observations drawn again through the new one")
         history: list[dict[str, Any]] = json.loads(history_file.read_text()) if history_file.is_file() else []
         for entry in history:  # a finished round's kind cannot be changed afterwards
             was_expert = entry["acting"] == "expert"
@@ -1182,6 +1242,15 @@ def distill(
         if out.exists() and any(out.iterdir()):
             raise ValueError(f"{out} exists and is not empty; use --resume or another --out")
         history = []
+    refitted: dict[int, dict[str, Any]] = {}
+    if refit:
+        if not history:
+            raise ValueError(f"nothing to refit: {out} has no finished round")
+        if config.rounds < len(history):
+            raise ValueError(
+                f"refit fits all {len(history)} finished rounds again; rounds={config.rounds} is fewer"
+            )
+        refitted, history = {int(e["round"]): e for e in history}, []
     check_teacher(config.teacher, config.task_options, config.task)
 
     # Seeded after check_teacher, whose loading of the teacher draws from torch's generator: the student's
@@ -1243,9 +1312,10 @@ def distill(
             collect_s = time.monotonic() - start
             data.append(episodes)
             with _bar(config.epochs, f"round {r} fit", "epoch", progress) as bar:
+                seen = with_noise(Episodes.concatenate(data), _noise_model_file(config.noise_model))
                 losses = fit_student(
                     model,
-                    with_history(Episodes.concatenate(data), config.p_dlo_history, config.decision_clock),
+                    with_history(seen, config.p_dlo_history, config.decision_clock),
                     epochs=config.epochs,
                     seed=config.seed + r,
                     on_epoch=_loss_reporter(bar),
@@ -1262,10 +1332,13 @@ def distill(
                 "avoid_rate": float(np.mean(episodes.avoided)),
                 "expert_fit_rms_mm": float(1000 * np.median(episodes.fit_rms_m)),
                 "replanned_labels": int(episodes.replans.sum()),
+                "obs_noise": config.noise_model,  # what the fit saw every round through
                 **losses,
                 "collect_s": round(collect_s, 1),
                 "wall_s": round(time.monotonic() - start, 1),
             }
+            if r in refitted:  # collected by the run before: its collection time is that run's
+                entry = {**entry, "collect_s": refitted[r]["collect_s"], "refitted": True}
             history.append(entry)
             write_atomic(history_file, lambda tmp: Path(tmp).write_text(json.dumps(history, indent=2)))
             _write_metadata(out, config, history)

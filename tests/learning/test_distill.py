@@ -1047,3 +1047,121 @@ def test_collect_jobs_build_their_searches_with_the_candidates_asked_for(monkeyp
     with pytest.raises(Stop):
         distill_module._collect_chunk(job)
     assert built == ["shared", "shared"]
+
+
+def test_with_noise_draws_again_what_the_noisy_wrapper_gave_and_nothing_else(tmp_path) -> None:
+    """Episodes collected under a noise model, drawn again through it, are the collected observations exactly
+    (the same stream per episode seed, in time order), whatever order the episodes are stored in. Another
+    model changes the P_DLO and TCP columns only, and None gives the true observations."""
+    from dataclasses import replace
+
+    from dyndlo_vision.learning.distill import with_noise
+    from dyndlo_vision.tasks.noise import ObservationNoiseModel, packaged_noise_model_path
+
+    data = collect([5, 6], "tip-control-single-step", noise_model=str(packaged_noise_model_path()))
+    assert not np.array_equal(data.observations, data.true_observations)
+    assert np.array_equal(with_noise(data, packaged_noise_model_path()).observations, data.observations)
+    swapped = np.r_[np.flatnonzero(data.seeds == 6), np.flatnonzero(data.seeds == 5)]
+    reordered = Episodes(data.observations[swapped], data.true_observations[swapped], data.actions[swapped],
+                         data.seeds[swapped], data.successes[::-1], data.avoided[::-1], data.fit_rms_m[::-1])
+    assert np.array_equal(with_noise(reordered, packaged_noise_model_path()).observations,
+                          data.observations[swapped])
+    assert np.array_equal(with_noise(data, None).observations, data.true_observations)
+
+    quiet = replace(ObservationNoiseModel.load(packaged_noise_model_path()), bias_m=(0.0, 0.0, 0.0),
+                    std_m=(1e-3, 1e-3, 1e-3), std_per_speed_s=0.0, dropout_prob=0.0)
+    path = tmp_path / "quiet.json"
+    quiet.save(path)
+    again = with_noise(data, str(path))
+    assert np.array_equal(again.actions, data.actions) and np.array_equal(again.seeds, data.seeds)
+    assert np.array_equal(again.observations[:, 9:], data.true_observations[:, 9:])  # the goal is not touched
+    p_dlo_error = again.observations[:, 6:9] - data.true_observations[:, 6:9]
+    assert 0.5e-3 < np.sqrt(np.mean(p_dlo_error**2)) < 1.5e-3
+    tcp_error = again.observations[:, :3] - data.true_observations[:, :3]
+    assert 0.5 * quiet.tcp_position_std_m < np.sqrt(np.mean(tcp_error**2)) < 1.5 * quiet.tcp_position_std_m
+    with pytest.raises(ValueError, match="width 5"):
+        with_noise(replace(data, true_observations=data.true_observations[:, :5]), str(path))
+
+
+@pytest.mark.slow
+def test_a_resumed_run_may_change_its_noise_model_and_fits_every_round_through_it(tmp_path,
+                                                                                   monkeypatch) -> None:
+    """--obs-noise may change on --resume (a student for another tracker from the same demonstrations): every
+    fit then sees all rounds' observations drawn again through the new model, the earlier rounds included, and
+    the new rounds are collected under it."""
+    from dataclasses import replace
+
+    from dyndlo_vision.learning.distill import with_noise
+    from dyndlo_vision.tasks.noise import ObservationNoiseModel, packaged_noise_model_path
+
+    out = tmp_path / "run"
+    config = DistillConfig(rounds=1, episodes=1, first_round_episodes=2, workers=1, epochs=2, seed=7,
+                           noise_model="packaged")
+    distill(config, out, log=lambda *_: None)
+    quiet = tmp_path / "quiet.json"
+    replace(ObservationNoiseModel.load(packaged_noise_model_path()), bias_m=(0.0, 0.0, 0.0),
+            std_m=(1e-3, 1e-3, 1e-3), std_per_speed_s=0.0, dropout_prob=0.0).save(quiet)
+    fitted_on: list[Episodes] = []
+    real_fit = distill_module.fit_student
+
+    def spy(model: Any, data: Episodes, **kwargs: Any) -> dict[str, float]:
+        fitted_on.append(data)
+        return real_fit(model, data, **kwargs)
+
+    monkeypatch.setattr(distill_module, "fit_student", spy)
+    said: list[str] = []
+    history = distill(DistillConfig(**{**config.__dict__, "rounds": 2, "expert_rounds": 2,
+                                       "noise_model": str(quiet)}), out, resume=True, log=said.append)
+    assert any("noise model changed" in line for line in said)
+    assert [h["obs_noise"] for h in history] == ["packaged", str(quiet)]
+    round0, round1 = (Episodes.load(out / f"round{r}.npz") for r in range(2))
+    both = Episodes.concatenate([round0, round1])
+    assert len(fitted_on) == 1
+    assert np.array_equal(fitted_on[0].observations, with_noise(both, quiet).observations)
+    assert not np.array_equal(fitted_on[0].observations[: len(round0.actions)], round0.observations)
+    assert np.array_equal(round1.observations, with_noise(round1, quiet).observations)  # collected under it
+    assert json.loads((out / "config.json").read_text())["noise_model"] == str(quiet)
+
+
+@pytest.mark.slow
+def test_refit_fits_the_finished_rounds_again_as_the_run_did(tmp_path) -> None:
+    """--refit: from new weights, round by round, without collecting. Under the run's own noise model it gives
+    back the run's student exactly; under another it gives another, and the history says so."""
+    from dataclasses import replace
+
+    import torch
+
+    from dyndlo_vision.tasks.noise import ObservationNoiseModel, packaged_noise_model_path
+
+    def weights() -> list[torch.Tensor]:
+        net = policies.load(out / "model.zip", algo="ppo")
+        net = getattr(net, "sb3_model", net)
+        return [p.detach().clone() for p in net.policy.parameters()]
+
+    out = tmp_path / "run"
+    config = DistillConfig(rounds=2, expert_rounds=2, episodes=1, first_round_episodes=2, workers=1, epochs=2,
+                           seed=7, noise_model="packaged")
+    before = distill(config, out, log=lambda *_: None)
+    run_weights = weights()
+    stamps = [(out / f"round{r}.npz").stat().st_mtime_ns for r in range(2)]
+    with pytest.raises(ValueError, match="needs resume"):
+        distill(config, out, refit=True, log=lambda *_: None)
+    with pytest.raises(ValueError, match="rounds=1 is fewer"):
+        distill(replace(config, rounds=1), out, resume=True, refit=True, log=lambda *_: None)
+
+    again = distill(config, out, resume=True, refit=True, log=lambda *_: None)
+    assert [(out / f"round{r}.npz").stat().st_mtime_ns for r in range(2)] == stamps  # nothing collected
+    assert all(torch.equal(a, b) for a, b in zip(run_weights, weights(), strict=True))
+    assert [e["refitted"] for e in again] == [True, True]
+    for old, new in zip(before, again, strict=True):
+        assert {k: new[k] for k in ("train_mse", "validation_mse", "collect_s", "samples")} == {
+            k: old[k] for k in ("train_mse", "validation_mse", "collect_s", "samples")}
+
+    quiet = tmp_path / "quiet.json"
+    replace(ObservationNoiseModel.load(packaged_noise_model_path()), bias_m=(0.0, 0.0, 0.0),
+            std_m=(1e-3, 1e-3, 1e-3), std_per_speed_s=0.0, dropout_prob=0.0).save(quiet)
+    other = distill(replace(config, noise_model=str(quiet)), out, resume=True, refit=True,
+                    log=lambda *_: None)
+    assert [e["obs_noise"] for e in other] == [str(quiet)] * 2
+    assert not all(torch.equal(a, b) for a, b in zip(run_weights, weights(), strict=True))
+    assert json.loads((out / "history.json").read_text()) == other
