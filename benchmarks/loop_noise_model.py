@@ -60,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"--episodes must be >= 1, got {args.episodes}")
 
     from dyndlo_vision import policies
-    from dyndlo_vision.commands.demo import film_episode
+    from dyndlo_vision.control.episode import run_loop_episode
     from dyndlo_vision.control.sim_perception import scene_views
     from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
     from dyndlo_vision.tasks.registry import make_env
@@ -76,7 +76,10 @@ def main(argv: list[str] | None = None) -> int:
     rmse = []
     t0 = time.perf_counter()
     for i in range(args.episodes):
-        record = film_episode(env, model, args.seed + i, "tracked", "tracking", None, views=views)
+        if hasattr(model, "reset"):
+            model.reset()  # a policy with a P_DLO history starts every episode afresh (as the demo does)
+        record = run_loop_episode(env, lambda obs: model.predict(obs, deterministic=True)[0], args.seed + i,
+                                  "tracked", "tracking", views=views)
         rec = episode_records(record["trace"], CONTROL_PERIOD_S)
         rec["episode"] = np.full(len(rec["speed"]), i)
         parts.append(rec)
