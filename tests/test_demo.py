@@ -264,6 +264,8 @@ def test_demo_rejects_bad_input_and_writes_nothing(tmp_path: Path) -> None:
         ["--views", "2", "--task", "vaulting", "--observation", "true"],
         ["--raw-videos", "--observation", "true"],
         ["--raw-videos", "--latency-ms", "40"],
+        ["--obs-noise", "packaged"],  # the default observation is tracked
+        ["--observation", "noisy", "--obs-noise", str(tmp_path / "missing.json")],
     ):
         with pytest.raises(SystemExit) as exc:
             main(["demo", "--out", str(out), *argv])
@@ -407,6 +409,38 @@ def test_frozen_observation_gives_the_policy_p_dlo_as_at_reset() -> None:
     true = np.array(seen["true"])
     np.testing.assert_array_equal(true[0], at_reset)
     assert np.linalg.norm(true - at_reset, axis=1).max() > 0.05  # the cable moved, and true state shows it
+
+
+def test_noisy_observation_reads_p_dlo_through_the_noise_model_given(tmp_path: Path) -> None:
+    """``demo --observation noisy --obs-noise MODEL.json``: the loop's P_DLO error is the given model's (a
+    2 cm model gives about 2 cm per axis, a 0.2 mm one about 0.2 mm), and metrics.json names the model."""
+    from dataclasses import replace
+
+    import gymnasium as gym
+
+    from dyndlo_vision.control.episode import run_loop_episode
+    from dyndlo_vision.tasks.baselines import RandomActions
+    from dyndlo_vision.tasks.noise import ObservationNoiseModel, packaged_noise_model_path
+
+    packaged = ObservationNoiseModel.load(packaged_noise_model_path())
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    per_axis = {}
+    for std in (0.02, 2e-4):
+        model = replace(packaged, bias_m=(0.0, 0.0, 0.0), std_m=(std, std, std), std_per_speed_s=0.0,
+                        dropout_prob=0.0)
+        record = run_loop_episode(env, RandomActions(env, seed=3), 100000, "noisy", noise_model=model)
+        per_axis[std] = record["estimate_rmse_m"] / np.sqrt(3)
+    assert 0.6 * 0.02 < per_axis[0.02] < 1.4 * 0.02 and 0.6 * 2e-4 < per_axis[2e-4] < 1.4 * 2e-4
+    with pytest.raises(ValueError, match="noisy observation"):
+        run_loop_episode(env, RandomActions(env, seed=3), 100000, "true", noise_model=model)
+
+    path = tmp_path / "model.json"
+    model.save(path)
+    out = tmp_path / "run"
+    argv = ["demo", "--observation", "noisy", "--obs-noise", str(path), "--out", str(out), "--quiet"]
+    assert main(argv) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["obs_noise"] == str(path) and metrics["estimate_rmse_m_median"] < 1e-3
 
 
 @pytest.mark.slow

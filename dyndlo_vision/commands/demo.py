@@ -100,9 +100,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         choices=["tracked", "true", "noisy", "frozen"],
         default="tracked",
         help="where P_DLO comes from: camera + tracker + filter (default), the simulator, the simulator "
-        "through the packaged noise model (which also perturbs the gripper state the policy sees), or the "
+        "through a noise model (--obs-noise; it also perturbs the gripper state the policy sees), or the "
         "simulator's P_DLO frozen at reset (the ablation: what the policy does without "
         "feedback)",
+    )
+    p.add_argument(
+        "--obs-noise",
+        default=None,
+        metavar="MODEL.json",
+        help="with --observation noisy: the noise model (a JSON written by ObservationNoiseModel.save, e.g. "
+        "by benchmarks/loop_noise_model.py; default: the packaged one, fitted to tip control's one-camera "
+        "tracker)",
     )
     p.add_argument(
         "--randomize-cable",
@@ -218,6 +226,18 @@ def run(args: argparse.Namespace) -> int:
         if args.segmenter != "learned":
             raise ValueError("--segmenter-model is for --segmenter learned")
         check_network(args.segmenter_model, "--segmenter-model")
+    noise_model = None
+    if getattr(args, "obs_noise", None) is not None:
+        from dyndlo_vision.tasks.noise import (
+            ObservationNoiseModel,
+            packaged_noise_model_path,
+            resolve_noise_model_path,
+        )
+
+        if args.observation != "noisy":
+            raise ValueError(f"--obs-noise applies to the noisy observation, not to {args.observation!r}")
+        path = resolve_noise_model_path(args.obs_noise)
+        noise_model = ObservationNoiseModel.load(packaged_noise_model_path() if path == "packaged" else path)
     if args.views is not None and args.observation != "tracked":
         raise ValueError(f"--views applies to the tracked observation, not to {args.observation!r}")
     push = parse_push(args.push)
@@ -290,6 +310,7 @@ def run(args: argparse.Namespace) -> int:
                 goal_name=GOAL_NAMES[task],
                 actuation_latency_s=1e-3 * args.actuation_latency_ms,
                 raw=raw if i == 0 else None,
+                noise_model=noise_model,
             )
             episodes.append(record)
             bar.update(1)
@@ -315,6 +336,7 @@ def run(args: argparse.Namespace) -> int:
         "actuation_latency_ms": args.actuation_latency_ms,
         "push": None if push is None else {"time_s": push.time_s, "impulse_n_s": list(push.impulse_n_s),
                                            "node": "middle"},
+        "obs_noise": (args.obs_noise or "packaged") if args.observation == "noisy" else None,
         "segmenter": args.segmenter,
         "segmenter_model": args.segmenter_model,
         "views": views,
@@ -415,6 +437,7 @@ def film_episode(
     actuation_latency_s: float = 0.0,
     views: int | None = None,
     raw: RawRecording | None = None,
+    noise_model: Any = None,
 ) -> dict[str, Any]:
     """One closed-loop episode (:func:`~dyndlo_vision.control.episode.run_loop_episode`), filmed.
 
@@ -457,6 +480,7 @@ def film_episode(
         segmenter_model=segmenter_model,
         actuation_latency_s=actuation_latency_s,
         views=views,
+        noise_model=noise_model,
     )
 
 

@@ -102,6 +102,7 @@ def run_loop_episode(
     actuation_latency_s: float = 0.0,
     views: int | None = None,
     segmenter_model: str | None = None,
+    noise_model: Any = None,
 ) -> dict[str, Any]:
     """One closed-loop episode from ``env.reset(seed=seed)``; returns its record.
 
@@ -127,6 +128,8 @@ def run_loop_episode(
             (:class:`~dyndlo_vision.control.sim_robot.DelayedRobot`); 0: at once.
         views: Tracked observation: the cameras tracked (1, or 2 to triangulate; None: as many as the scene
             has, :func:`~dyndlo_vision.control.sim_perception.scene_views`).
+        noise_model: Noisy observation: the ``ObservationNoiseModel`` or its JSON file (default: the packaged
+            one).
 
     Returns:
         The record: ``seed``, ``success``, ``final_distance_m`` (the truth at the outcome),
@@ -139,6 +142,8 @@ def run_loop_episode(
     """
     if observation not in OBSERVATIONS:
         raise ValueError(f"observation={observation!r}; expected one of {list(OBSERVATIONS)}")
+    if noise_model is not None and observation != "noisy":
+        raise ValueError(f"noise_model is for the noisy observation, not {observation!r}")
     base = as_sim_env(env)
     env.reset(seed=seed)
     goal = np.asarray(base.goal, dtype=float)
@@ -149,7 +154,7 @@ def run_loop_episode(
         source, camera = tracked_state(env, camera_name, point_filter=point_filter, latency_s=latency_s,
                                        segmenter=segmenter, views=views, segmenter_model=segmenter_model)
     elif observation == "noisy":
-        source = NoisyState(env, seed=seed)
+        source = NoisyState(env, noise_model, seed=seed)
     elif observation == "frozen":
         source = FrozenState(env)
     else:
