@@ -37,9 +37,9 @@ def renoised(data: Any, obs_noise: str | None) -> Any:
     if obs_noise is None:
         return data
     from dyndlo_vision.learning.distill import with_noise
-    from dyndlo_vision.tasks.noise import packaged_noise_model_path
+    from dyndlo_vision.tasks.noise import noise_model_file
 
-    return with_noise(data, packaged_noise_model_path() if obs_noise == "packaged" else obs_noise)
+    return with_noise(data, noise_model_file(obs_noise))
 
 
 def cv_predictions(x: np.ndarray, y: np.ndarray, method: str, folds: int = 10, ridge: float = 1e-2,

@@ -228,16 +228,12 @@ def run(args: argparse.Namespace) -> int:
         check_network(args.segmenter_model, "--segmenter-model")
     noise_model = None
     if getattr(args, "obs_noise", None) is not None:
-        from dyndlo_vision.tasks.noise import (
-            ObservationNoiseModel,
-            packaged_noise_model_path,
-            resolve_noise_model_path,
-        )
+        from dyndlo_vision.tasks import noise
 
         if args.observation != "noisy":
             raise ValueError(f"--obs-noise applies to the noisy observation, not to {args.observation!r}")
-        path = resolve_noise_model_path(args.obs_noise)
-        noise_model = ObservationNoiseModel.load(packaged_noise_model_path() if path == "packaged" else path)
+        chosen = noise.noise_model_file(noise.resolve_noise_model_path(args.obs_noise))
+        noise_model = noise.ObservationNoiseModel.load(chosen)
     if args.views is not None and args.observation != "tracked":
         raise ValueError(f"--views applies to the tracked observation, not to {args.observation!r}")
     push = parse_push(args.push)

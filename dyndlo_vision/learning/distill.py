@@ -524,34 +524,19 @@ def with_noise(data: Episodes, model: Any) -> Episodes:
     """
     from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
     from dyndlo_vision.tasks.noise import NoiseProcess
+    from dyndlo_vision.tasks.wrappers import corrupt_observation, observation_layout
 
     true_obs = data.true_observations
     if model is None:
         return replace(data, observations=true_obs.copy())
-    width = true_obs.shape[1]
-    if width < 12 or (width - 6) % 6:
-        raise ValueError(f"expected DynDLO observations of length 6 * n_grippers + 6, got width {width}")
-    n_g = (width - 6) // 6
-    tcp_p, tcp_v, p_dlo = slice(0, 3 * n_g), slice(3 * n_g, 6 * n_g), slice(6 * n_g, 6 * n_g + 3)
+    observation_layout(true_obs.shape[1])  # refuses any other width before the first draw
     process = NoiseProcess(model, CONTROL_PERIOD_S, multi_step=True)
     out = true_obs.copy()
     for seed in data.episode_seeds:
         process.reset(int(seed))
         for row in np.flatnonzero(data.seeds == seed):  # an episode's rows are in time order
-            obs = true_obs[row]
-            p, _ = process.corrupt(obs[p_dlo].astype(np.float64))
-            out[row, p_dlo] = p.astype(np.float32)
-            if process.model.perturbs_tcp:
-                q, v = process.corrupt_tcp(obs[tcp_p], obs[tcp_v])
-                out[row, tcp_p], out[row, tcp_v] = q.astype(np.float32), v.astype(np.float32)
+            out[row] = corrupt_observation(process, true_obs[row])
     return replace(data, observations=out)
-
-
-def _noise_model_file(noise_model: str | None) -> str | None:
-    """A run's stored noise model as a file :func:`with_noise` reads (``"packaged"``: the shipped one)."""
-    from dyndlo_vision.tasks.noise import packaged_noise_model_path
-
-    return str(packaged_noise_model_path()) if noise_model == "packaged" else noise_model
 
 
 def run_mixed_episode(
@@ -1203,7 +1188,7 @@ def distill(
 
     from dyndlo_vision import policies
     from dyndlo_vision._atomic import write_atomic
-    from dyndlo_vision.tasks.noise import portable_noise_model
+    from dyndlo_vision.tasks.noise import noise_model_file, portable_noise_model
 
     out = Path(out)
     if refit and not resume:
@@ -1312,7 +1297,7 @@ def distill(
             collect_s = time.monotonic() - start
             data.append(episodes)
             with _bar(config.epochs, f"round {r} fit", "epoch", progress) as bar:
-                seen = with_noise(Episodes.concatenate(data), _noise_model_file(config.noise_model))
+                seen = with_noise(Episodes.concatenate(data), noise_model_file(config.noise_model))
                 losses = fit_student(
                     model,
                     with_history(seen, config.p_dlo_history, config.decision_clock),

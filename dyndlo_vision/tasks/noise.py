@@ -45,6 +45,7 @@ __all__ = [
     "NOISE_MODEL_VERSION",
     "ObservationNoiseModel",
     "dropout_runs",
+    "noise_model_file",
     "packaged_noise_model_path",
 ]
 
@@ -85,6 +86,14 @@ _ADDED_IN_VERSION_2 = ("tcp_position_std_m", "tcp_velocity_std_m_s")
 def packaged_noise_model_path() -> Path:
     """Path of the noise model shipped with the package (fitted from the tracker on rendered episodes)."""
     return Path(str(resources.files("dyndlo_vision").joinpath("data", PACKAGED_MODEL_NAME)))
+
+
+def noise_model_file(value: str | Path | None) -> Path | None:
+    """The file a stored noise-model option names: the shipped model for ``"packaged"``, else the path given
+    (None stays None)."""
+    if value is None:
+        return None
+    return packaged_noise_model_path() if str(value) == "packaged" else Path(value)
 
 
 def resolve_noise_model_path(value: str | None, option: str = "--obs-noise") -> str | None:

@@ -217,12 +217,11 @@ def make_env(
 
         env = CableRandomization(env, ranges=cable_ranges, every_episodes=randomize_cable_every)
     if obs_noise is not None:
-        from dyndlo_vision.tasks.noise import ObservationNoiseModel, packaged_noise_model_path
+        from dyndlo_vision.tasks.noise import ObservationNoiseModel, noise_model_file
         from dyndlo_vision.tasks.wrappers import NoisyObservation
 
         if isinstance(obs_noise, str | Path):
-            path = packaged_noise_model_path() if str(obs_noise) == "packaged" else Path(obs_noise)
-            obs_noise = ObservationNoiseModel.load(path)
+            obs_noise = ObservationNoiseModel.load(noise_model_file(obs_noise))
         env = NoisyObservation(env, obs_noise)
     return env
 

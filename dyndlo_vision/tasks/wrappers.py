@@ -41,10 +41,34 @@ __all__ = [
     "StudentFeaturesWrapper",
     "draw_cable",
     "cable_for_seed",
+    "corrupt_observation",
+    "observation_layout",
 ]
 
 # Mixed into the reset seed so that the cable draws differ from the environment's own random stream.
 _CABLE_STREAM = 0x4E6F697379 + 1
+
+
+def observation_layout(size: int) -> tuple[slice, slice, slice]:
+    """The gripper positions, gripper velocities and P_DLO in a table-II observation of ``size`` values
+    (``6 n_g + 6``: then the goal)."""
+    if size < 12 or (size - 6) % 6 != 0:
+        raise ValueError(f"expected a DynDLO observation of length 6 * n_grippers + 6, got width {size}")
+    n_g = (size - 6) // 6
+    return slice(0, 3 * n_g), slice(3 * n_g, 6 * n_g), slice(6 * n_g, 6 * n_g + 3)
+
+
+def corrupt_observation(process: NoiseProcess, observation: NDArray[np.floating[Any]]) -> NDArray[np.float32]:
+    """One draw of ``process`` for a table-II observation: a float32 copy with P_DLO corrupted, and the
+    gripper state too where the model has TCP noise."""
+    obs = np.array(observation, dtype=np.float32, copy=True)
+    tcp_position, tcp_velocity, p_dlo = observation_layout(obs.shape[-1])
+    p, _ = process.corrupt(obs[p_dlo].astype(np.float64))
+    obs[p_dlo] = p.astype(np.float32)
+    if process.model.perturbs_tcp:
+        q, v = process.corrupt_tcp(obs[tcp_position], obs[tcp_velocity])
+        obs[tcp_position], obs[tcp_velocity] = q.astype(np.float32), v.astype(np.float32)
+    return obs
 
 
 class NoisyObservation(
@@ -77,17 +101,14 @@ class NoisyObservation(
         gym.utils.RecordConstructorArgs.__init__(self, model=model, control_period_s=control_period_s)
         gym.ObservationWrapper.__init__(self, env)
         shape = env.observation_space.shape
-        if shape is None or len(shape) != 1 or shape[0] < 12 or (shape[0] - 6) % 6 != 0:
+        if shape is None or len(shape) != 1:
             raise ValueError(
                 f"expected a DynDLO observation of length 6 * n_grippers + 6, got observation shape {shape}"
             )
+        observation_layout(shape[0])  # refuses any other length
         multi_step = bool(getattr(env.unwrapped, "multi_step", True))
         self.process = NoiseProcess(model, control_period_s, multi_step)
         self.model = self.process.model
-        n_g = (shape[0] - 6) // 6
-        self._tcp_position = slice(0, 3 * n_g)
-        self._tcp_velocity = slice(3 * n_g, 6 * n_g)
-        self._p_dlo = slice(6 * n_g, 6 * n_g + 3)
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -106,13 +127,7 @@ class NoisyObservation(
 
     def observation(self, observation: NDArray[np.float32]) -> NDArray[np.float32]:
         """The observation with P_DLO and the TCP state replaced by their corrupted values."""
-        obs = np.array(observation, dtype=np.float32, copy=True)
-        p_dlo, _ = self.process.corrupt(obs[self._p_dlo].astype(np.float64))
-        obs[self._p_dlo] = p_dlo.astype(np.float32)
-        if self.model.perturbs_tcp:
-            p, v = self.process.corrupt_tcp(obs[self._tcp_position], obs[self._tcp_velocity])
-            obs[self._tcp_position], obs[self._tcp_velocity] = p.astype(np.float32), v.astype(np.float32)
-        return obs
+        return corrupt_observation(self.process, observation)
 
 
 #: Default ranges of :class:`CableRandomization`, as factors of the task's nominal cable (our choice: the
@@ -314,10 +329,7 @@ class PDloHistory(_EpisodeFeature):
         length: int, size: int, control_period_s: float = CONTROL_PERIOD_S
     ) -> PDloHistory:
         """The history of a table-II observation of ``size`` values (``6 n_g + 6``)."""
-        if size < 12 or (size - 6) % 6 != 0:
-            raise ValueError(f"expected a DynDLO observation of length 6 * n_grippers + 6, got {size}")
-        n_g = (size - 6) // 6
-        return PDloHistory(length, slice(6 * n_g, 6 * n_g + 3), control_period_s)
+        return PDloHistory(length, observation_layout(size)[2], control_period_s)
 
     def reset(self) -> None:
         """Forget the episode: the next observation is its first."""
