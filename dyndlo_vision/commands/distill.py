@@ -13,6 +13,17 @@ HELP = (
 )
 
 
+def _search_candidates(text: str) -> str:
+    """``--search-candidates``: ``episode``, ``shared`` or ``line:N``, checked before anything runs."""
+    from dyndlo_vision.learning.distill import ReplanSearch
+
+    try:
+        ReplanSearch.line_offset(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+    return text
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``distill``."""
     p.add_argument(
@@ -95,11 +106,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--search-candidates",
-        choices=("episode", "shared"),
+        type=_search_candidates,
         default="episode",
+        metavar="episode|shared|line:N",
         help="the offsets the privileged search (--teacher-commit, --expert-replan) tries: new ones for "
-        "every episode (default), or the same ones in every search, so that look-alike states get the same "
-        "correction",
+        "every episode (default); the same ones in every search, so that look-alike states get the same "
+        "correction (shared); or only lengths of 0.05-0.6 either way along the direction of shared offset N "
+        "(line:N, N = 0-47; 'ring R #i' of benchmarks/correction_directions.py is N = 12 (R - 1) + i), so "
+        "that every correction is one number",
     )
     p.add_argument(
         "--student-noise",

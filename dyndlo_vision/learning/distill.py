@@ -345,26 +345,49 @@ class ReplanSearch:
     and decision. Where many offsets succeed, the nearest of them then points anywhere, and two look-alike
     cables get unrelated labels: on the vault the corrections at the late commitment had no common direction
     (docs/RESULTS.md, session 25). ``"shared"`` draws the same offsets in every search, so that look-alike
-    states pick the same correction.
+    states pick the same correction. ``"line:N"`` searches along one line only: the direction of shared
+    offset ``N`` (row ``N`` of the ``"shared"`` offsets; ``N = (ring - 1) * population + i`` for the offset
+    ``benchmarks/correction_directions.py`` names "ring R #i"), at the lengths ``LINE_LENGTHS`` on either
+    side, shortest first. Every correction is then a multiple of one vector, a single number a student can
+    learn as a function of the cable; with shared offsets the 57 corrections of session 28's vault expert
+    used 15 unrelated offsets (docs/RESULTS.md, session 29).
 
     Args:
         population: Candidates per ring.
         sigmas: Standard deviations of the rings (normalised action units), searched in this order.
         good_enough_m: A score below this is a success (``start`` itself: no search).
         follower: What acts after the candidate (``predict(obs, deterministic=True)``); None: coast.
-        candidates: ``"episode"`` or ``"shared"`` (above).
+        candidates: ``"episode"``, ``"shared"`` or ``"line:N"`` (above).
     """
 
-    #: The values of ``candidates``.
+    #: The values of ``candidates`` besides ``"line:N"``.
     CANDIDATES = ("episode", "shared")
+    #: Lengths along a ``"line:N"`` search's unit direction (normalised action units), each tried on both
+    #: sides, shortest first; the span of session 29's probe (docs/RESULTS.md).
+    LINE_LENGTHS = (0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6)
+
+    @classmethod
+    def line_offset(cls, candidates: str, population: int = 12, rings: int = 4) -> int | None:
+        """The shared offset a ``"line:N"`` value names (N), None for ``"episode"`` and ``"shared"``.
+        Anything else, or N outside the ``rings * population`` shared offsets, is refused."""
+        if candidates in cls.CANDIDATES:
+            return None
+        expected = (f"expected one of {list(cls.CANDIDATES)} or 'line:N' with N a shared offset, "
+                    f"0-{rings * population - 1}")
+        head, _, tail = str(candidates).partition(":")
+        if head != "line" or not tail.isdigit():
+            raise ValueError(f"candidates {candidates!r}; {expected}")
+        index = int(tail)
+        if index >= rings * population:
+            raise ValueError(f"candidates {candidates!r}: no shared offset {index}; {expected}")
+        return index
 
     def __init__(self, population: int = 12, sigmas: Sequence[float] = (0.05, 0.1, 0.2, 0.4),
                  good_enough_m: float = 0.03, follower: Any = None, candidates: str = "episode") -> None:
         if population < 1 or not sigmas or any(not 0 < sg < float("inf") for sg in sigmas):
             raise ValueError(f"need population >= 1 and positive finite sigmas; got population={population}, "
                              f"sigmas={sigmas!r}")
-        if candidates not in self.CANDIDATES:
-            raise ValueError(f"candidates {candidates!r}; expected one of {list(self.CANDIDATES)}")
+        self.line = self.line_offset(candidates, population, len(sigmas))
         self.candidates = candidates
         self.population = int(population)
         self.sigmas = tuple(float(sg) for sg in sigmas)
@@ -375,9 +398,12 @@ class ReplanSearch:
         self.last_score = float("nan")
 
     def offsets(self, size: int, key: Sequence[int] | None = None) -> NDArray[np.float64]:
-        """Every offset a search may try, ring after ring in ``sigmas`` order (``population`` rows each):
-        ``(len(sigmas) * population, size)``. ``"shared"`` candidates are the same for every search (``key``
-        is ignored); ``"episode"`` ones are drawn from ``key`` (the search's seed and time)."""
+        """Every offset a search may try, ring after ring, one row each: ``"episode"`` and ``"shared"``
+        in ``sigmas`` order (``population`` rows per ring, ``(len(sigmas) * population, size)``), ``"line:N"``
+        as :meth:`rings` gives them. ``"shared"`` and ``"line:N"`` candidates are the same for every search
+        (``key`` is ignored); ``"episode"`` ones are drawn from ``key`` (the search's seed and time)."""
+        if self.line is not None:
+            return np.concatenate(self.rings(size, key))
         if self.candidates == "shared":
             rng = np.random.default_rng(0x5EA)
         elif key is None:
@@ -385,6 +411,17 @@ class ReplanSearch:
         else:
             rng = np.random.default_rng(list(key))
         return np.concatenate([sigma * rng.standard_normal((self.population, size)) for sigma in self.sigmas])
+
+    def rings(self, size: int, key: Sequence[int] | None = None) -> list[NDArray[np.float64]]:
+        """The offsets a search tries, as the rings it tries them in: ``sigmas`` rings of ``population``
+        offsets, or for ``"line:N"`` one ring per length of :attr:`LINE_LENGTHS`, holding ``+length * d``
+        and ``-length * d`` for the unit direction ``d`` of shared offset N."""
+        if self.line is None:
+            return list(self.offsets(size, key).reshape(len(self.sigmas), self.population, size))
+        shared = np.random.default_rng(0x5EA)
+        row = np.concatenate([sg * shared.standard_normal((self.population, size)) for sg in self.sigmas])
+        direction = row[self.line] / np.linalg.norm(row[self.line])
+        return [np.stack([length * direction, -length * direction]) for length in self.LINE_LENGTHS]
 
     @staticmethod
     def coasted_score(env: Any, snapshot: Any, action: NDArray[np.floating[Any]]) -> float:
@@ -426,8 +463,7 @@ class ReplanSearch:
             best, best_score = origin, self._score(env, snapshot, origin)
             self.last_start_score, self.last_rollouts = best_score, 1
             episode = [int(seed), int(round(env.scene.time * 1000)), 0x5EA]
-            rings = self.offsets(origin.size, episode).reshape(len(self.sigmas), self.population, origin.size)
-            for ring in rings:
+            for ring in self.rings(origin.size, episode):
                 if best_score < self.good_enough_m:
                     break
                 actions = np.clip(origin + ring, -1, 1)
@@ -1033,7 +1069,8 @@ class DistillConfig:
             with ``teacher_search``, which makes the plan for the cable at t = 0.
         search_candidates: :class:`ReplanSearch`'s ``candidates`` wherever it searches (the late commitment,
             the re-planning expert): ``"episode"`` (default) new offsets in every search, ``"shared"`` the
-            same offsets in every search, so that look-alike states get the same correction.
+            same offsets in every search, so that look-alike states get the same correction; ``"line:N"``
+            only multiples of shared offset N's direction (a correction is then one number).
     """
 
     teacher: str = "tip-control-single-step"
@@ -1114,9 +1151,10 @@ class DistillConfig:
                 raise ValueError("teacher_commit_decision and teacher_search exclude each other: the search "
                                  "makes the plan for the cable at t = 0, the late commitment after K "
                                  "decisions")
-        if self.search_candidates not in ReplanSearch.CANDIDATES:
-            raise ValueError(f"search_candidates must be one of {list(ReplanSearch.CANDIDATES)}, got "
-                             f"{self.search_candidates!r}")
+        try:
+            ReplanSearch.line_offset(self.search_candidates)
+        except ValueError as err:
+            raise ValueError(f"search_candidates: {err}") from None
         if self.search_candidates != "episode" and commit is None and replan is None:
             raise ValueError(f"search_candidates {self.search_candidates!r} needs a search: the late "
                              "commitment (teacher_commit_decision) or the re-planning expert "

@@ -1003,6 +1003,42 @@ def test_shared_candidates_are_the_same_offsets_in_every_search(monkeypatch, can
         ReplanSearch(candidates="fixed")
 
 
+def test_line_candidates_go_along_one_direction_and_answer_with_the_shortest_good(monkeypatch) -> None:
+    """``candidates="line:N"``: every candidate is start + length x the unit direction of shared offset N, on
+    either side, rings in order of length (0.05 ... 0.6); the answer is the shortest good one. Every
+    correction is then a multiple of one vector (what a student can regress as one number)."""
+    drawn: list[np.ndarray] = []
+    direction = ReplanSearch(candidates="shared").offsets(9)[31]
+    direction = direction / np.linalg.norm(direction)
+
+    def score(env: Any, snapshot: Any, action: np.ndarray) -> float:
+        drawn.append(np.asarray(action).copy())
+        along = float(np.dot(np.asarray(action) - start, direction))
+        return 0.0 if along < -0.27 else 1.0 + abs(along)  # good beyond 0.27 on the minus side
+
+    monkeypatch.setattr(ReplanSearch, "coasted_score", staticmethod(score))
+    env = type("Env", (), {"snapshot": lambda self: None, "restore": lambda self, s: None,
+                           "scene": type("Scene", (), {"time": 0.32})()})()
+    search = ReplanSearch(candidates="line:31")
+    start = np.full(9, 0.1)
+    found = search.search(env, start, seed=4)
+    offsets = np.array(drawn[1:]) - start  # drawn[0] is the start itself
+    lengths = np.linalg.norm(offsets, axis=1)
+    np.testing.assert_allclose(np.abs(offsets @ direction), lengths, rtol=1e-9)  # all on the line
+    np.testing.assert_allclose(lengths, [0.05, 0.05, 0.1, 0.1, 0.15, 0.15, 0.2, 0.2, 0.3, 0.3])
+    np.testing.assert_allclose(found, start - 0.3 * direction)
+    assert search.last_score == 0.0 and search.last_rollouts == 11
+    listed = search.offsets(9)  # what benchmarks map corrections onto: the same for every search
+    assert listed.shape == (16, 9) and np.allclose(listed[:10], offsets)
+    assert len(search.rings(9)) == len(ReplanSearch.LINE_LENGTHS)
+    for bad in ("line:48", "line:-1", "line:", "line:x", "lines:3", "line"):
+        with pytest.raises(ValueError, match="line:N"):
+            ReplanSearch(candidates=bad)
+        with pytest.raises(ValueError, match="search_candidates"):
+            DistillConfig(teacher_commit_decision=6, search_candidates=bad)
+    assert DistillConfig(teacher_commit_decision=6, search_candidates="line:0").search_candidates == "line:0"
+
+
 def test_search_candidates_option_reaches_the_collected_rounds(tmp_path, monkeypatch, capsys) -> None:
     seen = _record_collect_option(monkeypatch, "search_candidates")
     fast = ["--workers", "1", "--first-round-episodes", "2", "--episodes", "2", "--epochs", "1", "--quiet"]
@@ -1015,6 +1051,14 @@ def test_search_candidates_option_reaches_the_collected_rounds(tmp_path, monkeyp
         DistillConfig(teacher_commit_decision=6, search_candidates="fixed")
     with pytest.raises(ValueError, match="needs a search"):
         DistillConfig(search_candidates="shared")
+    line = ["--teacher-commit", "6", "--search-candidates", "line:31"]
+    assert main(["distill", *fast, *line, "--out", str(tmp_path / "l")]) == 0
+    assert seen[-1] == "line:31"
+    with pytest.raises(SystemExit) as refused:  # refused by the parser, before any run folder is made
+        main(["distill", *fast, "--teacher-commit", "6", "--search-candidates", "line:99", "--out",
+              str(tmp_path / "bad")])
+    assert refused.value.code == 2 and not (tmp_path / "bad").exists()
+    assert "line:99" in capsys.readouterr().err
     # a run stored before the option existed resumes as a run without it
     stored = json.loads((tmp_path / "r" / "config.json").read_text())
     del stored["search_candidates"]
