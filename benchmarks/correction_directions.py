@@ -15,6 +15,9 @@ plan-following label, so that the correction is ``label[K] - plan-following labe
   (``ReplanSearch.offsets``; ring 1 is the narrowest), how many distinct ones were chosen and how often.
   A student that must tell from P_DLO which correction a cable needs learns a class per offset from this
   many examples.
+- for a run made with ``--search-candidates line:N``: each correction's signed length along the line (how
+  often each was chosen), and whether the length follows the cable: its rank correlation with log Young's
+  modulus, and how far it is from the length of the corrected cable nearest in (log E, length, log mass).
 
 ``--rounds N`` reads the first N rounds (each must be an expert round: the expert acted, so its commanded
 state can be rebuilt from the labels); default 1.
@@ -50,7 +53,8 @@ def corrections(run: Path, rounds: int = 1) -> dict:
         raise SystemExit(f"--rounds {rounds}: {run} has {expert_rounds} expert round(s); "
                          f"expected 1..{expert_rounds}")
     data = Episodes.concatenate([Episodes.load(run / f"round{r}.npz") for r in range(rounds)])
-    shared = config.get("search_candidates") == "shared"
+    candidates = config.get("search_candidates", "episode")
+    line = ReplanSearch.line_offset(candidates) is not None
     cables = episode_cables(data, config)
     env = make_distill_env(config.get("task_options", {}), None, None, config["task"])
     u = env.unwrapped
@@ -58,8 +62,9 @@ def corrections(run: Path, rounds: int = 1) -> dict:
     expert = PlanFollowingExpert(u.spec_actions, speed_limit_m_s=config.get("expert_speed_limit_m_s"),
                                  smoothing=config.get("expert_smoothing", 0.0))
     home = u.scene.gripper_home
-    search = ReplanSearch(candidates="shared")  # distill's searches use the default rings and population
-    offsets = search.offsets(u.action_space.shape[0]) if shared else None
+    # distill's searches use the default rings and population
+    search = ReplanSearch(candidates=candidates if candidates != "episode" else "shared")
+    offsets = search.offsets(u.action_space.shape[0]) if candidates != "episode" else None
     found, factors, chosen, match_error, corrected_seeds = [], [], [], [], []
     for seed in data.episode_seeds:
         rows = np.flatnonzero(data.seeds == seed)
@@ -87,12 +92,20 @@ def corrections(run: Path, rounds: int = 1) -> dict:
         population = search.population
         index, count = np.unique(chosen, return_counts=True)
         order = np.argsort(-count, kind="stable")
+        # a line's candidates are +length, -length for each length in turn (ReplanSearch.rings)
+        signed = [(-1.0 if i % 2 else 1.0) * ReplanSearch.LINE_LENGTHS[i // 2] for i in range(len(offsets))
+                  ] if line else []
+
+        def name(i: int) -> str:
+            return f"{signed[i]:+.2f}" if line else f"ring {i // population + 1} #{i % population}"
+
         result.update({
             "offset_match_error_max": max(match_error),  # ~0: every correction is one of the offsets
             "distinct_offsets": len(index),
-            "offsets_chosen": {f"ring {i // population + 1} #{i % population}": int(c)
-                               for i, c in zip(index[order], count[order], strict=True)},
+            "offsets_chosen": {name(i): int(c) for i, c in zip(index[order], count[order], strict=True)},
         })
+        if line:
+            result["line_length_of_corrected"] = [signed[i] for i in chosen]
     if len(found) >= 2:
         unit = found_arr / np.linalg.norm(found_arr, axis=1, keepdims=True)
         cos = unit @ unit.T
@@ -101,6 +114,16 @@ def corrections(run: Path, rounds: int = 1) -> dict:
         x = (x - x.mean(0)) / (x.std(0) + 1e-12)
         dist = np.linalg.norm(x[:, None] - x[None], axis=2) + np.diag(np.full(len(x), np.inf))
         nearest = dist.argmin(1)
+        if line:
+            length = np.array(result["line_length_of_corrected"])
+            rank = np.argsort(np.argsort(length)).astype(float)
+            rank_e = np.argsort(np.argsort(factors_arr[:, 2])).astype(float)
+            result.update({
+                "length_vs_log_young_spearman": float(np.corrcoef(rank, rank_e)[0, 1]),
+                "length_nearest_cable_abs_diff_median": float(np.median(np.abs(length - length[nearest]))),
+                "length_abs_diff_all_pairs_median": float(np.median(
+                    np.abs(length[:, None] - length[None])[np.triu_indices(len(length), 1)])),
+            })
         result.update({
             "correction_norm_median": float(np.median(np.linalg.norm(found_arr, axis=1))),
             "cosine_all_pairs_mean": float(pairs.mean()),
@@ -118,7 +141,7 @@ def main() -> None:
     args = p.parse_args()
     results = [corrections(run, args.rounds) for run in args.runs]
     for r in results:
-        long_lists = ("young_factor_of_corrected", "corrected_seeds")
+        long_lists = ("young_factor_of_corrected", "corrected_seeds", "line_length_of_corrected")
         print(json.dumps({k: v for k, v in r.items() if k not in long_lists}))
     if args.out:
         with open(args.out, "w") as f:
