@@ -405,11 +405,13 @@ class ReplanSearch:
         if self.line is not None:
             return np.concatenate(self.rings(size, key))
         if self.candidates == "shared":
-            rng = np.random.default_rng(0x5EA)
-        elif key is None:
+            return self._drawn(size, np.random.default_rng(0x5EA))
+        if key is None:
             raise ValueError("episode candidates are drawn from a key (seed, time in ms, 0x5EA); got None")
-        else:
-            rng = np.random.default_rng(list(key))
+        return self._drawn(size, np.random.default_rng(list(key)))
+
+    def _drawn(self, size: int, rng: np.random.Generator) -> NDArray[np.float64]:
+        """``population`` Gaussian offsets per ring, ring after ring in ``sigmas`` order."""
         return np.concatenate([sigma * rng.standard_normal((self.population, size)) for sigma in self.sigmas])
 
     def rings(self, size: int, key: Sequence[int] | None = None) -> list[NDArray[np.float64]]:
@@ -418,9 +420,8 @@ class ReplanSearch:
         and ``-length * d`` for the unit direction ``d`` of shared offset N."""
         if self.line is None:
             return list(self.offsets(size, key).reshape(len(self.sigmas), self.population, size))
-        shared = np.random.default_rng(0x5EA)
-        row = np.concatenate([sg * shared.standard_normal((self.population, size)) for sg in self.sigmas])
-        direction = row[self.line] / np.linalg.norm(row[self.line])
+        row = self._drawn(size, np.random.default_rng(0x5EA))[self.line]  # the "shared" offset N
+        direction = row / np.linalg.norm(row)
         return [np.stack([length * direction, -length * direction]) for length in self.LINE_LENGTHS]
 
     @staticmethod
