@@ -92,9 +92,8 @@ def corrections(run: Path, rounds: int = 1) -> dict:
         population = search.population
         index, count = np.unique(chosen, return_counts=True)
         order = np.argsort(-count, kind="stable")
-        # a line's candidates are +length, -length for each length in turn (ReplanSearch.rings)
-        signed = [(-1.0 if i % 2 else 1.0) * ReplanSearch.LINE_LENGTHS[i // 2] for i in range(len(offsets))
-                  ] if line else []
+        # a line's offsets are multiples of one direction: each one's signed length along the first's
+        signed = np.round(offsets @ (offsets[0] / np.linalg.norm(offsets[0])), 6).tolist() if line else []
 
         def name(i: int) -> str:
             return f"{signed[i]:+.2f}" if line else f"ring {i // population + 1} #{i % population}"
