@@ -308,6 +308,10 @@ def run(args: argparse.Namespace) -> int:
                 raw=raw if i == 0 else None,
                 noise_model=noise_model,
             )
+            if isinstance(model, policies.GatedPolicy):  # whether its gate corrected, and how sure it was
+                record["gate_probability"] = model.last_gate_probability
+                record["gate_corrected"] = (model.last_gate_probability is not None
+                                            and model.last_gate_probability >= model.gate.threshold)
             episodes.append(record)
             bar.update(1)
             # tqdm.write keeps the line and the bar apart on a terminal (plain print otherwise).

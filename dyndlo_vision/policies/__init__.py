@@ -24,6 +24,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
+
+from dyndlo_vision.policies.correction_gate import CorrectionGate
 
 #: The learning algorithms: name -> stable-baselines3 class name.
 ALGORITHMS: dict[str, str] = {"ppo": "PPO", "sac": "SAC"}
@@ -125,7 +128,16 @@ def load(name_or_path: str | Path, env: Any = None, algo: str | None = None) -> 
     else:
         raise ValueError(f"{path} could not be loaded as a stable-baselines3 policy: " + "; ".join(errors))
     history, clock = int(meta.get("p_dlo_history") or 0), bool(meta.get("decision_clock"))
-    if history or clock:
+    if meta.get("correction_gate") is not None:
+        if not (history or clock):
+            raise ValueError(f"{path}: a correction_gate needs a student with p_dlo_history or "
+                             "decision_clock (the gate reads how the cable moved)")
+        try:
+            gate = CorrectionGate.from_json(meta["correction_gate"])
+        except (TypeError, ValueError, KeyError) as err:
+            raise ValueError(f"{path}: bad correction_gate in its metadata: {err}") from None
+        model = GatedPolicy(model, gate, history, clock)
+    elif history or clock:
         model = HistoryPolicy(model, history, clock)
     if env is not None:
         for space in ("observation_space", "action_space"):
@@ -167,11 +179,59 @@ class HistoryPolicy:
         """Forget the episode's history, restart its clock (extra arguments, e.g. an env, are ignored)."""
         self.features.reset()
 
-    def predict(self, observation: Any, deterministic: bool = True, **kwargs: Any) -> tuple[Any, Any]:
-        """The action for one table-II observation (not a batch), as ``model.predict`` gives it."""
+    def student_input(self, observation: Any) -> NDArray[np.float32]:
+        """The model's input for one table-II observation (it with the features appended); the features
+        remember it, so call this once per decision."""
         obs = np.asarray(observation, dtype=np.float32)
         if obs.shape != self.observation_space.shape:
             raise ValueError(
                 f"expected one observation of shape {self.observation_space.shape}, got {obs.shape}"
             )
-        return self.sb3_model.predict(self.features(obs), deterministic=deterministic, **kwargs)
+        return self.features(obs)
+
+    def predict(self, observation: Any, deterministic: bool = True, **kwargs: Any) -> tuple[Any, Any]:
+        """The action for one table-II observation (not a batch), as ``model.predict`` gives it."""
+        return self.sb3_model.predict(self.student_input(observation), deterministic=deterministic, **kwargs)
+
+
+class GatedPolicy(HistoryPolicy):
+    """A :class:`HistoryPolicy` whose late correction is decided by a :class:`CorrectionGate`.
+
+    The model reads a P_DLO history or the clock. Decisions are counted from :meth:`reset`, one per
+    :meth:`predict` call (as the decision clock counts them). At the gate's decision the model's action gets
+    the gate's correction (clipped to the action space); ``last_gate_probability`` keeps the gate's
+    probability then (None before it is asked).
+
+    Args:
+        model: The stable-baselines3 model (see :class:`HistoryPolicy`).
+        gate: The gate; its input size must be the model's.
+        length, clock: The model's features (see :class:`HistoryPolicy`).
+    """
+
+    def __init__(self, model: Any, gate: CorrectionGate, length: int = 0, clock: bool = False) -> None:
+        super().__init__(model, length, clock)
+        size, actions = int(model.observation_space.shape[0]), int(model.action_space.shape[0])
+        if gate.input_size != size or len(gate.direction) != actions:
+            raise ValueError(
+                f"correction gate for inputs of {gate.input_size} and actions of {len(gate.direction)} "
+                f"values; the model has {size} and {actions}"
+            )
+        self.gate = gate
+        self.decision = 0
+        self.last_gate_probability: float | None = None
+
+    def reset(self, *_: Any) -> None:
+        """A new episode: features afresh, decisions counted from 0."""
+        super().reset()
+        self.decision, self.last_gate_probability = 0, None
+
+    def predict(self, observation: Any, deterministic: bool = True, **kwargs: Any) -> tuple[Any, Any]:
+        """The model's action for one table-II observation, with the gate's correction at its decision."""
+        x = self.student_input(observation)
+        action, state = self.sb3_model.predict(x, deterministic=deterministic, **kwargs)
+        if self.decision == self.gate.decision:
+            self.last_gate_probability = self.gate.probability(x)
+            low, high = self.action_space.low, self.action_space.high
+            action = np.clip(action + self.gate.correction(x), low, high).astype(np.asarray(action).dtype)
+        self.decision += 1
+        return action, state
