@@ -12,7 +12,10 @@ A policy whose metadata has ``p_dlo_history`` H reads, besides the table-II obse
 the last H decisions (:class:`~dyndlo_vision.tasks.wrappers.PDloHistory`); one with ``decision_clock`` true
 also reads the time since the episode began (:class:`~dyndlo_vision.tasks.wrappers.DecisionClock`).
 :func:`load` returns such a policy as a :class:`HistoryPolicy`, which takes table-II observations like any
-other and keeps that history and clock itself: call its ``reset()`` at the start of every episode.
+other and keeps that history and clock itself: call its ``reset()`` at the start of every episode. One whose
+metadata also has ``correction_gate`` (``dyndlo-vision gate``) loads as a :class:`GatedPolicy`: at one
+decision a classifier on its input decides whether to add a fixed correction to its action
+(:mod:`dyndlo_vision.policies.correction_gate`).
 """
 
 from __future__ import annotations
