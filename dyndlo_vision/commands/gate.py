@@ -67,9 +67,9 @@ def run(args: argparse.Namespace) -> int:
     if existing and not args.overwrite:
         raise FileExistsError(f"{', '.join(existing)} exist; pass --overwrite to replace them")
 
-    gate = fit_gate(run_dir, args.length, args.threshold, args.l2)
-    policies.load(model)  # a student that does not load is refused before anything is written
     examples = gate_examples(run_dir)
+    gate = fit_gate(run_dir, args.length, args.threshold, args.l2, examples)
+    policies.load(model)  # a student that does not load is refused before anything is written
     y = examples["corrected"]
     held = held_out_probabilities(examples, args.l2) if len(np.unique(examples["rounds"])) > 1 else None
     gated = np.array([gate.probability(x) >= gate.threshold for x in examples["inputs"]], dtype=bool)

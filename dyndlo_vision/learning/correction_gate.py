@@ -120,10 +120,11 @@ def line_direction(candidates: str, action_size: int) -> NDArray[np.float64]:
     return first / np.linalg.norm(first)
 
 
-def fit_gate(run: Path, length: float, threshold: float = 0.5, l2: float = 1.0) -> CorrectionGate:
+def fit_gate(run: Path, length: float, threshold: float = 0.5, l2: float = 1.0,
+             examples: dict[str, Any] | None = None) -> CorrectionGate:
     """The gate of a line run: its classifier fitted on every round, correcting by ``length`` along the
-    run's line (see :func:`gate_examples`, :func:`fit_logistic`)."""
-    examples = gate_examples(run)
+    run's line (see :func:`gate_examples`, :func:`fit_logistic`; ``examples``: the run's, if already read)."""
+    examples = examples if examples is not None else gate_examples(run)
     config = examples["config"]
     mean, scale, weights, bias = fit_logistic(examples["inputs"], examples["corrected"], l2)
     from dyndlo_vision.learning.distill import Episodes
