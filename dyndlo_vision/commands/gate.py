@@ -69,7 +69,12 @@ def run(args: argparse.Namespace) -> int:
 
     examples = gate_examples(run_dir)
     gate = fit_gate(run_dir, args.length, args.threshold, args.l2, examples)
-    policies.load(model)  # a student that does not load is refused before anything is written
+    # A student that does not load, or whose input the gate does not fit: refused before anything is written.
+    student = policies.load(model)
+    history, clock = int(meta.get("p_dlo_history") or 0), bool(meta.get("decision_clock"))
+    if not (history or clock):
+        raise ValueError(f"{model}: a gate needs a student with p_dlo_history or decision_clock")
+    policies.GatedPolicy(getattr(student, "sb3_model", student), gate, history, clock)
     y = examples["corrected"]
     held = held_out_probabilities(examples, args.l2) if len(np.unique(examples["rounds"])) > 1 else None
     gated = np.array([gate.probability(x) >= gate.threshold for x in examples["inputs"]], dtype=bool)

@@ -311,6 +311,32 @@ def test_the_gate_command_refuses_bad_options_and_writes_nothing(tmp_path, capsy
     assert not (tmp_path / "out").exists()
 
 
+def test_the_gate_command_refuses_a_student_the_gate_does_not_fit(tmp_path, capsys) -> None:
+    """--model: a student that reads another history than the run's features cannot take the gate."""
+    from dyndlo_vision.learning.distill import new_student
+    from dyndlo_vision.tasks.wrappers import StudentFeaturesWrapper
+
+    run = gate_run(tmp_path)
+    other = tmp_path / "other"
+    other.mkdir()
+    env = StudentFeaturesWrapper(gym.make("DynDLO/TipControl-v0", multi_step=True), p_dlo_history=3)
+    new_student(env, (8,), seed=1).save(other / "student.zip")
+    (other / "student.json").write_text(json.dumps({"algo": "ppo", "multi_step": True, "p_dlo_history": 3}))
+    out = tmp_path / "out" / "gated.zip"
+    with pytest.raises(SystemExit) as exit_info:
+        main_cli(["gate", str(run), "--length", "0.2", "--model", str(other / "student.zip"),
+                  "--out", str(out)])
+    assert exit_info.value.code == 2
+    assert "inputs of 18" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def main_cli(argv: list[str]) -> int:
+    from dyndlo_vision.cli import main
+
+    return main(argv)
+
+
 def re_search(pattern: str, text: str) -> bool:
     import re
 
