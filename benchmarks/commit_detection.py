@@ -40,18 +40,9 @@ from correction_directions import corrections
 from label_conflict import episode_cables, load_rounds
 
 import dyndlo_vision  # noqa: F401  (before mujoco)
+from dyndlo_vision.learning.correction_gate import rank_auc as auc
 
 TCP, P_DLO = slice(0, 6), slice(6, 9)  # table II for one gripper: TCP position, velocity; P_DLO; goal
-
-
-def auc(score: np.ndarray, positive: np.ndarray) -> float:
-    """Probability that a random positive scores above a random negative (ties count half)."""
-    pos, neg = score[positive], score[~positive]
-    if not len(pos) or not len(neg):
-        raise ValueError("AUC needs both classes")
-    greater = (pos[:, None] > neg[None, :]).mean()
-    ties = (pos[:, None] == neg[None, :]).mean()
-    return float(greater + 0.5 * ties)
 
 
 def main() -> None:

@@ -58,7 +58,7 @@ class MapSearch(ReplanSearch):
     def search(self, env: Any, start: Any, seed: int) -> Any:
         snapshot = env.snapshot()
         origin = np.clip(np.asarray(start, dtype=np.float64), -1, 1)
-        direction = line_direction(self.candidates, origin.size)
+        direction = self.line_direction(origin.size)
         self.scores = {"0": self._score(env, snapshot, origin)}
         for length in self.lengths:
             action = np.clip(origin + length * direction, -1, 1)

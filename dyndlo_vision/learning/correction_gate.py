@@ -70,8 +70,8 @@ def gate_examples(run: Path, decision: int | None = None) -> dict[str, Any]:
     on), and the episode's ``replans`` count > 0.
 
     Returns:
-        ``inputs`` (n, d), ``corrected`` (n,), ``seeds`` (n,), ``rounds`` (n,), ``decision`` K and the
-        run's ``config``.
+        ``inputs`` (n, d), ``corrected`` (n,), ``seeds`` (n,), ``rounds`` (n,), ``decision`` K, the
+        run's ``config`` and its ``action_size``.
 
     Raises:
         FileNotFoundError: No ``config.json`` or round files in ``run``.
@@ -93,8 +93,10 @@ def gate_examples(run: Path, decision: int | None = None) -> dict[str, Any]:
         raise FileNotFoundError(f"{run} has no round<r>.npz files")
     noise = noise_model_file(config["noise_model"]) if config.get("noise_model") else None
     inputs, corrected, seeds, rounds = [], [], [], []
+    action_size = 0
     for file in files:
         data = Episodes.load(file)
+        action_size = int(data.actions.shape[1])
         seen = with_history(with_noise(data, noise), int(config.get("p_dlo_history") or 0),
                             bool(config.get("decision_clock")))
         for seed, replans in zip(data.episode_seeds, data.replans, strict=True):
@@ -105,7 +107,8 @@ def gate_examples(run: Path, decision: int | None = None) -> dict[str, Any]:
                 seeds.append(int(seed))
                 rounds.append(int(file.stem[5:]))
     return {"inputs": np.array(inputs, dtype=np.float64), "corrected": np.array(corrected, dtype=bool),
-            "seeds": np.array(seeds), "rounds": np.array(rounds), "decision": int(k), "config": config}
+            "seeds": np.array(seeds), "rounds": np.array(rounds), "decision": int(k), "config": config,
+            "action_size": action_size}
 
 
 def line_direction(candidates: str, action_size: int) -> NDArray[np.float64]:
@@ -116,8 +119,7 @@ def line_direction(candidates: str, action_size: int) -> NDArray[np.float64]:
     search = ReplanSearch(candidates=candidates)
     if search.line is None:
         raise ValueError(f"search candidates {candidates!r} are not a line; a gate needs a 'line:N' run")
-    first = search.rings(action_size)[0][0]
-    return first / np.linalg.norm(first)
+    return search.line_direction(action_size)
 
 
 def fit_gate(run: Path, length: float, threshold: float = 0.5, l2: float = 1.0,
@@ -127,11 +129,7 @@ def fit_gate(run: Path, length: float, threshold: float = 0.5, l2: float = 1.0,
     examples = examples if examples is not None else gate_examples(run)
     config = examples["config"]
     mean, scale, weights, bias = fit_logistic(examples["inputs"], examples["corrected"], l2)
-    from dyndlo_vision.learning.distill import Episodes
-
-    first = sorted(Path(run).glob("round*.npz"))[0]
-    actions = Episodes.load(first).actions.shape[1]
-    direction = line_direction(config.get("search_candidates", "episode"), actions)
+    direction = line_direction(config.get("search_candidates", "episode"), examples["action_size"])
     return CorrectionGate(decision=examples["decision"], direction=tuple(direction), length=float(length),
                           mean=tuple(mean), scale=tuple(scale), weights=tuple(weights), bias=bias,
                           threshold=float(threshold))

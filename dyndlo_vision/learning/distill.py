@@ -420,9 +420,19 @@ class ReplanSearch:
         and ``-length * d`` for the unit direction ``d`` of shared offset N."""
         if self.line is None:
             return list(self.offsets(size, key).reshape(len(self.sigmas), self.population, size))
-        row = self._drawn(size, np.random.default_rng(0x5EA))[self.line]  # the "shared" offset N
-        direction = row / np.linalg.norm(row)
+        direction = self.line_direction(size)
         return [np.stack([length * direction, -length * direction]) for length in self.LINE_LENGTHS]
+
+    def line_direction(self, size: int) -> NDArray[np.float64]:
+        """A ``"line:N"`` search's unit direction: shared offset N, normalised.
+
+        Raises:
+            ValueError: The candidates are not a line.
+        """
+        if self.line is None:
+            raise ValueError(f"search candidates {self.candidates!r} are not a line ('line:N')")
+        row = self._drawn(size, np.random.default_rng(0x5EA))[self.line]  # the "shared" offset N
+        return row / np.linalg.norm(row)
 
     @staticmethod
     def coasted_score(env: Any, snapshot: Any, action: NDArray[np.floating[Any]]) -> float:
