@@ -444,6 +444,23 @@ def test_noisy_observation_reads_p_dlo_through_the_noise_model_given(tmp_path: P
 
 
 @pytest.mark.slow
+def test_the_noisy_observation_defaults_to_the_tasks_own_tracker(tmp_path: Path) -> None:
+    """Without --obs-noise the noisy row draws P_DLO through the task's own loop tracker's model: the vault's
+    two-camera fit (about 1 mm per axis: under 3 mm RMSE in 3D) for vaulting, not tip control's one-camera
+    fit (about 4 mm per axis: above 4 mm); metrics.json names the model."""
+    rmse = {}
+    for name, extra in (("vaulting-two-cameras", []), ("packaged", ["--obs-noise", "packaged"])):
+        out = tmp_path / name
+        argv = ["demo", "--task", "vaulting", "--policy", "vaulting-multi-step", "--observation", "noisy",
+                *extra, "--out", str(out), "--quiet"]
+        assert main(argv) == 0
+        metrics = json.loads((out / "metrics.json").read_text())
+        assert metrics["obs_noise"] == name
+        rmse[name] = metrics["estimate_rmse_m_median"]
+    assert rmse["vaulting-two-cameras"] < 3e-3 and rmse["packaged"] > 4e-3
+
+
+@pytest.mark.slow
 def test_demo_randomize_cable_draws_each_episode_cable_from_its_seed(tmp_path: Path) -> None:
     """Episode k's cable is the one ``CableRandomization`` draws for seed S + k (as ``evaluate
     --randomize-cable``), recorded in metrics.json, and the same command draws the same cables."""

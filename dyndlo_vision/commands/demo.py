@@ -107,10 +107,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--obs-noise",
         default=None,
-        metavar="MODEL.json",
-        help="with --observation noisy: the noise model (a JSON written by ObservationNoiseModel.save, e.g. "
-        "by benchmarks/loop_noise_model.py; default: the packaged one, fitted to tip control's one-camera "
-        "tracker)",
+        metavar="MODEL.json|NAME",
+        help="with --observation noisy: the noise model, a JSON written by ObservationNoiseModel.save (e.g. "
+        "by benchmarks/loop_noise_model.py) or a shipped one: 'packaged' (tip control's one-camera tracker) "
+        "or 'vaulting-two-cameras' (the vault loop's two-camera tracker). Default: the task's own loop "
+        "tracker ('vaulting-two-cameras' for vaulting, 'packaged' for tip control)",
     )
     p.add_argument(
         "--randomize-cable",
@@ -226,14 +227,15 @@ def run(args: argparse.Namespace) -> int:
         if args.segmenter != "learned":
             raise ValueError("--segmenter-model is for --segmenter learned")
         check_network(args.segmenter_model, "--segmenter-model")
-    noise_model = None
-    if getattr(args, "obs_noise", None) is not None:
+    noise_model, noise_name = None, None
+    if getattr(args, "obs_noise", None) is not None and args.observation != "noisy":
+        raise ValueError(f"--obs-noise applies to the noisy observation, not to {args.observation!r}")
+    if args.observation == "noisy":  # the given model, else the task's own loop tracker's
         from dyndlo_vision.tasks import noise
 
-        if args.observation != "noisy":
-            raise ValueError(f"--obs-noise applies to the noisy observation, not to {args.observation!r}")
-        chosen = noise.noise_model_file(noise.resolve_noise_model_path(args.obs_noise))
-        noise_model = noise.ObservationNoiseModel.load(chosen)
+        noise_name = args.obs_noise or noise.task_noise_model(getattr(args, "task", "tip-control"))
+        noise_model = noise.ObservationNoiseModel.load(
+            noise.noise_model_file(noise.resolve_noise_model_path(noise_name)))
     if args.views is not None and args.observation != "tracked":
         raise ValueError(f"--views applies to the tracked observation, not to {args.observation!r}")
     push = parse_push(args.push)
@@ -336,7 +338,7 @@ def run(args: argparse.Namespace) -> int:
         "actuation_latency_ms": args.actuation_latency_ms,
         "push": None if push is None else {"time_s": push.time_s, "impulse_n_s": list(push.impulse_n_s),
                                            "node": "middle"},
-        "obs_noise": (args.obs_noise or "packaged") if args.observation == "noisy" else None,
+        "obs_noise": noise_name,
         "segmenter": args.segmenter,
         "segmenter_model": args.segmenter_model,
         "views": views,

@@ -59,9 +59,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--obs-noise",
         default=None,
-        help="observation-noise model (JSON) the student sees P_DLO through; 'packaged' for the "
-        "shipped tracker model (default: true state). With --resume it may change: every fit draws all "
-        "rounds' observations again through it",
+        help="observation-noise model (JSON) the student sees P_DLO through, or a shipped one: 'packaged' "
+        "(tip control's one-camera tracker) or 'vaulting-two-cameras' (default: true state). With --resume "
+        "it may change: every fit draws all rounds' observations again through it",
     )
     p.add_argument(
         "--env-option",

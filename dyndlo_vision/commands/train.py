@@ -68,7 +68,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--obs-noise", default=None,
-        help="observation-noise model file (JSON) to train with; 'packaged' for the shipped tracker fit",
+        help="observation-noise model file (JSON) to train with, or a shipped one: 'packaged' (tip control's "
+        "one-camera tracker) or 'vaulting-two-cameras' (the vault loop's two-camera tracker)",
     )
     p.add_argument("--randomize-cable", action="store_true",
                    help="draw a new cable (length, mass, E, damping) every 10 training episodes")

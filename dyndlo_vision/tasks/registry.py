@@ -189,8 +189,8 @@ def make_env(
     ``gym.make`` of the task's id (Gymnasium's checks and order enforcing), then optionally
     :class:`~dyndlo_vision.tasks.wrappers.CableRandomization` (a new cable every ``randomize_cable_every``
     episodes, drawn from the reset seed) and :class:`~dyndlo_vision.tasks.wrappers.NoisyObservation`
-    (P_DLO through an observation-noise model: a file, a loaded model, or ``"packaged"`` for the model
-    fitted from the tracker's errors), in that order.
+    (P_DLO through an observation-noise model: a file, a loaded model, or a shipped model's name,
+    ``"packaged"`` or ``"vaulting-two-cameras"``; see ``tasks.noise.SHIPPED_NOISE_MODELS``), in that order.
 
     Args:
         task: A task name (a key of :data:`TASKS`).

@@ -13,7 +13,12 @@ import numpy as np
 import pytest
 
 import dyndlo_vision  # noqa: F401  (registers the environment ids)
-from dyndlo_vision.tasks.noise import ObservationNoiseModel, dropout_runs, packaged_noise_model_path
+from dyndlo_vision.tasks.noise import (
+    ObservationNoiseModel,
+    dropout_runs,
+    packaged_noise_model_path,
+    shipped_noise_model_path,
+)
 from dyndlo_vision.tasks.wrappers import NoisyObservation
 
 DT = 0.04
@@ -466,7 +471,7 @@ def test_noise_process_delays_multi_step_observations_and_not_single_step_ones()
         assert measured
 
 
-def test_a_path_to_the_shipped_model_in_any_install_is_the_packaged_model(tmp_path) -> None:
+def test_a_path_to_a_shipped_model_in_any_install_is_its_name(tmp_path) -> None:
     from dyndlo_vision.tasks.noise import packaged_noise_model_path, portable_noise_model
 
     assert portable_noise_model(str(packaged_noise_model_path())) == "packaged"
@@ -474,3 +479,44 @@ def test_a_path_to_the_shipped_model_in_any_install_is_the_packaged_model(tmp_pa
     assert portable_noise_model("packaged") == "packaged" and portable_noise_model(None) is None
     mine = str(tmp_path / "data" / "noise_model_tracking.json")  # the same name, not in a package
     assert portable_noise_model(mine) == mine
+    vault = str(shipped_noise_model_path("vaulting-two-cameras"))
+    assert portable_noise_model(vault) == "vaulting-two-cameras"
+    assert portable_noise_model("/tmp/x/dyndlo_vision/data/noise_model_vaulting_two_cameras.json") == (
+        "vaulting-two-cameras")
+
+
+def test_each_shipped_name_opens_its_own_model_and_each_task_its_own_tracker() -> None:
+    """``vaulting-two-cameras`` is the vault loop's two-camera fit (about 1 mm per axis, no speed term), not
+    tip control's one-camera one (about 4 mm, plus a term per m/s), and it is vaulting's own model (what
+    ``demo --observation noisy`` uses by default); a name that is not shipped is refused with the names that
+    are."""
+    from dyndlo_vision.tasks.noise import (
+        SHIPPED_NOISE_MODELS,
+        noise_model_file,
+        resolve_noise_model_path,
+        task_noise_model,
+    )
+
+    tip = ObservationNoiseModel.load(noise_model_file("packaged"))
+    vault = ObservationNoiseModel.load(noise_model_file("vaulting-two-cameras"))
+    assert "--task vaulting" in vault.source and "--task vaulting" not in tip.source
+    assert max(vault.std_m) < 2e-3 < max(tip.std_m) and vault.std_per_speed_s == 0 < tip.std_per_speed_s
+    assert task_noise_model("vaulting") == "vaulting-two-cameras"
+    assert task_noise_model("tip-control") == task_noise_model("hooking") == "packaged"
+    for name in SHIPPED_NOISE_MODELS:
+        assert resolve_noise_model_path(name) == name and noise_model_file(name).is_file()
+    with pytest.raises(ValueError, match="vaulting-two-cameras"):
+        shipped_noise_model_path("vaulting-one-camera")
+    with pytest.raises(FileNotFoundError, match="'packaged' or 'vaulting-two-cameras'"):
+        resolve_noise_model_path("vaulting-one-camera")
+
+
+def test_make_env_reads_a_shipped_name() -> None:
+    from dyndlo_vision.tasks.registry import make_env
+
+    env = make_env("vaulting", multi_step=True, obs_noise="vaulting-two-cameras")
+    wrapper = env
+    while not isinstance(wrapper, NoisyObservation):
+        wrapper = wrapper.env
+    assert wrapper.model == ObservationNoiseModel.load(shipped_noise_model_path("vaulting-two-cameras"))
+    env.close()
