@@ -12,6 +12,13 @@ it acted as the expert until K: a cable gated (held-out probability >= t) vaults
 gated vaults if the expert did not correct it. Cables below ``--min-probability`` are never gated for
 thresholds at or above it, so the grid starts there.
 
+Two counts. A candidate's score is 0 for a clean vault, exactly 1 for a vault with an avoid condition (in
+practice the TCP over its 1.8 m/s), and above 1 for a miss (``CableSearchTeacher.score``). ``grid`` counts
+clean vaults only, as the expert's search ranks them; ``grid_demo`` counts a vault as ``dyndlo-vision demo``'s
+``success_rate`` does, with or without an avoid condition (the demo reports those beside it). A row
+without the plan's own score ``"0"`` (rows written by an earlier draft of this script) counts a cable the
+expert corrected as a plan miss in both.
+
     python benchmarks/correction_map.py RUN --lengths 0.1,0.2,0.3,0.4 --out map.jsonl --workers 2
 
 ``--out`` gets one JSON line per cable and is resumed (cables already in it are not run again); the table
@@ -41,6 +48,12 @@ from dyndlo_vision.learning.distill import (
 )
 
 THRESHOLDS = (0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8)
+GOOD = 0.03  # a score below this is a clean vault
+
+
+def vaulted(score: float, with_avoided: bool) -> bool:
+    """Whether a candidate's score is a vault: clean only, or also one with an avoid condition (score 1)."""
+    return score < GOOD or (with_avoided and abs(score - 1.0) < 1e-9)
 
 
 class _Mapped(Exception):
@@ -100,20 +113,28 @@ def map_cables(job: dict[str, Any]) -> list[dict[str, Any]]:
 
 
 def table(examples: dict[str, Any], held: np.ndarray, rows: dict[int, dict[str, Any]], lengths: list[float],
-          min_probability: float, good: float = 0.03) -> dict[str, Any]:
-    """Vaults of a gated expert per length and threshold (see the module's docstring)."""
+          min_probability: float, with_avoided: bool = False) -> dict[str, Any]:
+    """Vaults of a gated expert per length and threshold (see the module's docstring); ``with_avoided``:
+    count vaults with an avoid condition too, as the demo does."""
     corrected = examples["corrected"]
     seeds = examples["seeds"]
-    plan = int((~corrected).sum())
+
+    def plan_vaults(seed: int, was_corrected: bool) -> bool:  # the plan's own label at K, not corrected
+        scores = rows.get(int(seed), {}).get("scores", {})
+        return vaulted(scores["0"], with_avoided) if "0" in scores else not was_corrected
+
+    plan_ok = np.array([plan_vaults(s, c) for s, c in zip(seeds, corrected, strict=True)])
+    plan = int(plan_ok.sum())
     result: dict[str, Any] = {"cables": int(len(seeds)), "plan_vaults": plan, "grid": []}
     for length in lengths:
         key = f"{length:+.2f}"
         # a perfect gate: every corrected cable gated, no other
-        perfect = plan + sum(rows[int(s)]["scores"][key] < good for s in seeds[corrected])
+        perfect = int((plan_ok & ~corrected).sum()) + sum(
+            vaulted(rows[int(s)]["scores"][key], with_avoided) for s in seeds[corrected])
         for t in (t for t in THRESHOLDS if t >= min_probability):
             vaults = 0
-            for s, c, p in zip(seeds, corrected, held, strict=True):
-                vaults += (rows[int(s)]["scores"][key] < good) if p >= t else (not c)
+            for s, ok, p in zip(seeds, plan_ok, held, strict=True):
+                vaults += vaulted(rows[int(s)]["scores"][key], with_avoided) if p >= t else bool(ok)
             result["grid"].append({"length": length, "threshold": t, "vaults": int(vaults),
                                    "gated": int((held >= t).sum()), "perfect_gate_vaults": int(perfect)})
     return result
@@ -160,23 +181,31 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{len(wanted) - len(mapped)} cables not mapped yet: no table", file=sys.stderr)
         return 0
     # the re-created episodes must be the run's: the expert's own label vaults where it did not correct
-    check = [(mapped[s]["scores"]["0"] < 0.03) == (not c)
+    check = [vaulted(mapped[s]["scores"]["0"], False) == (not c)
              for s, c in zip(examples["seeds"], examples["corrected"], strict=True)
              if s in mapped and "0" in mapped[s]["scores"]]
     summary = table(examples, held, mapped, lengths, args.min_probability)
+    demo = table(examples, held, mapped, lengths, args.min_probability, with_avoided=True)
     corrected_seeds = examples["seeds"][examples["corrected"]]
-    by_length = {f"{v:+.2f}": int(sum(mapped[int(s)]["scores"][f"{v:+.2f}"] < 0.03 for s in corrected_seeds))
-                 for v in lengths}
+    by_length = {f"{v:+.2f}": int(sum(vaulted(mapped[int(s)]["scores"][f"{v:+.2f}"], False)
+                                      for s in corrected_seeds)) for v in lengths}
+    by_length_demo = {f"{v:+.2f}": int(sum(vaulted(mapped[int(s)]["scores"][f"{v:+.2f}"], True)
+                                           for s in corrected_seeds)) for v in lengths}
+    summary.update({"plan_vaults_demo": demo["plan_vaults"], "grid_demo": demo["grid"],
+                    "corrected_vaulted_by_length_demo": by_length_demo})
     summary.update({"command": "python " + " ".join([sys.argv[0], *(argv or sys.argv[1:])]),
                     "run": str(run), "mapped": len(mapped),
                     "episodes_recreated": f"{sum(check)}/{len(check)}",
                     "corrected_vaulted_by_length": by_length})
     Path(str(out) + ".summary.json").write_text(json.dumps(summary, indent=2))
     best = max(summary["grid"], key=lambda g: g["vaults"])
-    for g in summary["grid"]:
-        print(f"L={g['length']:+.2f} t={g['threshold']:.2f}: {g['vaults']}/{summary['cables']} "
-              f"(plan {summary['plan_vaults']}, gated {g['gated']}, perfect gate {g['perfect_gate_vaults']})")
-    print(f"best: L={best['length']:+.2f} t={best['threshold']:.2f} ({best['vaults']}); "
+    best_demo = max(demo["grid"], key=lambda g: g["vaults"])
+    for g, d in zip(summary["grid"], demo["grid"], strict=True):
+        print(f"L={g['length']:+.2f} t={g['threshold']:.2f}: {g['vaults']}/{summary['cables']} clean, "
+              f"{d['vaults']} as the demo counts (plan {summary['plan_vaults']} / {demo['plan_vaults']}, "
+              f"gated {g['gated']}, perfect gate {g['perfect_gate_vaults']} / {d['perfect_gate_vaults']})")
+    print(f"best: L={best['length']:+.2f} t={best['threshold']:.2f} ({best['vaults']} clean); as the demo "
+          f"counts: L={best_demo['length']:+.2f} t={best_demo['threshold']:.2f} ({best_demo['vaults']}); "
           f"episodes re-created: {summary['episodes_recreated']}")
     return 0
 
