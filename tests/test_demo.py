@@ -234,6 +234,19 @@ def test_summarize_aggregates_all_episodes_instead_of_reporting_the_first() -> N
     assert one["success"] is False and one["final_distance_m"] == 0.2 and one["success_rate"] == 0.0
 
 
+def test_summarize_counts_clean_successes_and_each_avoid_condition() -> None:
+    """A success whose episode met an avoid condition (a vault with the TCP over v_max) is a success but not a
+    clean one; a failure with one is neither; every condition is counted once per episode that met it."""
+    records = [fake_record(k, ok, [1.0]) for k, ok in enumerate((True, True, False, True))]
+    records[1]["avoid"] = {"velocity": True, "collision": False}
+    records[2]["avoid"] = {"velocity": True, "torn": True}
+    records[3]["avoid"] = {"velocity": False}
+    metrics = demo.summarize(records)
+    assert metrics["successes"] == 3 and metrics["clean_successes"] == 2
+    assert metrics["clean_success_rate"] == 0.5
+    assert metrics["avoid_episodes"] == {"velocity": 2, "torn": 1}
+
+
 def test_demo_progress_bar_for_several_episodes_and_quiet_turns_it_off(
     tmp_path: Path, fake_episodes: list[int], capsys: pytest.CaptureFixture[str]
 ) -> None:

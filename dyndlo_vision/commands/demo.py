@@ -379,7 +379,9 @@ def run(args: argparse.Namespace) -> int:
 def summarize(episodes: list[dict[str, Any]]) -> dict[str, Any]:
     """The top-level metrics of a run: aggregates over all episodes, then the per-episode rows.
 
-    Success rate with its Wilson 95% interval, medians of the per-episode distances and estimate errors, and
+    Success rate with its Wilson 95% interval; the clean successes, those whose episode met no avoid
+    condition (a vault can land with the TCP over v_max: a success that the paper's avoid term penalises), and
+    how many episodes met each condition; medians of the per-episode distances and estimate errors, and
     controller-time percentiles over the cycles of all episodes pooled. With one episode its own values
     (``success``, ``final_distance_m``, ...) are at the top level too; with more they are only in the rows,
     so that no one episode's numbers pass for the run's.
@@ -389,6 +391,9 @@ def summarize(episodes: list[dict[str, Any]]) -> dict[str, Any]:
     n = len(episodes)
     successes = sum(bool(e["success"]) for e in episodes)
     lo, hi = wilson_interval(successes, n)
+    clean = sum(bool(e["success"]) and not any(e["avoid"].values()) for e in episodes)
+    avoid_episodes = {key: sum(bool(e["avoid"].get(key)) for e in episodes)
+                      for key in sorted({k for e in episodes for k in e["avoid"]})}
     cycle_ms = np.concatenate([np.asarray(e["_cycle_ms"], dtype=float) for e in episodes])
     stage_ms: dict[str, list[float]] = {}
     for e in episodes:
@@ -405,6 +410,9 @@ def summarize(episodes: list[dict[str, Any]]) -> dict[str, Any]:
         "successes": successes,
         "success_rate": successes / n,
         "success_ci95": [lo, hi],
+        "clean_successes": clean,
+        "clean_success_rate": clean / n,
+        "avoid_episodes": {k: v for k, v in avoid_episodes.items() if v},
         "final_distance_m_median": median("final_distance_m"),
         "min_distance_m_median": median("min_distance_m"),
         "estimate_rmse_m_median": float(np.median(rmse)) if rmse else None,
