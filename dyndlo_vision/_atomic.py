@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import os
 import shutil
+import signal
 import tempfile
 import threading
 from collections.abc import Callable, Iterator, Sequence
@@ -246,3 +247,29 @@ def _quiet_stderr() -> Iterator[None]:
     finally:
         os.dup2(saved, 2)
         os.close(saved)
+
+
+@contextmanager
+def interrupts_held() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM for the block; if one came, raise KeyboardInterrupt when the block is done.
+
+    For checkpoint writes. A Ctrl-C that lands inside torch's zip writer cuts the file, and the writer's
+    clean-up then raises its own RuntimeError in place of the KeyboardInterrupt: ``train`` exited 1 instead
+    of 130, with no resume hint (a CI run, session 32). Outside the main thread, where signals cannot be
+    handled, the block runs as it is.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    held = (signal.SIGINT, signal.SIGTERM)
+    previous = {s: signal.getsignal(s) for s in held}
+    for s in held:
+        signal.signal(s, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler if handler is not None else signal.SIG_DFL)
+    if caught:
+        raise KeyboardInterrupt(f"signal {caught[0]}, held until the checkpoint was written")

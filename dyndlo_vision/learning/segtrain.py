@@ -31,6 +31,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from dyndlo_vision._atomic import interrupts_held
+
 __all__ = [
     "ARCHITECTURES",
     "CableNet",
@@ -348,10 +350,12 @@ def needs_frozen_batch_norm(init: str | Path) -> bool:
 
 
 def _atomic_save(obj: Any, path: Path) -> None:
+    """``torch.save`` to ``path`` whole or not at all; a Ctrl-C meanwhile is raised once it is written."""
     torch = _torch()
     tmp = path.with_name(path.name + ".tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
+    with interrupts_held():
+        torch.save(obj, tmp)
+        os.replace(tmp, path)
 
 
 def train(

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from dyndlo_vision._atomic import write_atomic
+from dyndlo_vision._atomic import interrupts_held, write_atomic
 from dyndlo_vision.learning.config import RunConfig
 from dyndlo_vision.learning.envs import make_training_env, make_vec_env
 from dyndlo_vision.policies import algorithm_class
@@ -233,14 +233,19 @@ class _RunCallbacks:
 
 
 def save_checkpoint(model: Any, out: Path, wall_s: float) -> None:
-    """Write model, replay buffer (off-policy) and state atomically to ``out/checkpoint``."""
+    """Write model, replay buffer (off-policy) and state atomically to ``out/checkpoint``.
+
+    A Ctrl-C or SIGTERM while it writes is held until the checkpoint is whole, then raised as
+    KeyboardInterrupt (:func:`~dyndlo_vision._atomic.interrupts_held`).
+    """
     ckpt = out / CHECKPOINT_DIR
     ckpt.mkdir(parents=True, exist_ok=True)
-    write_atomic(ckpt / "model.zip", lambda p: model.save(p))
-    if hasattr(model, "replay_buffer") and model.replay_buffer is not None:
-        write_atomic(ckpt / "replay_buffer.pkl", lambda p: model.save_replay_buffer(p))
-    state = {"num_timesteps": int(model.num_timesteps), "wall_s": wall_s, "time": time.time()}
-    write_atomic(ckpt / "state.json", lambda p: Path(p).write_text(json.dumps(state, indent=2)))
+    with interrupts_held():
+        write_atomic(ckpt / "model.zip", lambda p: model.save(p))
+        if hasattr(model, "replay_buffer") and model.replay_buffer is not None:
+            write_atomic(ckpt / "replay_buffer.pkl", lambda p: model.save_replay_buffer(p))
+        state = {"num_timesteps": int(model.num_timesteps), "wall_s": wall_s, "time": time.time()}
+        write_atomic(ckpt / "state.json", lambda p: Path(p).write_text(json.dumps(state, indent=2)))
 
 
 def _eval_callback(config: RunConfig, out: Path) -> Any:

@@ -218,6 +218,56 @@ def test_ctrl_c_before_the_first_checkpoint_says_there_is_nothing_to_resume(
 
 
 @pytest.mark.slow
+def test_a_ctrl_c_while_a_checkpoint_is_written_waits_for_the_checkpoint(tmp_path: Path) -> None:
+    """A Ctrl-C that lands while the model is being saved does not cut the checkpoint: it is written whole
+    (model, replay buffer, state), then the interrupt is raised. Cut mid-write, torch's zip writer replaced
+    the KeyboardInterrupt by its own RuntimeError and ``train`` exited 1, not 130 (session 32). seg-train's
+    checkpoint is held the same way."""
+
+    class Model:
+        num_timesteps = 7
+        replay_buffer = object()
+
+        def save(self, path: Path) -> None:
+            Path(path).write_bytes(b"first half ")
+            os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C mid-write
+            time.sleep(0.05)
+            with Path(path).open("ab") as f:
+                f.write(b"second half")
+
+        def save_replay_buffer(self, path: Path) -> None:
+            Path(path).write_bytes(b"buffer")
+
+    with pytest.raises(KeyboardInterrupt):
+        train_module.save_checkpoint(Model(), tmp_path, 1.5)
+    ckpt = tmp_path / train_module.CHECKPOINT_DIR
+    assert (ckpt / "model.zip").read_bytes() == b"first half second half"
+    assert (ckpt / "replay_buffer.pkl").read_bytes() == b"buffer"
+    assert json.loads((ckpt / "state.json").read_text())["num_timesteps"] == 7
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler is put back
+    # seg-train's checkpoints are held the same way
+    from dyndlo_vision.learning import segtrain
+
+    class Interrupting:
+        def __reduce__(self) -> tuple[Any, tuple[()]]:  # pickled by torch.save: Ctrl-C mid-write
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)
+            return (dict, ())
+
+    with pytest.raises(KeyboardInterrupt):
+        segtrain._atomic_save({"step": 3, "x": Interrupting()}, tmp_path / "seg.pt")
+    import torch
+
+    assert torch.load(tmp_path / "seg.pt", weights_only=False)["step"] == 3
+
+    class Quiet(Model):
+        def save(self, path: Path) -> None:
+            Path(path).write_bytes(b"quiet")
+
+    train_module.save_checkpoint(Quiet(), tmp_path, 2.0)  # no signal, no interrupt
+    assert (ckpt / "model.zip").read_bytes() == b"quiet"
+
+
 def test_close_vec_env_copes_with_a_dead_worker() -> None:
     from dyndlo_vision.learning.envs import make_vec_env
 
