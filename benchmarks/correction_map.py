@@ -187,10 +187,10 @@ def main(argv: list[str] | None = None) -> int:
     summary = table(examples, held, mapped, lengths, args.min_probability)
     demo = table(examples, held, mapped, lengths, args.min_probability, with_avoided=True)
     corrected_seeds = examples["seeds"][examples["corrected"]]
-    by_length = {f"{v:+.2f}": int(sum(vaulted(mapped[int(s)]["scores"][f"{v:+.2f}"], False)
-                                      for s in corrected_seeds)) for v in lengths}
-    by_length_demo = {f"{v:+.2f}": int(sum(vaulted(mapped[int(s)]["scores"][f"{v:+.2f}"], True)
-                                           for s in corrected_seeds)) for v in lengths}
+    by_length, by_length_demo = (
+        {f"{v:+.2f}": int(sum(vaulted(mapped[int(s)]["scores"][f"{v:+.2f}"], with_avoided)
+                              for s in corrected_seeds)) for v in lengths}
+        for with_avoided in (False, True))
     summary.update({"plan_vaults_demo": demo["plan_vaults"], "grid_demo": demo["grid"],
                     "corrected_vaulted_by_length_demo": by_length_demo})
     summary.update({"command": "python " + " ".join([sys.argv[0], *(argv or sys.argv[1:])]),

@@ -113,13 +113,10 @@ def gate_examples(run: Path, decision: int | None = None) -> dict[str, Any]:
 
 def line_direction(candidates: str, action_size: int) -> NDArray[np.float64]:
     """The unit direction of a ``"line:N"`` search's corrections (:class:`~dyndlo_vision.learning.distill.
-    ReplanSearch`)."""
+    ReplanSearch`; ValueError for candidates that are not a line)."""
     from dyndlo_vision.learning.distill import ReplanSearch
 
-    search = ReplanSearch(candidates=candidates)
-    if search.line is None:
-        raise ValueError(f"search candidates {candidates!r} are not a line; a gate needs a 'line:N' run")
-    return search.line_direction(action_size)
+    return ReplanSearch(candidates=candidates).line_direction(action_size)
 
 
 def fit_gate(run: Path, length: float, threshold: float = 0.5, l2: float = 1.0,

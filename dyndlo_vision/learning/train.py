@@ -136,11 +136,9 @@ def check_run(config: RunConfig, out: Path, resume: bool = False) -> RunConfig:
                 f"{CHECKPOINT_DIR}/): there is nothing to resume; delete the folder or choose another --out"
             )
         check_hyperparams(config.algo, config.hyperparams)  # (a resumed run loads its model instead)
-    from dyndlo_vision.tasks.noise import SHIPPED_NOISE_MODELS
+    from dyndlo_vision.tasks.noise import SHIPPED_NOISE_MODELS, ObservationNoiseModel
 
     if config.obs_noise and config.obs_noise not in SHIPPED_NOISE_MODELS:
-        from dyndlo_vision.tasks.noise import ObservationNoiseModel
-
         if not Path(config.obs_noise).is_file():
             raise FileNotFoundError(f"observation-noise model {config.obs_noise}: no such file")
         ObservationNoiseModel.load(config.obs_noise)  # ValueError naming the file and what is wrong
