@@ -467,7 +467,7 @@ def part_loopspeed(model: str | None = None, episodes: int = 3, repeats: int = 5
                 sources[name][1].close()
             sources[name] = tracked_state(env, segmenter=name)
             if name == "learned" and model is not None:  # the gripper mask's inner segmenter
-                sources[name][0].tracker.segmenter.base = LearnedSegmenter(onnx_bytes(model))
+                sources[name][0].tracker.segmenter.base.base = LearnedSegmenter(onnx_bytes(model))
         cam = sources["background"][1]
         done = False
         while not done:

@@ -30,11 +30,16 @@ from dyndlo_vision.tracking import (
     Plane,
     PointFilter,
 )
-from dyndlo_vision.tracking.masks import GripperMaskedSegmenter
+from dyndlo_vision.tracking.masks import CableReachSegmenter, GripperMaskedSegmenter
 
 #: The planar tasks move in the x-z plane through the origin.
 MOTION_PLANE = Plane(np.array([0.0, 1.0, 0.0]), 0.0)
 GRIPPER_MASK_RADIUS_M = 0.03  # the 2 cm gripper sphere plus a margin
+#: The learned segmenter looks within the cable's length plus this of the gripper (tracking.masks.
+#: CableReachSegmenter): the chain is inextensible and its first node is the TCP (measured: the farthest node
+#: is the cable's length away, to 1e-15 m, under the policy and random actions), so this covers the cable's
+#: drawn thickness and the gripper sphere.
+CABLE_REACH_MARGIN_M = 0.03
 # The tip filter's tuned acceleration noise without and with a camera latency (why: tracking.params).
 LOOP_SIGMA_ACCEL = LOOP_FILTER.sigma_accel
 LATENT_LOOP_SIGMA_ACCEL = LATENT_LOOP_FILTER.sigma_accel
@@ -89,9 +94,13 @@ def _camera_tracker(base: Any, camera_name: str, width: int, height: int, segmen
         from dyndlo_vision.tracking.learned import LearnedSegmenter
 
         # The full-resolution network fine-tuned on the loop's own scenes: the loop camera's cable is 1.6 px
-        # wide (docs/RESULTS.md, "A segmenter for the loop's own scenes").
-        inner: Any = LearnedSegmenter(onnx_bytes(segmenter_model or LOOP_NAME))
+        # wide (docs/RESULTS.md, "A segmenter for the loop's own scenes"). It computes only the part of the
+        # frame the held cable can reach (docs/RESULTS.md, "The cable's reach").
+        reach: Any = CableReachSegmenter(LearnedSegmenter(onnx_bytes(segmenter_model or LOOP_NAME)), calib,
+                                         base.scene.config.cable.length_m + CABLE_REACH_MARGIN_M)
+        inner: Any = reach
     else:
+        reach = None
         inner = BackgroundSegmenter(render_without_cable(camera), open_radius=0)
     masked = GripperMaskedSegmenter(inner, GRIPPER_MASK_RADIUS_M * scale)
     # Nodes are spread over the observed centreline (from the gripper mask's edge to the far end): the last
@@ -104,8 +113,11 @@ def _camera_tracker(base: Any, camera_name: str, width: int, height: int, segmen
                            plane=MOTION_PLANE, floor=floor)
 
     def project(p: NDArray[np.float64]) -> NDArray[np.float64]:
-        uv = calib.project(np.asarray(p, dtype=float)[None])[0]
+        held = np.asarray(p, dtype=float)
+        uv = calib.project(held[None])[0]
         masked.center_uv = uv
+        if reach is not None:
+            reach.held_world = held
         return uv
 
     return camera, tracker, project

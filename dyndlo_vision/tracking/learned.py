@@ -22,12 +22,15 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["LearnedSegmenter", "from_blocks", "to_blocks"]
+__all__ = ["OUTSIDE_LOGIT", "LearnedSegmenter", "from_blocks", "to_blocks"]
 
 #: Block size of the 48-channel layout (``segtrain.S2D_BLOCK``).
 BLOCK = 4
-#: Frame sides of the block layout are padded to a multiple of this (the block and two stride-2 levels).
+#: Frame sides of the block layout are padded to a multiple of this (the block and two stride-2 levels); a
+#: region is computed on this grid, where the network sees what it sees in the whole frame.
 _MULTIPLE = 16
+#: The logit given outside a computed region (no cable; far below any threshold, finite for resizing).
+OUTSIDE_LOGIT = -1.0e4
 
 
 def to_blocks(rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
@@ -143,9 +146,31 @@ class LearnedSegmenter:
         self._net.setInput(to_blocks(padded))
         return np.asarray(self._net.forward()[0], dtype=np.float32)
 
-    def logits(self, rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
-        """The network's logits (h, w): at the resized frame's size (blocks) or half of it (RGB)."""
-        small = self._resized(rgb)
+    def grid_box(self, region: tuple[int, int, int, int] | None, height: int,
+                 width: int) -> tuple[int, int, int, int] | None:
+        """``region`` (u0, v0, u1, v1) of a ``height`` x ``width`` frame as the box of the network's input
+        that covers it, widened outward to the network's 16-pixel grid: inside that box the network computes
+        what it computes on the whole frame, except within its receptive field of the box's edges.
+
+        None for None or for a box that covers the whole input (the whole frame is computed); an empty box
+        (0, 0, 0, 0) for a region that misses the frame."""
+        if region is None:
+            return None
+        u0, v0, u1, v1 = (float(x) for x in region)
+        w_in, h_in = self.input_size(height, width)
+        sx, sy = w_in / width, h_in / height
+        u0, u1 = max(0, int(np.floor(u0 * sx))), min(w_in, int(np.ceil(u1 * sx)))
+        v0, v1 = max(0, int(np.floor(v0 * sy))), min(h_in, int(np.ceil(v1 * sy)))
+        if u0 >= u1 or v0 >= v1:
+            return (0, 0, 0, 0)
+        u0, v0 = u0 - u0 % _MULTIPLE, v0 - v0 % _MULTIPLE
+        u1, v1 = min(w_in, u1 + -u1 % _MULTIPLE), min(h_in, v1 + -v1 % _MULTIPLE)
+        if (u0, v0, u1, v1) == (0, 0, w_in, h_in):
+            return None
+        return u0, v0, u1, v1
+
+    def _net_logits(self, small: NDArray[np.uint8]) -> NDArray[np.float32]:
+        """The network's logits of a (resized) frame or part of one: at its size (blocks) or half (RGB)."""
         if self.blocks:
             h, w = small.shape[:2]
             return np.ascontiguousarray(from_blocks(self._block_logits(small))[:h, :w])
@@ -153,9 +178,30 @@ class LearnedSegmenter:
         self._net.setInput(blob)
         return np.asarray(self._net.forward()[0, 0], dtype=np.float32)
 
-    def logits_full(self, rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
-        """The logits at the frame's size (H, W), resized bilinearly where the network's are not."""
-        lg = self.logits(rgb)
+    def logits(self, rgb: NDArray[np.uint8],
+               region: tuple[int, int, int, int] | None = None) -> NDArray[np.float32]:
+        """The network's logits (h, w): at the resized frame's size (blocks) or half of it (RGB).
+
+        ``region`` (u0, v0, u1, v1), in the frame's pixels: only the part of the input that covers it is
+        computed (:meth:`grid_box`); the logits elsewhere are :data:`OUTSIDE_LOGIT` (no cable)."""
+        small = self._resized(rgb)
+        box = self.grid_box(region, *rgb.shape[:2])
+        if box is None:
+            return self._net_logits(small)
+        h, w = small.shape[:2]
+        k = 1 if self.blocks else 2  # an RGB network's logits are at half its input's size
+        out = np.full((h // k, w // k), OUTSIDE_LOGIT, np.float32)
+        u0, v0, u1, v1 = box
+        if u1 > u0:
+            part = self._net_logits(np.ascontiguousarray(small[v0:v1, u0:u1]))
+            out[v0 // k : v0 // k + part.shape[0], u0 // k : u0 // k + part.shape[1]] = part
+        return out
+
+    def logits_full(self, rgb: NDArray[np.uint8],
+                    region: tuple[int, int, int, int] | None = None) -> NDArray[np.float32]:
+        """The logits at the frame's size (H, W), resized bilinearly where the network's are not
+        (``region``: as in :meth:`logits`)."""
+        lg = self.logits(rgb, region)
         h, w = rgb.shape[:2]
         if lg.shape == (h, w):
             return lg
@@ -165,14 +211,28 @@ class LearnedSegmenter:
         """Per-pixel cable probability (H, W) in [0, 1]."""
         return (1.0 / (1.0 + np.exp(-self.logits_full(rgb)))).astype(np.float32)
 
-    def segment(self, rgb: NDArray[np.uint8]) -> NDArray[np.bool_]:
-        """The (H, W) bool cable mask of one RGB frame."""
+    def segment(self, rgb: NDArray[np.uint8],
+                region: tuple[int, int, int, int] | None = None) -> NDArray[np.bool_]:
+        """The (H, W) bool cable mask of one RGB frame.
+
+        ``region`` (u0, v0, u1, v1), in pixels: only the network's 16-pixel grid cells that cover it are
+        computed (faster; within them the mask is the whole frame's, up to the cells' outer edges), and the
+        mask is False elsewhere. :class:`~dyndlo_vision.tracking.masks.CableReachSegmenter` gives the region
+        the cable can reach."""
         h, w = rgb.shape[:2]
         if self.blocks and self.input_size(h, w) == (w, h):  # threshold the blocks, then put them in place
-            cable = self._block_logits(self._resized(rgb)) > self.threshold
-            mask = np.ascontiguousarray(from_blocks(cable.view(np.uint8))[:h, :w])
+            box = self.grid_box(region, h, w)
+            if box is None:
+                cable = self._block_logits(self._resized(rgb)) > self.threshold
+                mask = np.ascontiguousarray(from_blocks(cable.view(np.uint8))[:h, :w])
+            else:
+                mask = np.zeros((h, w), np.uint8)
+                u0, v0, u1, v1 = box
+                if u1 > u0:
+                    cable = self._block_logits(np.ascontiguousarray(rgb[v0:v1, u0:u1])) > self.threshold
+                    mask[v0:v1, u0:u1] = from_blocks(cable.view(np.uint8))[: v1 - v0, : u1 - u0]
         else:
-            _, m = cv2.threshold(self.logits_full(rgb), self.threshold, 1, cv2.THRESH_BINARY)
+            _, m = cv2.threshold(self.logits_full(rgb, region), self.threshold, 1, cv2.THRESH_BINARY)
             mask = m.astype(np.uint8)
         if self.min_area > 1:
             n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)

@@ -6,6 +6,8 @@ Both wrap a segmenter (``rgb -> bool mask``) and are segmenters themselves, so t
 * :class:`GripperMaskedSegmenter` clears a disk around the gripper where the robot's pose says it is (the
   loop knows it every frame; ``track --tcp-log`` reads it from a log). A gripper segmented as cable is the
   worst confident wrong answer: the centreline ends on it and the tip is reported at the hand.
+* :class:`CableReachSegmenter` segments only the image of the ball the held cable can reach (its length
+  around the gripper): nothing beyond it is this cable, and the learned segmenter computes only that part.
 * :class:`CableShapedMask` removes regions too thick to be cable: thicker than an absolute share of the image
   (a whole floor the background model does not describe), or than a few times the cable's own width, which
   it measures in the mask (a gripper, a box). It remembers where it cut, so that a centreline that runs into
@@ -54,6 +56,85 @@ class GripperMaskedSegmenter:
             if u0 < u1 and v0 < v1:
                 vv, uu = np.mgrid[v0:v1, u0:u1]
                 mask[v0:v1, u0:u1] &= (uu - u) ** 2 + (vv - v) ** 2 > r * r
+        return mask
+
+
+def _sphere_directions(n: int) -> NDArray[np.float64]:
+    """``n`` unit vectors spread evenly over the sphere (a Fibonacci lattice)."""
+    k = np.arange(n) + 0.5
+    polar = np.arccos(1.0 - 2.0 * k / n)
+    azimuth = np.pi * (1.0 + 5.0**0.5) * k
+    return np.column_stack([np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar), np.cos(polar)])
+
+
+#: Directions whose images bound a ball's image. Every direction lies within 0.1 rad of one of them, so a
+#: ball drawn 1 % larger than asked (cos 0.1 = 0.995) covers the whole ball (``CableReachSegmenter.region``).
+_BALL_DIRECTIONS = _sphere_directions(400)
+_BALL_INFLATION = 1.01
+
+
+class CableReachSegmenter:
+    """A segmenter that looks for the cable only where it can be: within its length of the held end.
+
+    The cable is inextensible and held at one end, whose world position the robot reports every frame; every
+    point of it lies in the ball of the cable's length around that end. This segments the image of that ball
+    (its bounding box, :meth:`region`) and reports no cable elsewhere. A base that can compute a region alone
+    (``base.segment(rgb, region=...)``, as :class:`~dyndlo_vision.tracking.learned.LearnedSegmenter`) computes
+    only the region: the learned segmenter is then faster by the share of the frame the ball leaves out. Any
+    other base segments the whole frame and its mask is cleared outside the region: whatever it found there
+    (another cable, a box) is not this cable.
+
+    Set :attr:`held_world` before each frame; None (or NaN) segments the whole frame.
+
+    Args:
+        base: The frame -> mask function.
+        camera: The camera's calibration (``project``, ``world_to_camera``), world frame of the held end.
+        reach_m: Radius of the ball: the cable's length plus a margin for its thickness and the gripper.
+    """
+
+    def __init__(self, base: Any, camera: Any, reach_m: float) -> None:
+        if not (np.isfinite(reach_m) and reach_m > 0):
+            raise ValueError(f"reach_m must be a positive length in m, got {reach_m!r}")
+        self.base = base
+        self.camera = camera
+        self.reach_m = float(reach_m)
+        self.held_world: NDArray[np.float64] | None = None
+        #: Whether the base computes a region alone (else it segments the whole frame, cleared outside).
+        self.computes_region = callable(getattr(base, "grid_box", None))
+
+    def region(self, height: int, width: int) -> tuple[int, int, int, int] | None:
+        """(u0, v0, u1, v1): the pixels of a ``height`` x ``width`` frame the ball around the held end covers,
+        clipped to the frame; (0, 0, 0, 0) when it misses the frame, None when it cannot be bounded (no held
+        end, or a ball that reaches behind the camera)."""
+        held = self.held_world
+        if held is None or not np.all(np.isfinite(held)):
+            return None
+        radius = self.reach_m * _BALL_INFLATION
+        points = np.asarray(held, dtype=float).reshape(1, 3) + radius * _BALL_DIRECTIONS
+        if np.min(self.camera.world_to_camera(points)[:, 2]) <= 1e-3:
+            return None
+        uv = self.camera.project(points)
+        if not np.all(np.isfinite(uv)):
+            return None
+        u0, v0 = np.floor(uv.min(axis=0)).astype(int)
+        u1, v1 = np.ceil(uv.max(axis=0)).astype(int) + 1
+        u0, v0, u1, v1 = max(0, u0), max(0, v0), min(width, u1), min(height, v1)
+        if u0 >= u1 or v0 >= v1:
+            return (0, 0, 0, 0)
+        return int(u0), int(v0), int(u1), int(v1)
+
+    def __call__(self, rgb: NDArray[np.uint8]) -> NDArray[np.bool_]:
+        h, w = rgb.shape[:2]
+        region = self.region(h, w)
+        if region is None:
+            return np.asarray(self.base(rgb), dtype=bool)
+        if self.computes_region:
+            return np.asarray(self.base.segment(rgb, region=region), dtype=bool)
+        mask = np.asarray(self.base(rgb), dtype=bool)
+        u0, v0, u1, v1 = region
+        inside = mask[v0:v1, u0:u1].copy()
+        mask[:] = False
+        mask[v0:v1, u0:u1] = inside
         return mask
 
 
