@@ -216,9 +216,10 @@ class LearnedSegmenter:
         """The (H, W) bool cable mask of one RGB frame.
 
         ``region`` (u0, v0, u1, v1), in pixels: only the network's 16-pixel grid cells that cover it are
-        computed (faster; within them the mask is the whole frame's, up to the cells' outer edges), and the
-        mask is False elsewhere. :class:`~dyndlo_vision.tracking.masks.CableReachSegmenter` gives the region
-        the cable can reach."""
+        computed (faster), and the mask is False elsewhere. Within them the mask is the whole frame's except
+        near their outer edges, where the network misses the frame around them (its receptive field: about
+        100 px, docs/RESULTS.md, "The cable's reach").
+        :class:`~dyndlo_vision.tracking.masks.CableReachSegmenter` gives the region the cable can reach."""
         h, w = rgb.shape[:2]
         if self.blocks and self.input_size(h, w) == (w, h):  # threshold the blocks, then put them in place
             box = self.grid_box(region, h, w)

@@ -78,9 +78,9 @@ def test_the_loop_runs_the_segmenter_model_it_is_given() -> None:
 def test_the_learned_loop_tracks_the_thin_cable() -> None:
     """The loop's learned option runs a full-resolution network on the loop camera's 1.6 px cable.
 
-    Measured on seeds 100000-100002 with the shipped tip-control policy: per-episode estimate RMSE 4.3, 11.9
-    and 15.4 mm with ``cable-segmenter-loop`` computed within the cable's reach (the default here; 3.5, 9.6 and
-    14.5 mm on the whole frame, before session 33; 13.8, 15.6 and 23.1 mm with
+    Measured on seeds 100000-100002 with the shipped tip-control policy: per-episode estimate RMSE 4.3,
+    11.9 and 15.4 mm with ``cable-segmenter-loop`` computed within the cable's reach (the default here; 3.5,
+    9.6 and 14.5 mm on the whole frame, before session 33; 13.8, 15.6 and 23.1 mm with
     ``cable-segmenter-fine``, session 23), 34, 101 and 74 mm with ``cable-segmenter``, whose half-resolution
     mask cuts the cable into pieces (docs/RESULTS.md, "Learned cable segmenter: full resolution"). The bound
     sits between them.
