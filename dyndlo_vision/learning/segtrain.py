@@ -20,7 +20,6 @@ from __future__ import annotations
 import io
 import json
 import math
-import os
 import sys
 import time
 from dataclasses import asdict, dataclass
@@ -31,7 +30,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from dyndlo_vision._atomic import interrupts_held
+from dyndlo_vision._atomic import interrupts_held, write_atomic
 
 __all__ = [
     "ARCHITECTURES",
@@ -352,10 +351,8 @@ def needs_frozen_batch_norm(init: str | Path) -> bool:
 def _atomic_save(obj: Any, path: Path) -> None:
     """``torch.save`` to ``path`` whole or not at all; a Ctrl-C meanwhile is raised once it is written."""
     torch = _torch()
-    tmp = path.with_name(path.name + ".tmp")
     with interrupts_held():
-        torch.save(obj, tmp)
-        os.replace(tmp, path)
+        write_atomic(path, lambda tmp: torch.save(obj, tmp))
 
 
 def train(

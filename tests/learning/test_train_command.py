@@ -217,7 +217,6 @@ def test_ctrl_c_before_the_first_checkpoint_says_there_is_nothing_to_resume(
     assert "nothing to resume" in printed and "--resume" not in printed
 
 
-@pytest.mark.slow
 def test_a_ctrl_c_while_a_checkpoint_is_written_waits_for_the_checkpoint(tmp_path: Path) -> None:
     """A Ctrl-C that lands while the model is being saved does not cut the checkpoint: it is written whole
     (model, replay buffer, state), then the interrupt is raised. Cut mid-write, torch's zip writer replaced
@@ -269,6 +268,7 @@ def test_a_ctrl_c_while_a_checkpoint_is_written_waits_for_the_checkpoint(tmp_pat
     assert (ckpt / "model.zip").read_bytes() == b"quiet"
 
 
+@pytest.mark.slow
 def test_close_vec_env_copes_with_a_dead_worker() -> None:
     from dyndlo_vision.learning.envs import make_vec_env
 
