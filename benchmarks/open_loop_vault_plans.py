@@ -130,6 +130,9 @@ def one_plan(pool: ProcessPoolExecutor, args: argparse.Namespace, start: np.ndar
         results = list(pool.map(episode, [(s, action.tolist()) for s in seeds]))
         return sum(r[0] for r in results), sum(r[1] for r in results)
 
+    def objective(row: dict) -> float:  # the summed reward plus 5 per clean vault
+        return row["reward"] + 5.0 * row["clean"]
+
     reward, clean = score(start)
     history = [{"generation": -1, "plan": start.tolist(), "reward": reward, "clean": clean}]
     print(json.dumps(history[-1]), flush=True)
@@ -143,8 +146,8 @@ def one_plan(pool: ProcessPoolExecutor, args: argparse.Namespace, start: np.ndar
             history.append({"generation": generation, "plan": action.tolist(), "reward": reward,
                             "clean": clean})
             print(json.dumps(history[-1]), flush=True)
-            scores.append(reward + 5.0 * clean)
-            if reward + 5.0 * clean > best["reward"] + 5.0 * best["clean"]:
+            scores.append(objective(history[-1]))
+            if scores[-1] > objective(best):
                 best = history[-1]
         elite = population[np.argsort(scores)[::-1][: args.elite]]
         mean, sigma = elite.mean(axis=0), np.maximum(elite.std(axis=0), 0.03)
