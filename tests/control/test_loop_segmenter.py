@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from dyndlo_vision.cli import main
-from dyndlo_vision.control.sim_perception import tracked_state
+from dyndlo_vision.control.sim_perception import LOOP_NETWORK_THRESHOLD, tracked_state
 from dyndlo_vision.policies.segmenter import FINE_NAME, LOOP_NAME, onnx_bytes
 from dyndlo_vision.tracking.learned import LearnedSegmenter
 from dyndlo_vision.tracking.segmentation import BackgroundSegmenter
@@ -61,15 +61,19 @@ def test_the_loop_runs_the_segmenter_model_it_is_given() -> None:
         source, camera = tracked_state(env, segmenter="learned", segmenter_model="cable-segmenter")
         camera.close()
         assert not source.tracker.segmenter.base.base.blocks  # the half-resolution network, not the default
+        assert source.tracker.segmenter.base.base.threshold == 0.0  # its own, not the loop network's
         source, camera = tracked_state(env, segmenter="learned")  # the default: the loop's own network
         try:
             rgb = camera.read().rgb
         finally:
             camera.close()
-        own = LearnedSegmenter(onnx_bytes(LOOP_NAME))(rgb)
+        own = LearnedSegmenter(onnx_bytes(LOOP_NAME), threshold=LOOP_NETWORK_THRESHOLD)(rgb)
         assert own.any()
         np.testing.assert_array_equal(source.tracker.segmenter.base(rgb), own)
         assert not np.array_equal(LearnedSegmenter(onnx_bytes(FINE_NAME))(rgb), own)
+        # The loop's network at its own threshold: more of the faint thin cable than at probability 0.5.
+        at_half = LearnedSegmenter(onnx_bytes(LOOP_NAME))(rgb)
+        assert own.sum() > at_half.sum() and not (at_half & ~own).any()
     finally:
         env.close()
 
@@ -78,9 +82,10 @@ def test_the_loop_runs_the_segmenter_model_it_is_given() -> None:
 def test_the_learned_loop_tracks_the_thin_cable() -> None:
     """The loop's learned option runs a full-resolution network on the loop camera's 1.6 px cable.
 
-    Measured on seeds 100000-100002 with the shipped tip-control policy: per-episode estimate RMSE 4.3,
-    11.9 and 15.4 mm with ``cable-segmenter-loop`` computed within the cable's reach (the default here; 3.5,
-    9.6 and 14.5 mm on the whole frame, before session 33; 13.8, 15.6 and 23.1 mm with
+    Measured on seeds 100000-100002 with the shipped tip-control policy: per-episode estimate RMSE 12.9, 5.4
+    and 18.5 mm with ``cable-segmenter-loop`` computed within the cable's reach at the loop's threshold (the
+    default here, session 34; 4.3, 11.9 and 15.4 mm at probability 0.5; 3.5, 9.6 and 14.5 mm on the whole
+    frame, before session 33; 13.8, 15.6 and 23.1 mm with
     ``cable-segmenter-fine``, session 23), 34, 101 and 74 mm with ``cable-segmenter``, whose half-resolution
     mask cuts the cable into pieces (docs/RESULTS.md, "Learned cable segmenter: full resolution"). The bound
     sits between them.
