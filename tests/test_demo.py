@@ -693,3 +693,28 @@ def test_raw_videos_are_what_track_reads_and_match_the_truth(tmp_path: Path) -> 
     err, seen = _track_errors(tmp_path / "vault.csv", vault / "truth.csv")
     assert seen.mean() > 0.8 and np.median(err) < 0.004 and err.max() < 0.01, (seen.mean(), err)
 
+
+
+def test_the_plot_does_not_draw_a_still_coordinate_on_rounding_noise(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """y stays in the motion plane up to 1e-17 m: its panel spans 5 cm about it, not the noise; a coordinate
+    that moves keeps its own range."""
+    import matplotlib.pyplot as plt
+
+    t = np.arange(6) * PERIOD_S
+    still_y = 1e-17 * np.sin(np.arange(6))
+    truth = np.column_stack([np.linspace(0.4, 0.8, 6), still_y, np.linspace(0.1, 0.5, 6)])
+    trace = {"t": t, "estimate": truth, "measured": np.ones(6, bool), "truth_t": t, "truth": truth,
+             "goal": np.array([0.7, 0.0, 0.5]), "replan_end_t": t[-1], "success": True,
+             "success_radius_m": 0.035, "min_distance_m": 0.1}
+    figures = []
+    close = plt.close
+    monkeypatch.setattr(plt, "close", lambda fig=None: (figures.append(fig), close(fig)))
+    demo._write_plot(tmp_path / "p.png", trace)
+    assert (tmp_path / "p.png").is_file()
+    x_ax, y_ax = figures[0].axes[:2]
+    lo, hi = y_ax.get_ylim()
+    assert hi - lo == pytest.approx(0.05) and lo < 0.0 < hi
+    assert x_ax.get_ylim()[1] - x_ax.get_ylim()[0] > 0.4
+    assert demo._widened(0.2, 0.3, 0.05) == (0.2, 0.3)

@@ -58,6 +58,9 @@ LEGEND = make_legend(True)
 LEGEND_UNTRACKED = make_legend(False)
 _PLOT_TRUE = "black"
 _PLOT_TARGET = "#c8a000"
+#: A coordinate panel of ``p_dlo.png`` spans at least this much (m): a coordinate that stays put (y in the
+#: motion plane) would otherwise be drawn on an axis of rounding noise (1e-17 m).
+_PLOT_MIN_SPAN_M = 0.05
 
 
 def parse_push(text: str | None) -> Any:
@@ -690,6 +693,14 @@ def _annotate_truth(rgb: np.ndarray, t: float, true_p: np.ndarray, calib: Any, g
     return cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
 
 
+def _widened(lo: float, hi: float, min_span: float) -> tuple[float, float]:
+    """Axis limits ``(lo, hi)`` widened about their middle to span at least ``min_span``."""
+    if hi - lo >= min_span:
+        return lo, hi
+    mid = 0.5 * (lo + hi)
+    return mid - 0.5 * min_span, mid + 0.5 * min_span
+
+
 def _write_plot(path: Path, trace: dict[str, Any], goal_name: str = "target") -> None:
     """P_DLO (x, y, z) and its distance to the goal over time: truth vs estimate, up to the outcome."""
     import matplotlib
@@ -724,6 +735,8 @@ def _write_plot(path: Path, trace: dict[str, Any], goal_name: str = "target") ->
         if trace["replan_end_t"] < end_t - 1e-9:
             ax.axvspan(trace["replan_end_t"], end_t, color="0.9", label="last plan, no re-planning")
         ax.axvline(end_t, color="0.4", ls=":", lw=1)
+        if goal_k is not None:  # a coordinate panel
+            ax.set_ylim(*_widened(*ax.get_ylim(), _PLOT_MIN_SPAN_M))
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
     dist_ax = axes[-1]
