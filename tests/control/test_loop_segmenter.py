@@ -4,12 +4,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import gymnasium as gym
 import numpy as np
 import pytest
 
 from dyndlo_vision.cli import main
-from dyndlo_vision.control.sim_perception import LOOP_NETWORK_THRESHOLD, tracked_state
+from dyndlo_vision.control.sim_perception import LOOP_NETWORK_SCALE, tracked_state
 from dyndlo_vision.policies.segmenter import FINE_NAME, LOOP_NAME, onnx_bytes
 from dyndlo_vision.tracking.learned import LearnedSegmenter
 from dyndlo_vision.tracking.segmentation import BackgroundSegmenter
@@ -61,34 +62,79 @@ def test_the_loop_runs_the_segmenter_model_it_is_given() -> None:
         source, camera = tracked_state(env, segmenter="learned", segmenter_model="cable-segmenter")
         camera.close()
         assert not source.tracker.segmenter.base.base.blocks  # the half-resolution network, not the default
-        assert source.tracker.segmenter.base.base.threshold == 0.0  # its own, not the loop network's
+        assert source.tracker.segmenter.base.base.short_side == 720  # every network sees the frame at 1.5x
         source, camera = tracked_state(env, segmenter="learned")  # the default: the loop's own network
         try:
             rgb = camera.read().rgb
         finally:
             camera.close()
-        own = LearnedSegmenter(onnx_bytes(LOOP_NAME), threshold=LOOP_NETWORK_THRESHOLD)(rgb)
+        assert LOOP_NETWORK_SCALE == 1.5
+        own = LearnedSegmenter(onnx_bytes(LOOP_NAME), short_side=720)(rgb)  # 480 rows seen as 720
         assert own.any()
         np.testing.assert_array_equal(source.tracker.segmenter.base(rgb), own)
-        assert not np.array_equal(LearnedSegmenter(onnx_bytes(FINE_NAME))(rgb), own)
-        # The loop's network at its own threshold: more of the faint thin cable than at probability 0.5.
-        at_half = LearnedSegmenter(onnx_bytes(LOOP_NAME))(rgb)
-        assert own.sum() > at_half.sum() and not (at_half & ~own).any()
+        assert not np.array_equal(LearnedSegmenter(onnx_bytes(FINE_NAME), short_side=720)(rgb), own)
     finally:
         env.close()
+
+
+def test_the_loop_network_enlarged_finds_more_of_the_thin_cable() -> None:
+    """At 1.5x the loop camera's 1.6 px cable is 2.4 px wide to the network: its mask holds more of the true
+    cable (MuJoCo's segmentation render) than at the frame's own size, where the cable over the grey floor is
+    faint, and adds little away from it. Measured on these three frames (tip control, seed 200000, decisions
+    3, 7, 11): recall 0.98, 0.98, 0.97 at 1.5x against 0.93, 0.91, 0.83; 7 pixels more than 2 px off the
+    cable against 35."""
+    from dyndlo_vision import policies
+    from dyndlo_vision.sim.cable_look import CableLook
+    from dyndlo_vision.sim.rendering import make_renderer
+    from dyndlo_vision.tasks.registry import make_env
+
+    env = make_env("tip-control", multi_step=True)
+    model = policies.load("tip-control-multi-step", env=env)
+    base = env.unwrapped
+    renderer = make_renderer(base.model, 480, 640)
+    renderer.enable_segmentation_rendering()
+    recalls: dict[str, list[float]] = {"loop": [], "own size": []}
+    strays: dict[str, int] = {"loop": 0, "own size": 0}
+    try:
+        obs, _ = env.reset(seed=200000)
+        source, camera = tracked_state(env, segmenter="learned")
+        loop_network = source.tracker.segmenter.base.base
+        own_size = LearnedSegmenter(onnx_bytes(LOOP_NAME))
+        try:
+            for k in range(12):
+                obs, *_ = env.step(model.predict(obs, deterministic=True)[0])
+                if k % 4 != 3:
+                    continue
+                rgb = camera.read().rgb
+                renderer.update_scene(base.data, camera="tracking")
+                truth = CableLook.of(base.model).mask(renderer.render())
+                near = cv2.dilate(truth.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+                for name, net in (("loop", loop_network), ("own size", own_size)):
+                    mask = net(rgb)
+                    recalls[name].append(float(mask[truth].mean()))
+                    strays[name] += int((mask & ~near).sum())
+        finally:
+            camera.close()
+    finally:
+        renderer.close()
+        env.close()
+    assert np.mean(recalls["loop"]) > np.mean(recalls["own size"]) + 0.03, recalls
+    assert min(recalls["loop"]) > 0.9, recalls
+    assert strays["loop"] <= 20, strays
 
 
 @pytest.mark.slow
 def test_the_learned_loop_tracks_the_thin_cable() -> None:
     """The loop's learned option runs a full-resolution network on the loop camera's 1.6 px cable.
 
-    Measured on seeds 100000-100002 with the shipped tip-control policy: per-episode estimate RMSE 12.9, 5.4
-    and 18.5 mm with ``cable-segmenter-loop`` computed within the cable's reach at the loop's threshold (the
-    default here, session 34; 4.3, 11.9 and 15.4 mm at probability 0.5; 3.5, 9.6 and 14.5 mm on the whole
-    frame, before session 33; 13.8, 15.6 and 23.1 mm with
-    ``cable-segmenter-fine``, session 23), 34, 101 and 74 mm with ``cable-segmenter``, whose half-resolution
-    mask cuts the cable into pieces (docs/RESULTS.md, "Learned cable segmenter: full resolution"). The bound
-    sits between them.
+    Measured on seeds 100000-100002 with the shipped tip-control policy: per-episode estimate RMSE 1.6, 3.6
+    and 24.1 mm with ``cable-segmenter-loop`` on the frame enlarged 1.5x (the default here, session 35; the
+    24.1 mm is one decision, at 0.60 s, where the whipped cable's end runs along the floor's far edge and the
+    mask stops short of it). At the frame's own size: 12.9, 5.4 and 18.5 mm at logit -1.5 (session 34),
+    4.3, 11.9 and 15.4 mm at probability 0.5, 3.5, 9.6 and 14.5 mm on the whole frame (before session 33);
+    13.8, 15.6 and 23.1 mm with ``cable-segmenter-fine`` (session 23), 34, 101 and 74 mm with
+    ``cable-segmenter``, whose half-resolution mask cuts the cable into pieces (docs/RESULTS.md, "Learned
+    cable segmenter: full resolution"). The bound on the median sits between 1.5x and every 1x variant.
     """
     from dyndlo_vision import policies
     from dyndlo_vision.control.episode import run_loop_episode
@@ -105,7 +151,7 @@ def test_the_learned_loop_tracks_the_thin_cable() -> None:
     finally:
         env.close()
     assert all(r["success"] and r["lost_cycles"] == 0 for r in records)
-    assert np.median([r["estimate_rmse_m"] for r in records]) < 0.04
+    assert np.median([r["estimate_rmse_m"] for r in records]) < 0.008
 
 
 def test_the_learned_loop_looks_only_within_the_cables_reach() -> None:
