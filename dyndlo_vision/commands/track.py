@@ -132,6 +132,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "or cluttered scenes; an HSV range (--hsv-lower/--hsv-upper) replaces either",
     )
     p.add_argument(
+        "--short-side",
+        type=int,
+        default=None,
+        help="learned: each frame's shorter side is resized to this before the network (default: the "
+        "network's own: 240 for cable-segmenter, 480 for the other two). For a cable 1-3 px wide, enlarge: "
+        "720 for a 640x480 video (docs/RESULTS.md, \"The loop network at 1.5x\")",
+    )
+    p.add_argument(
         "--segmenter-model",
         metavar="FILE.onnx",
         help="learned: an ONNX file from seg-train, or a shipped network by name: cable-segmenter (default) "
@@ -364,6 +372,7 @@ class _Settings:
     background: str
     segmenter: str
     segmenter_model: Path | None
+    short_side: int | None
     open_radius: int
     anchor: NDArray[np.float64] | None
     nodes: int
@@ -439,6 +448,10 @@ def _settings(args: argparse.Namespace) -> _Settings:
         raise ValueError("--segmenter-model is for --segmenter learned")
     if model is not None:
         check_network(model, "--segmenter-model")
+    if args.short_side is not None and args.segmenter != "learned":
+        raise ValueError("--short-side is for --segmenter learned")
+    if args.short_side is not None and args.short_side < 16:
+        raise ValueError(f"--short-side must be at least 16 pixels, got {args.short_side}")
     if args.open_radius < 0:
         raise ValueError(f"--open-radius must be >= 0, got {args.open_radius}")
     if args.nodes < 2:
@@ -516,6 +529,7 @@ def _settings(args: argparse.Namespace) -> _Settings:
         background=str(args.background or "auto"),
         segmenter=str(args.segmenter),
         segmenter_model=model,
+        short_side=args.short_side,
         open_radius=int(args.open_radius),
         anchor=None if args.anchor is None else parse_floats(args.anchor, 2, "--anchor"),
         nodes=int(args.nodes),
@@ -583,7 +597,8 @@ def _segmenter(cfg: _Settings, video: Path) -> tuple[Callable[[NDArray[np.uint8]
         from dyndlo_vision.policies.segmenter import onnx_bytes
         from dyndlo_vision.tracking.learned import LearnedSegmenter
 
-        return LearnedSegmenter(onnx_bytes(cfg.segmenter_model)), "learned"
+        short_side = "auto" if cfg.short_side is None else cfg.short_side
+        return LearnedSegmenter(onnx_bytes(cfg.segmenter_model), short_side=short_side), "learned"
     segmenter = BackgroundSegmenter(open_radius=cfg.open_radius)
     if cfg.background == "frame":
         return segmenter, "frame"
