@@ -176,6 +176,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "name (default cable-segmenter-loop)",
     )
     p.add_argument(
+        "--segmenter-scale",
+        type=float,
+        default=None,
+        metavar="S",
+        help="with --segmenter learned: the network sees each frame enlarged S times, 0.5-3 (default 1.5: "
+        "the loop camera's 1.6 px cable as 2.4 px; 1 is about twice as fast and about 5x less accurate; "
+        "docs/RESULTS.md, \"The loop network at 1.5x\")",
+    )
+    p.add_argument(
         "--views",
         type=int,
         choices=[1, 2],
@@ -230,6 +239,16 @@ def run(args: argparse.Namespace) -> int:
         if args.segmenter != "learned":
             raise ValueError("--segmenter-model is for --segmenter learned")
         check_network(args.segmenter_model, "--segmenter-model")
+    segmenter_scale = getattr(args, "segmenter_scale", None)
+    if segmenter_scale is not None:
+        from dyndlo_vision.control.sim_perception import checked_segmenter_scale
+
+        if args.segmenter != "learned":
+            raise ValueError("--segmenter-scale is for --segmenter learned")
+        try:
+            checked_segmenter_scale(segmenter_scale)
+        except ValueError as exc:
+            raise ValueError(str(exc).replace("segmenter_scale", "--segmenter-scale")) from None
     noise_model, noise_name = None, None
     if getattr(args, "obs_noise", None) is not None and args.observation != "noisy":
         raise ValueError(f"--obs-noise applies to the noisy observation, not to {args.observation!r}")
@@ -307,6 +326,7 @@ def run(args: argparse.Namespace) -> int:
                 latency_s=1e-3 * args.latency_ms,
                 segmenter=args.segmenter,
                 segmenter_model=args.segmenter_model,
+                segmenter_scale=segmenter_scale,
                 views=views,
                 goal_name=GOAL_NAMES[task],
                 actuation_latency_s=1e-3 * args.actuation_latency_ms,
@@ -344,6 +364,7 @@ def run(args: argparse.Namespace) -> int:
         "obs_noise": noise_name,
         "segmenter": args.segmenter,
         "segmenter_model": args.segmenter_model,
+        "segmenter_scale": segmenter_scale,
         "views": views,
         **summarize(episodes),
         "cycle_ms_note": "controller time per 40 ms cycle: camera render + tracking + filter + policy + "
@@ -446,6 +467,7 @@ def film_episode(
     point_filter: Any = None,
     segmenter: str = "background",
     segmenter_model: str | None = None,
+    segmenter_scale: float | None = None,
     goal_name: str = "target",
     actuation_latency_s: float = 0.0,
     views: int | None = None,
@@ -491,6 +513,7 @@ def film_episode(
         open_camera=video is not None,
         segmenter=segmenter,
         segmenter_model=segmenter_model,
+        segmenter_scale=segmenter_scale,
         actuation_latency_s=actuation_latency_s,
         views=views,
         noise_model=noise_model,

@@ -103,6 +103,7 @@ def run_loop_episode(
     views: int | None = None,
     segmenter_model: str | None = None,
     noise_model: Any = None,
+    segmenter_scale: float | None = None,
 ) -> dict[str, Any]:
     """One closed-loop episode from ``env.reset(seed=seed)``; returns its record.
 
@@ -122,6 +123,8 @@ def run_loop_episode(
         segmenter: Tracked observation: ``"background"`` (classical) or ``"learned"`` (the shipped CNN).
         segmenter_model: With ``"learned"``: a shipped network's name or an ONNX file (default
             ``cable-segmenter-loop``).
+        segmenter_scale: With ``"learned"``: the network sees the frame enlarged this many times (default
+            :data:`~dyndlo_vision.control.sim_perception.LOOP_NETWORK_SCALE`).
         open_camera: Give ``watch`` a camera on the scene that renders the present (the tracker's own
             camera when tracking without delay).
         actuation_latency_s: The simulated arm executes every setpoint this long after its time
@@ -152,7 +155,8 @@ def run_loop_episode(
         from dyndlo_vision.control.sim_perception import tracked_state
 
         source, camera = tracked_state(env, camera_name, point_filter=point_filter, latency_s=latency_s,
-                                       segmenter=segmenter, views=views, segmenter_model=segmenter_model)
+                                       segmenter=segmenter, views=views, segmenter_model=segmenter_model,
+                                       segmenter_scale=segmenter_scale)
     elif observation == "noisy":
         source = NoisyState(env, noise_model, seed=seed)
     elif observation == "frozen":

@@ -57,6 +57,19 @@ LOOP_SEGMENTERS = ("background", "learned")
 #: Longest simulated camera latency (s): beyond a quarter second the loop re-plans on a past the cable has
 #: long left.
 MAX_LATENCY_S = 0.25
+#: Range of the learned segmenter's enlargement in the loop: below 0.5 the 1.6 px cable is under a pixel;
+#: above 3 a 640x480 frame is a 1920x1440 input, beyond any cycle budget.
+MIN_SEGMENTER_SCALE, MAX_SEGMENTER_SCALE = 0.5, 3.0
+
+
+def checked_segmenter_scale(scale: Any) -> float:
+    """``scale`` as a float, or ValueError naming it unless it is a number in [MIN_SEGMENTER_SCALE,
+    MAX_SEGMENTER_SCALE]."""
+    if isinstance(scale, bool) or not isinstance(scale, int | float) or not (
+            MIN_SEGMENTER_SCALE <= scale <= MAX_SEGMENTER_SCALE):
+        raise ValueError(f"segmenter_scale must be a number in [{MIN_SEGMENTER_SCALE:g}, "
+                         f"{MAX_SEGMENTER_SCALE:g}], got {scale!r}")
+    return float(scale)
 
 
 def render_without_cable(camera: MujocoCamera) -> NDArray[np.uint8]:
@@ -90,7 +103,8 @@ def pixels_per_metre(camera: Any, point: NDArray[np.float64], plane: Plane = MOT
 
 
 def _camera_tracker(base: Any, camera_name: str, width: int, height: int, segmenter: str,
-                    segmenter_model: str | None = None) -> tuple[MujocoCamera, CableTracker, Any]:
+                    segmenter_model: str | None = None,
+                    segmenter_scale: float = LOOP_NETWORK_SCALE) -> tuple[MujocoCamera, CableTracker, Any]:
     """A loop camera of the scene, its 2D-and-plane tracker (gripper masked), and the map from a world point
     to its pixel that also moves the gripper mask there."""
     camera = MujocoCamera(base.model, base.data, camera_name, width=width, height=height)
@@ -103,10 +117,10 @@ def _camera_tracker(base: Any, camera_name: str, width: int, height: int, segmen
 
         # By default the full-resolution network fine-tuned on the loop's own scenes (docs/RESULTS.md, "A
         # segmenter for the loop's own scenes"). The loop camera's cable is 1.6 px wide, so every network sees
-        # the frame enlarged by LOOP_NETWORK_SCALE. It computes only the part of the frame the held cable can
-        # reach (docs/RESULTS.md, "The cable's reach").
+        # the frame enlarged (LOOP_NETWORK_SCALE by default). It computes only the part of the frame the held
+        # cable can reach (docs/RESULTS.md, "The cable's reach").
         network = LearnedSegmenter(onnx_bytes(segmenter_model or LOOP_NAME),
-                                   short_side=round(LOOP_NETWORK_SCALE * min(width, height)))
+                                   short_side=round(segmenter_scale * min(width, height)))
         reach_m = base.scene.config.cable.length_m + CABLE_REACH_MARGIN_M
         reach: Any = CableReachSegmenter(network, calib, reach_m)
         inner: Any = reach
@@ -144,7 +158,8 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
                   width: int = 640, height: int = 480,
                   latency_s: float = 0.0, segmenter: str = "background",
                   views: int | None = None,
-                  segmenter_model: str | None = None) -> tuple[TrackedState, MujocoCamera]:
+                  segmenter_model: str | None = None,
+                  segmenter_scale: float | None = None) -> tuple[TrackedState, MujocoCamera]:
     """A :class:`TrackedState` on a MuJoCo camera of ``env`` (call after ``env.reset``).
 
     The background image is rendered now, with the cable hidden, so call it at the start of an episode. With
@@ -152,7 +167,8 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
     and the filter predicts across the delay. The camera returned renders the present (for videos).
     ``segmenter`` is one of :data:`LOOP_SEGMENTERS`; either way the gripper is masked by its projected pose.
     ``segmenter_model``: the learned segmenter's network, a shipped name or an ONNX file (default
-    ``cable-segmenter-loop``).
+    ``cable-segmenter-loop``). ``segmenter_scale``: the learned segmenter's network sees the frame enlarged
+    this many times (default :data:`LOOP_NETWORK_SCALE`; :func:`checked_segmenter_scale`).
     ``views``: 1 lifts the cable onto the motion plane from ``camera_name``; 2 also tracks it in the scene's
     second tracking camera and triangulates (:class:`StereoTrackedState`). None: as many as the scene has
     (:func:`scene_views`).
@@ -162,6 +178,10 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
     if segmenter_model is not None and segmenter != "learned":
         raise ValueError(f"segmenter_model={segmenter_model!r} is for the learned segmenter, not "
                          f"{segmenter!r}")
+    if segmenter_scale is not None and segmenter != "learned":
+        raise ValueError(f"segmenter_scale={segmenter_scale!r} is for the learned segmenter, not "
+                         f"{segmenter!r}")
+    scale = LOOP_NETWORK_SCALE if segmenter_scale is None else checked_segmenter_scale(segmenter_scale)
     available = scene_views(env)
     views = available if views is None else views
     if views not in (1, 2):
@@ -173,7 +193,8 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
         raise ValueError(f"latency_s must be at most {MAX_LATENCY_S} s, got {latency_s!r}")
     base = as_sim_env(env)
     mujoco.mj_forward(base.model, base.data)
-    camera, tracker, project = _camera_tracker(base, camera_name, width, height, segmenter, segmenter_model)
+    camera, tracker, project = _camera_tracker(base, camera_name, width, height, segmenter, segmenter_model,
+                                               scale)
 
     # The newest measurement is always at least the latency old, so the filter's coasting limit and the
     # frames the camera may miss in a row (the first ones have not arrived yet) grow with it.
@@ -195,7 +216,7 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
                               max_missing_frames=missing, cable_length_m=length)
         return source, camera
     camera2, tracker2, project2 = _camera_tracker(base, SECOND_TRACKING_CAMERA_NAME, width, height, segmenter,
-                                                  segmenter_model)
+                                                  segmenter_model, scale)
     frames2 = DelayedCamera(camera2, latency_s) if latency_s > 0 else camera2
     stereo = StereoTrackedState(frames, frames2, tracker, tracker2, point_filter, point_index=point_index,
                                 project=project, second_project=project2, max_missing_frames=missing,

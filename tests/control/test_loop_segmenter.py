@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import cv2
@@ -75,6 +76,50 @@ def test_the_loop_runs_the_segmenter_model_it_is_given() -> None:
         assert not np.array_equal(LearnedSegmenter(onnx_bytes(FINE_NAME), short_side=720)(rgb), own)
     finally:
         env.close()
+
+
+def test_the_segmenter_scale_reaches_the_network_and_is_checked() -> None:
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    try:
+        env.reset(seed=0)
+        for scale, short_side in ((None, 720), (1.0, 480), (2, 960)):
+            source, camera = tracked_state(env, segmenter="learned", segmenter_scale=scale)
+            camera.close()
+            assert source.tracker.segmenter.base.base.short_side == short_side
+        with pytest.raises(ValueError, match="segmenter_scale=1.0 is for the learned segmenter"):
+            tracked_state(env, segmenter_scale=1.0)
+        for bad in (0.2, 3.5, True, "1.5", float("nan")):
+            with pytest.raises(ValueError, match=r"segmenter_scale must be a number in \[0.5, 3\], got"):
+                tracked_state(env, segmenter="learned", segmenter_scale=bad)
+    finally:
+        env.close()
+
+
+def test_demo_segmenter_scale(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                              monkeypatch: pytest.MonkeyPatch) -> None:
+    """``demo --segmenter-scale``: refused without the learned segmenter or out of range (exit 2, nothing
+    written); otherwise it reaches the loop's network, and metrics.json records it."""
+    for extra, word in ((["--segmenter-scale", "1"], "--segmenter-scale is for --segmenter learned"),
+                        (["--segmenter", "learned", "--segmenter-scale", "9"],
+                         "--segmenter-scale must be a number in [0.5, 3], got 9.0")):
+        with pytest.raises(SystemExit) as exc:
+            main(["demo", "--observation", "tracked", *extra, "--out", str(tmp_path / "d")])
+        assert exc.value.code == 2
+        assert word in capsys.readouterr().err
+        assert not (tmp_path / "d").exists()
+    sides: list[object] = []
+    made = LearnedSegmenter.__init__
+
+    def spy(self: LearnedSegmenter, onnx: bytes, **kwargs: object) -> None:
+        sides.append(kwargs.get("short_side"))
+        made(self, onnx, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(LearnedSegmenter, "__init__", spy)
+    out = tmp_path / "one"
+    assert main(["demo", "--observation", "tracked", "--segmenter", "learned", "--segmenter-scale", "1",
+                 "--episodes", "1", "--seed", "100000", "--quiet", "--out", str(out)]) == 0
+    assert sides == [480]
+    assert json.loads((out / "metrics.json").read_text())["segmenter_scale"] == 1.0
 
 
 def test_the_loop_network_enlarged_finds_more_of_the_thin_cable() -> None:
