@@ -45,9 +45,16 @@ CABLE_REACH_MARGIN_M = 0.03
 #: 1.6 px red cable is faint to a network where it crosses the grey floor: the mask is cut there and the
 #: tracked cable ends early. At 1.5x it is 2.4 px wide. Chosen for ``cable-segmenter-loop`` on seeds
 #: 200000-200019 among 1, 1.25, 1.5 and 2; on 100 fresh seeds its median estimate RMSE per episode fell from
-#: 8.8 mm (1x) to 1.95 mm, and the learned tracker's time rose from about 5.5 to 11 ms. The other shipped
-#: networks gain as much in the loop (docs/RESULTS.md, "The loop network at 1.5x").
+#: 8.8 mm (1x) to 1.95 mm, and the learned tracker's time rose from about 5.5 to 11 ms on the whole reach
+#: (6 ms following the cable, LOOP_FOLLOW_PX). The other shipped networks gain as much in the loop
+#: (docs/RESULTS.md, "The loop network at 1.5x").
 LOOP_NETWORK_SCALE = 1.5
+#: The loop's learned segmenter computes the box around the last frame's mask grown by this many pixels
+#: (``CableReachSegmenter(follow_px=...)``), not the whole image of the cable's reach: about a fifth of it.
+#: Chosen on seeds 200000-200019 between 48 and 80: at 80 the estimates match the whole reach's (median
+#: 1.71 against 1.72 mm, p90 2.08 against 2.15 mm), at 48 the p90 rose to 3.3 mm (docs/RESULTS.md, "The loop
+#: network at 1.5x").
+LOOP_FOLLOW_PX = 80
 # The tip filter's tuned acceleration noise without and with a camera latency (why: tracking.params).
 LOOP_SIGMA_ACCEL = LOOP_FILTER.sigma_accel
 LATENT_LOOP_SIGMA_ACCEL = LATENT_LOOP_FILTER.sigma_accel
@@ -122,7 +129,7 @@ def _camera_tracker(base: Any, camera_name: str, width: int, height: int, segmen
         network = LearnedSegmenter(onnx_bytes(segmenter_model or LOOP_NAME),
                                    short_side=round(segmenter_scale * min(width, height)))
         reach_m = base.scene.config.cable.length_m + CABLE_REACH_MARGIN_M
-        reach: Any = CableReachSegmenter(network, calib, reach_m)
+        reach: Any = CableReachSegmenter(network, calib, reach_m, follow_px=LOOP_FOLLOW_PX)
         inner: Any = reach
     else:
         reach = None

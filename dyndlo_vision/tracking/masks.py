@@ -22,6 +22,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+#: A followed mask (:class:`CableReachSegmenter`) this close (px) to its box's edge may be cut there: the
+#: frame is computed again on the whole ball. The learned segmenter's mask thins near a region's edge.
+FOLLOW_EDGE_PX = 8
 #: A region is not cable where it is thicker than this many times the cable's measured width ...
 MAX_WIDTH_RATIO = 3.0
 #: ... but never below this half-width (px): a 1-2 px cable's width is measured to a pixel at best, and
@@ -88,21 +91,36 @@ class CableReachSegmenter:
 
     Set :attr:`held_world` before each frame; None (or NaN) segments the whole frame.
 
+    With ``follow_px`` (a base that computes regions only), consecutive frames of one video are followed: the
+    cable moves little in a frame period, so the region is the last mask's bounding box grown by
+    ``follow_px`` on every side, within the ball. A mask that comes within :data:`FOLLOW_EDGE_PX` of that
+    box's edge where the ball goes on (the cable may go on past it), or an empty one, is computed again on the
+    whole ball, so a cable that moved farther is not cut; so is the first frame.
+
     Args:
         base: The frame -> mask function.
         camera: The camera's calibration (``project``, ``world_to_camera``), world frame of the held end.
         reach_m: Radius of the ball: the cable's length plus a margin for its thickness and the gripper.
+        follow_px: The margin (px) around the last mask's box; None: every frame on the whole ball.
     """
 
-    def __init__(self, base: Any, camera: Any, reach_m: float) -> None:
+    def __init__(self, base: Any, camera: Any, reach_m: float, follow_px: int | None = None) -> None:
         if not (np.isfinite(reach_m) and reach_m > 0):
             raise ValueError(f"reach_m must be a positive length in m, got {reach_m!r}")
+        if follow_px is not None and (isinstance(follow_px, bool) or not isinstance(follow_px, int)
+                                      or follow_px < 1):
+            raise ValueError(f"follow_px must be None or a positive number of pixels, got {follow_px!r}")
         self.base = base
         self.camera = camera
         self.reach_m = float(reach_m)
         self.held_world: NDArray[np.float64] | None = None
         #: Whether the base computes a region alone (else it segments the whole frame, cleared outside).
         self.computes_region = callable(getattr(base, "grid_box", None))
+        self.follow_px = follow_px if self.computes_region else None
+        #: The last mask's bounding box (u0, v0, u1, v1), None before the first or after an empty one.
+        self.last_box: tuple[int, int, int, int] | None = None
+        #: Frames computed on the box around the last mask, and frames computed again on the ball after it.
+        self.followed = self.recomputed = 0
 
     def region(self, height: int, width: int) -> tuple[int, int, int, int] | None:
         """(u0, v0, u1, v1): the pixels of a ``height`` x ``width`` frame the ball around the held end covers,
@@ -129,14 +147,53 @@ class CableReachSegmenter:
         h, w = rgb.shape[:2]
         region = self.region(h, w)
         if region is None:
+            self.last_box = None
             return np.asarray(self.base(rgb), dtype=bool)
         if self.computes_region:
-            return np.asarray(self.base.segment(rgb, region=region), dtype=bool)
+            if self.follow_px is not None and self.last_box is not None and region != (0, 0, 0, 0):
+                mask = self._followed(rgb, region, self.last_box)
+                if mask is not None:
+                    return mask
+            mask = np.asarray(self.base.segment(rgb, region=region), dtype=bool)
+            self.last_box = _bounding_box(mask)
+            return mask
         whole = np.asarray(self.base(rgb), dtype=bool)
         u0, v0, u1, v1 = region
         mask = np.zeros_like(whole)
         mask[v0:v1, u0:u1] = whole[v0:v1, u0:u1]
         return mask
+
+
+    def _followed(self, rgb: NDArray[np.uint8], ball: tuple[int, int, int, int],
+                  last: tuple[int, int, int, int]) -> NDArray[np.bool_] | None:
+        """The mask computed on ``last`` grown by :attr:`follow_px` within ``ball``; None where it is empty or
+        comes near an edge of that box the ball goes on past."""
+        m = int(self.follow_px or 0)
+        u0, v0, u1, v1 = ball
+        box = (max(u0, last[0] - m), max(v0, last[1] - m), min(u1, last[2] + m), min(v1, last[3] + m))
+        if box[0] >= box[2] or box[1] >= box[3]:
+            return None
+        mask = np.asarray(self.base.segment(rgb, region=box), dtype=bool)
+        found = _bounding_box(mask)
+        edge = FOLLOW_EDGE_PX
+        if found is None or (
+            (box[0] > u0 and found[0] < box[0] + edge) or (box[1] > v0 and found[1] < box[1] + edge)
+            or (box[2] < u1 and found[2] > box[2] - edge) or (box[3] < v1 and found[3] > box[3] - edge)
+        ):
+            self.recomputed += 1
+            return None
+        self.followed += 1
+        self.last_box = found
+        return mask
+
+
+def _bounding_box(mask: NDArray[np.bool_]) -> tuple[int, int, int, int] | None:
+    """(u0, v0, u1, v1) of the mask's pixels (ends exclusive); None for an empty mask."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    if not len(rows):
+        return None
+    cols = np.flatnonzero(mask[rows[0] : rows[-1] + 1].any(axis=0))
+    return int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1
 
 
 def cable_half_width_px(depth: NDArray[np.float32], mask: NDArray[np.bool_]) -> float:

@@ -158,3 +158,67 @@ def test_a_reach_around_the_learned_segmenter_computes_the_region_only() -> None
     h, w = calls[0][:2]
     assert h >= v1 - v0 and w >= u1 - u0  # the network saw the whole region ...
     assert h * w < 0.6 * 480 * 640  # ... and not the frame: a 0.4 m ball at 2 m is about 200 x 200 px
+
+
+class _RegionSpy:
+    """A base that computes regions: it records each region asked for and returns ``masks[k]`` for the k-th
+    call, cleared outside the region (as the learned segmenter's mask is False outside what it computes)."""
+
+    def __init__(self, masks: list[np.ndarray]) -> None:
+        self.masks, self.regions = masks, []
+
+    def grid_box(self, region: tuple[int, int, int, int], height: int, width: int) -> tuple[int, ...]:
+        return region
+
+    def segment(self, rgb: np.ndarray, region: tuple[int, int, int, int]) -> np.ndarray:
+        mask = self.masks[len(self.regions)]
+        self.regions.append(tuple(region))
+        u0, v0, u1, v1 = region
+        out = np.zeros_like(mask)
+        out[v0:v1, u0:u1] = mask[v0:v1, u0:u1]
+        return out
+
+    __call__ = segment
+
+
+def _line(v: int, u0: int, u1: int) -> np.ndarray:
+    mask = np.zeros((480, 640), bool)
+    mask[v : v + 2, u0:u1] = True
+    return mask
+
+
+def test_following_computes_the_box_around_the_last_mask_and_the_ball_when_it_may_be_cut() -> None:
+    """``follow_px``: frame 1 on the ball; frame 2 on the last mask's box grown by the margin; a mask that
+    reaches that box's edge (the cable moved farther) or is empty is computed again on the ball, whole."""
+    camera = _camera()
+    rgb = np.zeros((480, 640, 3), np.uint8)
+    first, near, moved = _line(240, 300, 400), _line(250, 290, 410), _line(250, 290, 470)
+    spy = _RegionSpy([first, near, moved, moved, np.zeros_like(first), np.zeros_like(first)])
+    reach = CableReachSegmenter(spy, camera, 0.4, follow_px=40)
+    reach.held_world = np.array([0.0, 0.0, 1.2])
+    ball = reach.region(480, 640)
+    assert ball is not None and ball[0] < 200 and ball[2] > 480  # the 0.4 m ball at 1.2 m: about 350 px wide
+    np.testing.assert_array_equal(reach(rgb), first)
+    assert spy.regions == [ball] and reach.last_box == (300, 240, 400, 242)
+    np.testing.assert_array_equal(reach(rgb), near)  # within the box: computed there only
+    assert spy.regions[1] == (260, 200, 440, 282) and reach.followed == 1
+    np.testing.assert_array_equal(reach(rgb), moved)  # the cable runs out of the box: the ball, whole
+    assert spy.regions[2:] == [(250, 210, 450, 292), ball] and reach.recomputed == 1
+    assert reach.last_box == (290, 250, 470, 252)
+    assert not reach(rgb).any()  # nothing in the box, nor on the ball
+    assert spy.regions[4:] == [(250, 210, min(510, ball[2]), 292), ball] and reach.recomputed == 2
+    assert reach.last_box is None
+
+
+def test_following_is_off_by_default_and_checked() -> None:
+    camera = _camera()
+    spy = _RegionSpy([_line(240, 300, 400)] * 2)
+    reach = CableReachSegmenter(spy, camera, 0.4)
+    reach.held_world = np.array([0.0, 0.0, 1.2])
+    reach(np.zeros((480, 640, 3), np.uint8))
+    reach(np.zeros((480, 640, 3), np.uint8))
+    assert spy.regions == [reach.region(480, 640)] * 2
+    for bad in (0, -5, 2.5, True):
+        with pytest.raises(ValueError, match="follow_px must be None or a positive number of pixels"):
+            CableReachSegmenter(spy, camera, 0.4, follow_px=bad)
+    assert CableReachSegmenter(lambda rgb: rgb[..., 0] > 0, camera, 0.4, follow_px=40).follow_px is None
