@@ -163,7 +163,6 @@ class CableReachSegmenter:
         mask[v0:v1, u0:u1] = whole[v0:v1, u0:u1]
         return mask
 
-
     def _followed(self, rgb: NDArray[np.uint8], ball: tuple[int, int, int, int],
                   last: tuple[int, int, int, int]) -> NDArray[np.bool_] | None:
         """The mask computed on ``last`` grown by :attr:`follow_px` within ``ball``; None where it is empty or
