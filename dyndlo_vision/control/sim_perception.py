@@ -45,9 +45,9 @@ CABLE_REACH_MARGIN_M = 0.03
 #: 1.6 px red cable is faint to a network where it crosses the grey floor: the mask is cut there and the
 #: tracked cable ends early. At 1.5x it is 2.4 px wide. Chosen for ``cable-segmenter-loop`` on seeds
 #: 200000-200019 among 1, 1.25, 1.5 and 2; on 100 fresh seeds its median estimate RMSE per episode fell from
-#: 8.8 mm (1x) to 1.95 mm, and the learned tracker's time rose from about 5.5 to 11 ms on the whole reach
-#: (6 ms following the cable, LOOP_FOLLOW_PX). The other shipped networks gain as much in the loop
-#: (docs/RESULTS.md, "The loop network at 1.5x").
+#: 8.8 mm (1x) to 1.95 mm. On the cable's whole reach the learned tracker's time doubled (about 5.5 to 11 ms);
+#: following the cable (LOOP_FOLLOW_PX) and resizing only its part bring it back to about 5 ms. The other
+#: shipped networks gain as much in the loop (docs/RESULTS.md, "The loop network at 1.5x").
 LOOP_NETWORK_SCALE = 1.5
 #: The loop's learned segmenter computes the box around the last frame's mask grown by this many pixels
 #: (``CableReachSegmenter(follow_px=...)``), not the whole image of the cable's reach: about a fifth of it.

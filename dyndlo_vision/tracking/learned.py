@@ -18,6 +18,8 @@ segmenter"), and torch is not needed at run time.
 
 from __future__ import annotations
 
+from fractions import Fraction
+
 import cv2
 import numpy as np
 from numpy.typing import NDArray
@@ -211,6 +213,38 @@ class LearnedSegmenter:
         """Per-pixel cable probability (H, W) in [0, 1]."""
         return (1.0 / (1.0 + np.exp(-self.logits_full(rgb)))).astype(np.float32)
 
+    def _enlarged_part(self, rgb: NDArray[np.uint8],
+                       region: tuple[int, int, int, int] | None) -> NDArray[np.uint8] | None:
+        """The 0/1 mask of ``region`` for a block network that enlarges the frame by a ratio ``p / q`` of
+        small integers (1.5 = 3 / 2), computed from the region's part of the frame alone: the frame's part is
+        cut on the ``q`` grid and enlarged, the logits cut on the ``p`` grid and shrunk back, each with two
+        grid steps to spare. Both resizes then sample the pixels the whole frame's resizes sample, with the
+        same weights, so the mask equals :meth:`logits_full`'s, thresholded (tests/tracking/
+        test_learned_segmenter.py), for a fraction of the work on a small region. None where this does not
+        apply."""
+        h, w = rgb.shape[:2]
+        box = self.grid_box(region, h, w)
+        w_in, h_in = self.input_size(h, w)
+        ratio = Fraction(w_in, w)
+        if not self.blocks or box is None or ratio <= 1 or Fraction(h_in, h) != ratio or ratio.numerator > 16:
+            return None
+        p, q = ratio.numerator, ratio.denominator
+        mask = np.zeros((h, w), np.uint8)
+        u0, v0, u1, v1 = box
+        if u1 <= u0:
+            return mask
+        a, b = max(0, u0 // p - 2), min(w_in // p, -(-u1 // p) + 2)  # the part, in steps of p input pixels
+        c, d = max(0, v0 // p - 2), min(h_in // p, -(-v1 // p) + 2)
+        part = cv2.resize(rgb[c * q : d * q, a * q : b * q], ((b - a) * p, (d - c) * p),
+                          interpolation=cv2.INTER_LINEAR)
+        x0, y0 = u0 - a * p, v0 - c * p
+        logits = np.full(part.shape[:2], OUTSIDE_LOGIT, np.float32)
+        net_input = np.ascontiguousarray(part[y0 : y0 + v1 - v0, x0 : x0 + u1 - u0])
+        logits[y0 : y0 + v1 - v0, x0 : x0 + u1 - u0] = self._net_logits(net_input)
+        shrunk = cv2.resize(logits, ((b - a) * q, (d - c) * q), interpolation=cv2.INTER_LINEAR)
+        mask[c * q : d * q, a * q : b * q] = shrunk > self.threshold
+        return mask
+
     def segment(self, rgb: NDArray[np.uint8],
                 region: tuple[int, int, int, int] | None = None) -> NDArray[np.bool_]:
         """The (H, W) bool cable mask of one RGB frame.
@@ -232,6 +266,8 @@ class LearnedSegmenter:
                 if u1 > u0:
                     cable = self._block_logits(np.ascontiguousarray(rgb[v0:v1, u0:u1])) > self.threshold
                     mask[v0:v1, u0:u1] = from_blocks(cable.view(np.uint8))[: v1 - v0, : u1 - u0]
+        elif (enlarged := self._enlarged_part(rgb, region)) is not None:
+            mask = enlarged
         else:
             _, m = cv2.threshold(self.logits_full(rgb, region), self.threshold, 1, cv2.THRESH_BINARY)
             mask = m.astype(np.uint8)

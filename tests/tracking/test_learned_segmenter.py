@@ -153,3 +153,22 @@ def test_polylines_of_two_crossing_cables() -> None:
     assert extract_polylines(np.zeros((50, 50), bool)) == []
     with pytest.raises(ValueError, match="2-D"):
         extract_polylines(np.zeros((5, 5, 3)))
+
+
+@pytest.mark.parametrize("short_side", [720, 960, 600])
+def test_an_enlarged_region_is_computed_from_its_part_exactly(short_side: int) -> None:
+    """A block network enlarging the frame by p / q (720: 3/2, 960: 2/1, 600: 5/4) computes a region from
+    the frame's part alone (``_enlarged_part``), and its mask equals the one from the whole frame's resizes
+    (``logits_full``, thresholded), pixel for pixel, for regions anywhere, at the frame's edges too."""
+    seg = LearnedSegmenter(onnx_bytes(FINE_NAME), short_side=short_side)
+    curve = s_curve(60, 580, 240, 140, 1.1)
+    rgb, _ = render_cable(curve, thickness=2, color=(200, 60, 40), background=(150, 150, 150), seed=5)
+    regions = [(0, 0, 200, 150), (37, 21, 603, 459), (300, 200, 640, 480), (101, 97, 131, 140),
+               (250, 0, 420, 480)]
+    for region in regions:
+        assert seg._enlarged_part(rgb, region) is not None
+        _, whole = cv2.threshold(seg.logits_full(rgb, region), seg.threshold, 1, cv2.THRESH_BINARY)
+        part = seg.segment(rgb, region=region)
+        np.testing.assert_array_equal(part, whole.astype(bool))
+    assert seg.segment(rgb, region=(37, 21, 603, 459)).sum() > 300  # the cable is there to be compared
+    assert LearnedSegmenter(onnx_bytes(FINE_NAME))._enlarged_part(rgb, regions[0]) is None  # not enlarged
