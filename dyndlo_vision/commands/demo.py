@@ -245,10 +245,7 @@ def run(args: argparse.Namespace) -> int:
 
         if args.segmenter != "learned":
             raise ValueError("--segmenter-scale is for --segmenter learned")
-        try:
-            checked_segmenter_scale(segmenter_scale)
-        except ValueError as exc:
-            raise ValueError(str(exc).replace("segmenter_scale", "--segmenter-scale")) from None
+        checked_segmenter_scale(segmenter_scale, "--segmenter-scale")
     noise_model, noise_name = None, None
     if getattr(args, "obs_noise", None) is not None and args.observation != "noisy":
         raise ValueError(f"--obs-noise applies to the noisy observation, not to {args.observation!r}")

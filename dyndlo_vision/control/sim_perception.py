@@ -69,12 +69,12 @@ MAX_LATENCY_S = 0.25
 MIN_SEGMENTER_SCALE, MAX_SEGMENTER_SCALE = 0.5, 3.0
 
 
-def checked_segmenter_scale(scale: Any) -> float:
-    """``scale`` as a float, or ValueError naming it unless it is a number in [MIN_SEGMENTER_SCALE,
-    MAX_SEGMENTER_SCALE]."""
+def checked_segmenter_scale(scale: Any, name: str = "segmenter_scale") -> float:
+    """``scale`` as a float, or ValueError naming it as ``name`` unless it is a number in
+    [MIN_SEGMENTER_SCALE, MAX_SEGMENTER_SCALE]."""
     if isinstance(scale, bool) or not isinstance(scale, int | float) or not (
             MIN_SEGMENTER_SCALE <= scale <= MAX_SEGMENTER_SCALE):
-        raise ValueError(f"segmenter_scale must be a number in [{MIN_SEGMENTER_SCALE:g}, "
+        raise ValueError(f"{name} must be a number in [{MIN_SEGMENTER_SCALE:g}, "
                          f"{MAX_SEGMENTER_SCALE:g}], got {scale!r}")
     return float(scale)
 

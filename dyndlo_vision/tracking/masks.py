@@ -19,6 +19,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -188,11 +189,8 @@ class CableReachSegmenter:
 
 def _bounding_box(mask: NDArray[np.bool_]) -> tuple[int, int, int, int] | None:
     """(u0, v0, u1, v1) of the mask's pixels (ends exclusive); None for an empty mask."""
-    rows = np.flatnonzero(mask.any(axis=1))
-    if not len(rows):
-        return None
-    cols = np.flatnonzero(mask[rows[0] : rows[-1] + 1].any(axis=0))
-    return int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1
+    u, v, w, h = cv2.boundingRect(np.ascontiguousarray(mask).view(np.uint8))
+    return None if w == 0 else (u, v, u + w, v + h)
 
 
 def cable_half_width_px(depth: NDArray[np.float32], mask: NDArray[np.bool_]) -> float:
