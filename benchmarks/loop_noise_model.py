@@ -53,6 +53,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--episodes", type=int, default=40)
     ap.add_argument("--seed", type=int, default=300000)
     ap.add_argument("--cable-ranges", default="beyond", help="training or beyond (cables drawn per episode)")
+    ap.add_argument("--segmenter", choices=("learned", "background"), default=None,
+                    help="the loop's segmenter (default: the scene's own, "
+                    "control.sim_perception.default_segmenter)")
     ap.add_argument("--out", type=Path, required=True, help="the fitted model (JSON)")
     ap.add_argument("--records", type=Path, default=None, help="also write the per-cycle records (.npz)")
     args = ap.parse_args(argv)
@@ -61,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from dyndlo_vision import policies
     from dyndlo_vision.control.episode import run_loop_episode
-    from dyndlo_vision.control.sim_perception import scene_views
+    from dyndlo_vision.control.sim_perception import default_segmenter, scene_views
     from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
     from dyndlo_vision.tasks.registry import make_env
     from dyndlo_vision.tasks.wrappers import cable_ranges_for
@@ -72,6 +75,7 @@ def main(argv: list[str] | None = None) -> int:
                    cable_ranges=cable_ranges_for(args.task, args.cable_ranges))
     model = policies.load(name, env=env)
     views = scene_views(env)
+    segmenter = args.segmenter or default_segmenter(env)
     parts: list[dict[str, np.ndarray]] = []
     rmse = []
     t0 = time.perf_counter()
@@ -79,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
         if hasattr(model, "reset"):
             model.reset()  # a policy with a P_DLO history starts every episode afresh (as the demo does)
         record = run_loop_episode(env, lambda obs: model.predict(obs, deterministic=True)[0], args.seed + i,
-                                  "tracked", "tracking", views=views)
+                                  "tracked", "tracking", views=views, segmenter=segmenter)
         rec = episode_records(record["trace"], CONTROL_PERIOD_S)
         rec["episode"] = np.full(len(rec["speed"]), i)
         parts.append(rec)
@@ -87,9 +91,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"episode {i} (seed {args.seed + i}): {len(rec['speed'])} cycles, estimate RMSE "
               f"{1e3 * record['estimate_rmse_m']:.2f} mm", file=sys.stderr)
     records = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    cameras = f"{views} camera{'s' if views > 1 else ''}, {segmenter} segmenter"
     source = (f"benchmarks/loop_noise_model.py --task {args.task} --policy {name} --episodes {args.episodes} "
-              f"--seed {args.seed} --cable-ranges {args.cable_ranges}: the loop's tracked P_DLO ({views} "
-              f"camera{'s' if views > 1 else ''}) as the policy read it, per control cycle")
+              f"--seed {args.seed} --cable-ranges {args.cable_ranges} --segmenter {segmenter}: the loop's "
+              f"tracked P_DLO ({cameras}) as the policy read it, per control cycle")
     fitted = ObservationNoiseModel.fit(records["truth"], records["estimate"], records["velocity"],
                                        episode=records["episode"], speed=records["speed"], source=source)
     fitted.save(args.out)

@@ -164,10 +164,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--segmenter",
-        choices=["background", "learned"],
-        default="background",
-        help="tracked observation: the classical background segmenter (default) or the shipped "
-        "full-resolution CNN fine-tuned on the loop's scenes (cable-segmenter-loop)",
+        choices=["learned", "background"],
+        default=None,
+        help="tracked observation: the shipped full-resolution CNN fine-tuned on the loop's scenes "
+        "(cable-segmenter-loop), or the classical background segmenter against the scene rendered without "
+        "the cable. Default: learned where the scene has one camera (tip control), background where it has "
+        "two (vaulting, where the network loses the cable on the floor and two networks overrun the cycle)",
     )
     p.add_argument(
         "--segmenter-model",
@@ -231,20 +233,23 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--latency-ms applies to the tracked observation, not to {args.observation!r}")
     if args.cable_ranges != "training" and not args.randomize_cable:
         raise ValueError(f"--cable-ranges {args.cable_ranges} applies with --randomize-cable")
-    if args.segmenter != "background" and args.observation != "tracked":
-        raise ValueError(f"--segmenter applies to the tracked observation, not to {args.observation!r}")
+    segmenter_scale = getattr(args, "segmenter_scale", None)
+    for option, value in (("--segmenter", args.segmenter), ("--segmenter-model", args.segmenter_model),
+                          ("--segmenter-scale", segmenter_scale)):
+        if value is not None and args.observation != "tracked":
+            raise ValueError(f"{option} applies to the tracked observation, not to {args.observation!r}")
+    if args.segmenter == "background":
+        for option, value in (("--segmenter-model", args.segmenter_model), ("--segmenter-scale",
+                                                                             segmenter_scale)):
+            if value is not None:
+                raise ValueError(f"{option} is for --segmenter learned, not background")
     if args.segmenter_model is not None:
         from dyndlo_vision.policies.segmenter import check_network
 
-        if args.segmenter != "learned":
-            raise ValueError("--segmenter-model is for --segmenter learned")
         check_network(args.segmenter_model, "--segmenter-model")
-    segmenter_scale = getattr(args, "segmenter_scale", None)
     if segmenter_scale is not None:
         from dyndlo_vision.control.sim_perception import checked_segmenter_scale
 
-        if args.segmenter != "learned":
-            raise ValueError("--segmenter-scale is for --segmenter learned")
         checked_segmenter_scale(segmenter_scale, "--segmenter-scale")
     noise_model, noise_name = None, None
     if getattr(args, "obs_noise", None) is not None and args.observation != "noisy":
@@ -292,14 +297,23 @@ def run(args: argparse.Namespace) -> int:
                    randomize_cable_every=1 if args.randomize_cable else None,
                    cable_ranges=ranges)
     check_camera(env, args.camera)
-    views = None
+    views, segmenter = None, None
     if args.observation == "tracked":
-        from dyndlo_vision.control.sim_perception import scene_views
+        from dyndlo_vision.control.sim_perception import default_segmenter, scene_views
 
         available = scene_views(env)
         views = available if args.views is None else args.views
         if views > available:
             raise ValueError(f"--views {views}: the {task} scene has one tracking camera; expected --views 1")
+        segmenter = args.segmenter or default_segmenter(env)
+        if segmenter != "learned" and (args.segmenter_model is not None or segmenter_scale is not None):
+            raise ValueError(f"--segmenter-model and --segmenter-scale are for --segmenter learned; the "
+                             f"{task} scene's default segmenter is {segmenter!r}")
+    effective_scale = None  # the learned network's enlargement, recorded as run
+    if segmenter == "learned":
+        from dyndlo_vision.control.sim_perception import LOOP_NETWORK_SCALE
+
+        effective_scale = LOOP_NETWORK_SCALE if segmenter_scale is None else float(segmenter_scale)
     if push is not None:
         if env.unwrapped.task.cable.model != "chain":
             raise ValueError("--push needs the chain cable; this policy's environment has the rod")
@@ -321,7 +335,7 @@ def run(args: argparse.Namespace) -> int:
                 args.camera,
                 video if i == 0 else None,
                 latency_s=1e-3 * args.latency_ms,
-                segmenter=args.segmenter,
+                segmenter=segmenter,
                 segmenter_model=args.segmenter_model,
                 segmenter_scale=segmenter_scale,
                 views=views,
@@ -359,9 +373,9 @@ def run(args: argparse.Namespace) -> int:
         "push": None if push is None else {"time_s": push.time_s, "impulse_n_s": list(push.impulse_n_s),
                                            "node": "middle"},
         "obs_noise": noise_name,
-        "segmenter": args.segmenter,
+        "segmenter": segmenter,
         "segmenter_model": args.segmenter_model,
-        "segmenter_scale": segmenter_scale,
+        "segmenter_scale": effective_scale,
         "views": views,
         **summarize(episodes),
         "cycle_ms_note": "controller time per 40 ms cycle: camera render + tracking + filter + policy + "
@@ -462,7 +476,7 @@ def film_episode(
     video: list[np.ndarray] | None,
     latency_s: float = 0.0,
     point_filter: Any = None,
-    segmenter: str = "background",
+    segmenter: str | None = None,
     segmenter_model: str | None = None,
     segmenter_scale: float | None = None,
     goal_name: str = "target",

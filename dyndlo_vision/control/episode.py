@@ -98,7 +98,7 @@ def run_loop_episode(
     point_filter: Any = None,
     watch: Callable[[EpisodeMoment], None] | None = None,
     open_camera: bool = False,
-    segmenter: str = "background",
+    segmenter: str | None = None,
     actuation_latency_s: float = 0.0,
     views: int | None = None,
     segmenter_model: str | None = None,
@@ -120,7 +120,8 @@ def run_loop_episode(
         latency_s: Tracked observation: the camera's delay; the filter predicts across it.
         point_filter: Tracked observation: the tip filter (default: ``tracked_state``'s).
         watch: Called at every control cycle and at every instant after the last re-plan up to the outcome.
-        segmenter: Tracked observation: ``"background"`` (classical) or ``"learned"`` (the shipped CNN).
+        segmenter: Tracked observation: ``"learned"`` (the shipped CNN) or ``"background"`` (classical); None:
+            the scene's default (:func:`~dyndlo_vision.control.sim_perception.default_segmenter`).
         segmenter_model: With ``"learned"``: a shipped network's name or an ONNX file (default
             ``cable-segmenter-loop``).
         segmenter_scale: With ``"learned"``: the network sees the frame enlarged this many times (default

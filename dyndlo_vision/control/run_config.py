@@ -24,7 +24,7 @@ Schema (``examples/run-gofa-dry.yaml`` documents it field by field)::
       device: 0                   # device only: index or stream URL
       path: run.mp4               # video only
       fps: 25                     # video only (optional: the file's time stamps otherwise)
-      segmenter: background | learned   # default: background for simulated, learned otherwise
+      segmenter: learned | background   # default: learned (the loop's tip-control default, sim or real)
       background: empty.png       # background segmenter with a real camera: the scene without the cable
     task: tip-control             # the only task run supports so far
     target: [x, y, z]             # P*, the target centre in the task's world (m)
@@ -313,8 +313,7 @@ def _camera(s: _Section, folder: Path) -> CameraConfig:
             raise s.fail("device", device, "a device index (0, 1, ...) or a stream URL")
     video = _path(folder, s, "path") if source == "video" else None
     fps = s.number("fps", low=0.0, low_open=True) if s.has("fps") else None
-    default_segmenter = "background" if source == "simulated" else "learned"
-    segmenter = s.choice("segmenter", SEGMENTERS, default=default_segmenter)
+    segmenter = s.choice("segmenter", SEGMENTERS, default="learned")
     background = None
     if s.has("background"):
         if source == "simulated" or segmenter != "background":

@@ -58,9 +58,18 @@ LOOP_FOLLOW_PX = 80
 # The tip filter's tuned acceleration noise without and with a camera latency (why: tracking.params).
 LOOP_SIGMA_ACCEL = LOOP_FILTER.sigma_accel
 LATENT_LOOP_SIGMA_ACCEL = LATENT_LOOP_FILTER.sigma_accel
-#: Segmenters the loop can use: the classical background segmenter against the scene rendered without the
-#: cable (default), or the shipped full-resolution CNN ``cable-segmenter-loop`` (no background image needed).
+#: Segmenters the loop can use: the shipped full-resolution CNN ``cable-segmenter-loop`` (no background
+#: image needed, as with a real camera), or the classical background segmenter against the scene rendered
+#: without the cable (a clean plate only a simulator or a fixed real camera has).
 LOOP_SEGMENTERS = ("background", "learned")
+#: The loop's segmenter when none is named, by the number of loop cameras the scene has
+#: (:func:`scene_views`). One camera (tip control): the learned network, as ``run`` uses with a real camera:
+#: 98 of 100 hits on fresh seeds, as with the classical one, at an estimate RMSE of 1.9 against 1.3 mm and
+#: a controller p95 of 17 against 15 ms. Two cameras (vaulting): the classical one; there the
+#: learned network loses the cable lying on the light floor beyond the obstacle (estimates 71-148 mm) and two
+#: renders plus two networks overrun the 40 ms cycle (docs/RESULTS.md, "The learned segmenter, the loop's
+#: default (session 36)").
+DEFAULT_LOOP_SEGMENTER = {1: "learned", 2: "background"}
 #: Longest simulated camera latency (s): beyond a quarter second the loop re-plans on a past the cable has
 #: long left.
 MAX_LATENCY_S = 0.25
@@ -128,6 +137,10 @@ def _camera_tracker(base: Any, camera_name: str, width: int, height: int, segmen
         # cable can reach (docs/RESULTS.md, "The cable's reach").
         network = LearnedSegmenter(onnx_bytes(segmenter_model or LOOP_NAME),
                                    short_side=round(segmenter_scale * min(width, height)))
+        # Warmed up here, as the classical branch is by its background render: a camera's first render and a
+        # process's first network pass at the frame's size take 3-5x their usual time (up to 52 ms together),
+        # which would overrun cycle 0's deadline.
+        network.segment(camera.read().rgb)
         reach_m = base.scene.config.cable.length_m + CABLE_REACH_MARGIN_M
         reach: Any = CableReachSegmenter(network, calib, reach_m, follow_px=LOOP_FOLLOW_PX)
         inner: Any = reach
@@ -155,6 +168,11 @@ def _camera_tracker(base: Any, camera_name: str, width: int, height: int, segmen
     return camera, tracker, project
 
 
+def default_segmenter(env: Any) -> str:
+    """The loop's segmenter for ``env``'s scene when none is named (:data:`DEFAULT_LOOP_SEGMENTER`)."""
+    return DEFAULT_LOOP_SEGMENTER[scene_views(env)]
+
+
 def scene_views(env: Any) -> int:
     """The loop cameras ``env``'s scene has: 2 with a second tracking camera (vaulting), else 1."""
     model = as_sim_env(env).model
@@ -163,7 +181,7 @@ def scene_views(env: Any) -> int:
 
 def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFilter | None = None,
                   width: int = 640, height: int = 480,
-                  latency_s: float = 0.0, segmenter: str = "background",
+                  latency_s: float = 0.0, segmenter: str | None = None,
                   views: int | None = None,
                   segmenter_model: str | None = None,
                   segmenter_scale: float | None = None) -> tuple[TrackedState, MujocoCamera]:
@@ -172,7 +190,8 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
     The background image is rendered now, with the cable hidden, so call it at the start of an episode. With
     ``latency_s`` > 0 the tracker sees each frame that long after it was rendered (:class:`DelayedCamera`)
     and the filter predicts across the delay. The camera returned renders the present (for videos).
-    ``segmenter`` is one of :data:`LOOP_SEGMENTERS`; either way the gripper is masked by its projected pose.
+    ``segmenter`` is one of :data:`LOOP_SEGMENTERS` (None: the scene's default, :func:`default_segmenter`);
+    either way the gripper is masked by its projected pose.
     ``segmenter_model``: the learned segmenter's network, a shipped name or an ONNX file (default
     ``cable-segmenter-loop``). ``segmenter_scale``: the learned segmenter's network sees the frame enlarged
     this many times (default :data:`LOOP_NETWORK_SCALE`; :func:`checked_segmenter_scale`).
@@ -180,6 +199,8 @@ def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFi
     second tracking camera and triangulates (:class:`StereoTrackedState`). None: as many as the scene has
     (:func:`scene_views`).
     """
+    if segmenter is None:
+        segmenter = default_segmenter(env)
     if segmenter not in LOOP_SEGMENTERS:
         raise ValueError(f"segmenter={segmenter!r}; expected one of {list(LOOP_SEGMENTERS)}")
     if segmenter_model is not None and segmenter != "learned":

@@ -37,7 +37,7 @@ def test_config_defaults_and_paths() -> None:
     assert cfg.robot.port == 6510 and cfg.robot.connect_timeout_s == 3.0 and cfg.robot.base_pose is None
     assert cfg.robot.tool_offset == (0.0, 0.0, 0.0) and cfg.robot.plan_lead_s == 0.08
     assert cfg.camera.calibration == EXAMPLES / "tracking-camera.json"
-    assert cfg.camera.segmenter == "background" and cfg.task == "tip-control"
+    assert cfg.camera.segmenter == "learned" and cfg.task == "tip-control"  # sim or real: the network
     assert cfg.safety.joint_margin == 0.9
 
 
