@@ -37,6 +37,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="random-scenes: random cables among random props from random cameras (the shipped "
                    "networks' data); task-scenes: the control loop's own scenes (tip control, vaulting) "
                    "through their loop cameras, the cable moved by random actions")
+    p.add_argument("--upscale", type=float, default=defaults.upscale, metavar="S",
+                   help="enlarge every image and label S times (bilinear) after rendering at --width x "
+                   "--height, as the loop enlarges its frames for its network (1-4; default 1: as rendered)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -48,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
 
     config = SegDataConfig(width=args.width, height=args.height, texture_share=args.texture_share,
                            lum_match_share=args.lum_match_share, grey_floor_share=args.grey_floor_share,
-                           style=args.style)
+                           style=args.style, upscale=args.upscale)
     config.check()
     if args.count < 1:
         raise ValueError(f"--count must be >= 1, got {args.count}")

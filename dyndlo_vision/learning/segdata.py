@@ -37,7 +37,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["STYLES", "SegDataConfig", "SceneSampler", "TaskSceneSampler", "procedural_background",
+__all__ = ["STYLES", "SegDataConfig", "SceneSampler", "enlarged", "TaskSceneSampler", "procedural_background",
            "sample_path", "write_dataset"]
 
 
@@ -67,6 +67,11 @@ class SegDataConfig:
     #: random cameras (:class:`SceneSampler`, the shipped networks' data); ``task-scenes``, the control loop's
     #: own scenes through their loop cameras (:class:`TaskSceneSampler`).
     style: str = "random-scenes"
+    #: Every image and its label are enlarged this many times (bilinear) after rendering at ``width`` x
+    #: ``height`` and the camera effects, as the loop enlarges its frames before its network
+    #: (``control.sim_perception.LOOP_NETWORK_SCALE``): the network then trains on what it is given. 1: as
+    #: rendered (datasets made before this option).
+    upscale: float = 1.0
 
     def check(self) -> None:
         for name in ("width", "height", "samples_per_scene"):
@@ -78,6 +83,9 @@ class SegDataConfig:
         for name in ("texture_share", "lum_match_share", "grey_floor_share"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)!r}")
+        if isinstance(self.upscale, bool) or not isinstance(self.upscale, int | float) or not (
+                1.0 <= self.upscale <= 4.0):
+            raise ValueError(f"upscale must be a number in [1, 4], got {self.upscale!r}")
         if self.style not in STYLES:
             raise ValueError(f"style must be one of {list(STYLES)}, got {self.style!r}")
         if not 0.5 <= self.min_width_px <= self.max_width_px:
@@ -665,6 +673,16 @@ class TaskSceneSampler:
         return rgb, mask, meta
 
 
+def enlarged(rgb: NDArray[np.uint8], mask: NDArray[np.uint8],
+             scale: float) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
+    """A sample and its coverage label enlarged ``scale`` times, both bilinearly: the image as the loop's
+    network is given its frames, the label as the cable's coverage of the enlarged pixels."""
+    h, w = mask.shape[:2]
+    size = (int(round(w * scale)), int(round(h * scale)))
+    return (cv2.resize(rgb, size, interpolation=cv2.INTER_LINEAR),
+            cv2.resize(mask, size, interpolation=cv2.INTER_LINEAR))
+
+
 def _sample_names(index: int) -> tuple[str, str]:
     return f"{index:06d}.png", f"{index:06d}_mask.png"
 
@@ -726,6 +744,8 @@ def write_dataset(out: Path, count: int, seed: int, config: SegDataConfig, progr
                     rgb, mask, meta = sampler.sample()
                     if i in done:
                         continue
+                    if config.upscale != 1.0:
+                        rgb, mask = enlarged(rgb, mask, config.upscale)
                     img_name, mask_name = _sample_names(i)
                     _write_png_atomic(out / img_name, np.ascontiguousarray(rgb[..., ::-1]))
                     _write_png_atomic(out / mask_name, mask)

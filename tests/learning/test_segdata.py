@@ -159,3 +159,34 @@ def test_task_scenes_render_the_loop_scene_and_put_the_cable_back() -> None:
         b.close()
     with pytest.raises(ValueError, match="style"):
         SegDataConfig(style="photos").check()
+
+
+def test_upscale_enlarges_image_and_label_as_the_loop_enlarges_its_frames(tmp_path: Path) -> None:
+    """``upscale=1.5``: every sample is the 1x sample, image and coverage label each resized bilinearly to
+    1.5x (what the loop's network is given: control.sim_perception.LOOP_NETWORK_SCALE); bad values are
+    refused, and a dataset made before the option resumes as upscale 1."""
+    from dyndlo_vision.learning.segdata import enlarged
+
+    plain, big = tmp_path / "plain", tmp_path / "big"
+    write_dataset(plain, 2, 0, SMALL)
+    write_dataset(big, 2, 0, SegDataConfig(width=96, height=64, samples_per_scene=2, upscale=1.5))
+    for i in range(2):
+        rgb = cv2.imread(str(plain / f"{i:06d}.png"))
+        mask = cv2.imread(str(plain / f"{i:06d}_mask.png"), cv2.IMREAD_GRAYSCALE)
+        big_rgb = cv2.imread(str(big / f"{i:06d}.png"))
+        big_mask = cv2.imread(str(big / f"{i:06d}_mask.png"), cv2.IMREAD_GRAYSCALE)
+        assert big_rgb.shape == (96, 144, 3) and big_mask.shape == (96, 144)
+        want_rgb, want_mask = enlarged(rgb, mask, 1.5)
+        np.testing.assert_array_equal(big_rgb, want_rgb)
+        np.testing.assert_array_equal(big_mask, want_mask)
+        # The label's cable area grows with the image's: 1.5^2 = 2.25 times, as coverage (mask / 255).
+        if mask.sum() > 255 * 20:
+            assert big_mask.sum() / mask.sum() == pytest.approx(2.25, rel=0.05)
+    assert json.loads((big / "dataset.json").read_text())["config"]["upscale"] == 1.5
+    for bad in (0.5, 5.0, True, "2"):
+        with pytest.raises(ValueError, match="upscale must be a number in"):
+            SegDataConfig(upscale=bad).check()  # type: ignore[arg-type]
+    manifest = json.loads((plain / "dataset.json").read_text())
+    del manifest["config"]["upscale"]
+    (plain / "dataset.json").write_text(json.dumps(manifest))
+    assert write_dataset(plain, 3, 0, SMALL) == 1
