@@ -16,7 +16,9 @@ Pipeline (all pure numpy/OpenCV, designed for < 2 ms on a 640x480 mask on one co
    longest. At a junction the walk takes the unused branch that continues the incoming
    direction most smoothly; it never takes a branch twice. Where the walk reaches a free end
    it may jump a gap (occlusion, segmentation hole) to an unused free end whose direction
-   agrees with the gap and with the incoming direction.
+   agrees with the gap and with the incoming direction. Where the walk ends in a short hook
+   (a blob on the cable's side bent the skeleton's end) it may cut the hook off and jump
+   from its knee instead.
 5. The ordered pixel path is smoothed and resampled to N nodes equally spaced in arc length.
    Nodes on bridged gaps are invisible; with ``expected_length_px`` nodes beyond the observed
    length are invisible (NaN) rather than stretched over the visible part.
@@ -139,6 +141,12 @@ class CenterlineParams:
     max_gap_px: float = 120.0
     #: Largest angle (deg) between the gap and either end's direction.
     max_gap_angle_deg: float = 50.0
+    #: A walk that ends in a hook (its last this-many widths or fewer turning more than
+    #: ``max_gap_angle_deg`` away) with no gap to bridge from its end tries the gaps from the hook's knee: a
+    #: blob on the cable's side (a highlight on a sphere it passes, a floor edge it crosses) bent the
+    #: skeleton's end into itself before a crack in the mask, and the cable goes on beyond the crack (a gap of
+    #: at most this many widths too). The hook is cut off when the branch across the gap is longer than it.
+    hook_widths: float = 6.0
     #: Bridged gaps longer than this many widths make their nodes invisible. Skeleton ends
     #: stop half a width short of a mask end, so a skeleton gap is the mask gap plus about
     #: one width: 1.75 keeps cracks under ~0.75 width visible, while an occluder about as
@@ -618,6 +626,8 @@ def _pair_crossings(
 class _Walk:
     steps: list[tuple[int, int, str]]  # (branch, start end, how we entered: start/junction/gap)
     length: float
+    #: Step index -> arc length (from the step's start end) past which its branch is cut off (a hook).
+    cuts: dict[int, float] = field(default_factory=dict)
 
 
 def _walk(
@@ -638,6 +648,57 @@ def _walk(
     pairing = _pair_crossings(g, ports, skip, dlen, prm.max_turn_deg)
     free_ends = [(bj, ej) for nid, pl in ports.items() if g.node_kind[nid] == "end" for (bj, ej) in pl]
     free_pos = np.array([g.branches[bj].oriented(ej)[0] for bj, ej in free_ends]).reshape(-1, 2)
+    def bridge(end_pt: NDArray[np.float64], arrive: NDArray[np.float64],
+               max_gap_px: float = prm.max_gap_px) -> tuple[int, int] | None:
+        """The unused free end a gap from ``end_pt`` (travelling along ``arrive``) best leads to, or None."""
+        best_score, found = math.inf, None
+        near = np.flatnonzero(np.hypot(*(free_pos - end_pt).T) <= max_gap_px).tolist()
+        for c in near:
+            bj, ej = free_ends[c]
+            if bj in used:
+                continue
+            cb = g.branches[bj]
+            gap = free_pos[c] - end_pt
+            dist = math.hypot(gap[0], gap[1])
+            leave = _direction(cb, ej, 1.0, dlen)
+            if dist < 0.5 * width:
+                a1 = a2 = 0.0
+                turn = _angle_deg(arrive, leave)
+                if turn > prm.max_turn_deg:
+                    continue
+            else:
+                a1 = _angle_deg(arrive, gap)
+                a2 = _angle_deg(gap, leave)
+                if a1 > prm.max_gap_angle_deg or a2 > prm.max_gap_angle_deg:
+                    continue
+            score = dist * (1.0 + (a1 + a2) / 45.0)
+            if score < best_score:
+                best_score, found = score, (bj, ej)
+        return found
+
+    def knee(b: _Branch, end: int) -> tuple[float, tuple[int, int]] | None:
+        """Where to cut a hook off the end of branch ``b`` (walked from ``end``) to bridge a gap from its
+        knee: (arc length kept, the free end across the gap), or None."""
+        s = b.s if end == 0 else (b.s[-1] - b.s[::-1])
+        pts = b.oriented(end)
+        total = float(s[-1])
+        tail = _direction(b, 1 - end, 1.0, dlen)  # leaving the branch's far end, backwards
+        step = max(1.0, 0.5 * width)
+        back = step
+        while back <= min(prm.hook_widths * width, total / 2.0):
+            s_cut = total - back
+            at = np.array([np.interp(s_cut, s, pts[:, 0]), np.interp(s_cut, s, pts[:, 1])])
+            before = np.array([np.interp(max(0.0, s_cut - dlen), s, pts[:, 0]),
+                               np.interp(max(0.0, s_cut - dlen), s, pts[:, 1])])
+            heading = at - before
+            if _angle_deg(heading, -tail) > prm.max_gap_angle_deg:  # the hook turns away from here on
+                jump = bridge(at, heading, prm.hook_widths * width)  # a crack, not an occlusion
+                if jump is not None and g.branches[jump[0]].length > back:
+                    return s_cut, jump
+            back += step
+        return None
+
+    cuts: dict[int, float] = {}
     while True:
         used.add(bi)
         steps.append((bi, end, how))
@@ -667,36 +728,21 @@ def _walk(
                 continue
         # Dead end (free end, or no smooth continuation): try to bridge a gap.
         end_pt = b.oriented(end)[-1]
-        best_score = math.inf
-        near = np.flatnonzero(np.hypot(*(free_pos - end_pt).T) <= prm.max_gap_px).tolist()
-        for c in near:
-            bj, ej = free_ends[c]
-            if bj in used:
-                continue
-            cb = g.branches[bj]
-            gap = free_pos[c] - end_pt
-            dist = math.hypot(gap[0], gap[1])
-            leave = _direction(cb, ej, 1.0, dlen)
-            if dist < 0.5 * width:
-                a1 = a2 = 0.0
-                turn = _angle_deg(arrive, leave)
-                if turn > prm.max_turn_deg:
-                    continue
-            else:
-                a1 = _angle_deg(arrive, gap)
-                a2 = _angle_deg(gap, leave)
-                if a1 > prm.max_gap_angle_deg or a2 > prm.max_gap_angle_deg:
-                    continue
-            score = dist * (1.0 + (a1 + a2) / 45.0)
-            if score < best_score:
-                best_score, nxt = score, (bj, ej)
+        nxt = bridge(end_pt, arrive)
+        if nxt is None and (hooked := knee(b, end)) is not None:
+            s_cut, nxt = hooked
+            cuts[len(steps) - 1] = s_cut
+            total -= b.length - s_cut
+            s_b = b.s if end == 0 else (b.s[-1] - b.s[::-1])
+            pts_b = b.oriented(end)
+            end_pt = np.array([np.interp(s_cut, s_b, pts_b[:, 0]), np.interp(s_cut, s_b, pts_b[:, 1])])
         if nxt is None:
             break
         gp = g.branches[nxt[0]].oriented(nxt[1])[0]
         total += math.hypot(*(gp - end_pt))
         bi, end = nxt
         how = "gap"
-    return _Walk(steps, total)
+    return _Walk(steps, total, cuts)
 
 
 def _assemble(
@@ -720,6 +766,8 @@ def _assemble(
             lo = min(trim, total / 3.0)
         if i + 1 < n_steps and walk.steps[i + 1][2] == "junction":
             hi = max(total - min(trim, total / 3.0), lo)
+        if i in walk.cuts:  # a hook cut off before a gap
+            hi = max(min(hi, walk.cuts[i]), lo)
         keep = (s >= lo) & (s <= hi)
         if not np.any(keep):
             keep[np.argmin(np.abs(s - 0.5 * (lo + hi)))] = True

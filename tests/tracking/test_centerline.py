@@ -227,3 +227,23 @@ def test_a_path_a_few_pixels_short_of_the_cable_length_keeps_its_tip() -> None:
     np.testing.assert_allclose(cl.nodes_uv[-1], path[-1])
     shorter = nodes_from_path(path[:80], np.ones(79, bool), 21, 200.0, (480, 640), 2.0)  # 153 px: occluded
     assert not shorter.visible[-1]
+
+
+def test_a_hook_into_a_blob_before_a_crack_is_cut_and_the_walk_goes_on() -> None:
+    """A blob on the cable's side (the learned loop's mask of a highlight on the target sphere, or of the floor's
+    far edge) bends the skeleton's end into itself just before a crack in the mask. The walk cuts the hook
+    off at its knee and bridges the crack to the rest of the cable, instead of ending in the blob (two
+    single-cycle errors of 80 and 100 mm in the loop, docs/RESULTS.md, session 36)."""
+    m = np.zeros((200, 300), np.uint8)
+    cv2.polylines(m, [np.array([[40, 40], [80, 120], [150, 150]], np.int32)], False, 1, 2)
+    cv2.line(m, (154, 149), (230, 130), 1, 2)  # the cable beyond a 4 px crack
+    cv2.circle(m, (150, 157), 5, 1, -1)  # the blob under its end before the crack
+    cl = extract_centerline(m, 21, anchor_uv=np.array([40.0, 40.0]))
+    assert np.hypot(*(cl.nodes_uv[-1] - [230.0, 130.0])) < 3.0
+    assert np.all(cl.nodes_uv[:, 1] < 153.0), "no node in the blob"
+    # Without the crack there is nothing to bridge: the hook stays, as the cable's end.
+    m2 = np.zeros((200, 300), np.uint8)
+    cv2.polylines(m2, [np.array([[40, 40], [80, 120], [150, 150]], np.int32)], False, 1, 2)
+    cv2.circle(m2, (150, 157), 5, 1, -1)
+    assert np.hypot(*(extract_centerline(m2, 21, anchor_uv=np.array([40.0, 40.0])).nodes_uv[-1]
+                      - [150.0, 157.0])) < 4.0
