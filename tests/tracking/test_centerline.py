@@ -230,10 +230,10 @@ def test_a_path_a_few_pixels_short_of_the_cable_length_keeps_its_tip() -> None:
 
 
 def test_a_hook_into_a_blob_before_a_crack_is_cut_and_the_walk_goes_on() -> None:
-    """A blob on the cable's side (the learned loop's mask of a highlight on the target sphere, or of the floor's
-    far edge) bends the skeleton's end into itself just before a crack in the mask. The walk cuts the hook
-    off at its knee and bridges the crack to the rest of the cable, instead of ending in the blob (two
-    single-cycle errors of 80 and 100 mm in the loop, docs/RESULTS.md, session 36)."""
+    """A blob on the cable's side (the learned loop's mask of a highlight on the target sphere) bends the
+    skeleton's end into itself just before a crack in the mask. The walk cuts the hook off at its knee and
+    bridges the crack to the rest of the cable, instead of ending in the blob (a 100 mm single-cycle error
+    in the loop, docs/RESULTS.md, session 36)."""
     m = np.zeros((200, 300), np.uint8)
     cv2.polylines(m, [np.array([[40, 40], [80, 120], [150, 150]], np.int32)], False, 1, 2)
     cv2.line(m, (154, 149), (230, 130), 1, 2)  # the cable beyond a 4 px crack
