@@ -648,6 +648,7 @@ def _walk(
     pairing = _pair_crossings(g, ports, skip, dlen, prm.max_turn_deg)
     free_ends = [(bj, ej) for nid, pl in ports.items() if g.node_kind[nid] == "end" for (bj, ej) in pl]
     free_pos = np.array([g.branches[bj].oriented(ej)[0] for bj, ej in free_ends]).reshape(-1, 2)
+
     def bridge(end_pt: NDArray[np.float64], arrive: NDArray[np.float64],
                max_gap_px: float = prm.max_gap_px) -> tuple[int, int] | None:
         """The unused free end a gap from ``end_pt`` (travelling along ``arrive``) best leads to, or None."""
@@ -676,9 +677,9 @@ def _walk(
                 best_score, found = score, (bj, ej)
         return found
 
-    def knee(b: _Branch, end: int) -> tuple[float, tuple[int, int]] | None:
+    def knee(b: _Branch, end: int) -> tuple[float, NDArray[np.float64], tuple[int, int]] | None:
         """Where to cut a hook off the end of branch ``b`` (walked from ``end``) to bridge a gap from its
-        knee: (arc length kept, the free end across the gap), or None."""
+        knee: (arc length kept, the knee's point, the free end across the gap), or None."""
         s = b.s if end == 0 else (b.s[-1] - b.s[::-1])
         pts = b.oriented(end)
         total = float(s[-1])
@@ -694,7 +695,7 @@ def _walk(
             if _angle_deg(heading, -tail) > prm.max_gap_angle_deg:  # the hook turns away from here on
                 jump = bridge(at, heading, prm.hook_widths * width)  # a crack, not an occlusion
                 if jump is not None and g.branches[jump[0]].length > back:
-                    return s_cut, jump
+                    return s_cut, at, jump
             back += step
         return None
 
@@ -730,12 +731,9 @@ def _walk(
         end_pt = b.oriented(end)[-1]
         nxt = bridge(end_pt, arrive)
         if nxt is None and (hooked := knee(b, end)) is not None:
-            s_cut, nxt = hooked
+            s_cut, end_pt, nxt = hooked
             cuts[len(steps) - 1] = s_cut
             total -= b.length - s_cut
-            s_b = b.s if end == 0 else (b.s[-1] - b.s[::-1])
-            pts_b = b.oriented(end)
-            end_pt = np.array([np.interp(s_cut, s_b, pts_b[:, 0]), np.interp(s_cut, s_b, pts_b[:, 1])])
         if nxt is None:
             break
         gp = g.branches[nxt[0]].oriented(nxt[1])[0]
