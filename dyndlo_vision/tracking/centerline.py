@@ -350,6 +350,10 @@ class _Branch:
         """Points ordered leaving the node at ``end``."""
         return self.pts if end == 0 else self.pts[::-1]
 
+    def oriented_s(self, end: int) -> NDArray[np.float64]:
+        """Arc length of :meth:`oriented`'s points from the node at ``end``."""
+        return self.s if end == 0 else (self.s[-1] - self.s[::-1])
+
 
 class _Graph:
     """Branch/node graph of a skeleton; nodes are ends (degree 1) or junction clusters."""
@@ -554,7 +558,7 @@ def _simplify(g: _Graph, width: float, prm: CenterlineParams) -> None:
 
 def _direction(b: _Branch, end: int, skip: float, length: float) -> NDArray[np.float64]:
     """Unit direction of branch ``b`` leaving the node at ``end``, ignoring ``skip`` px."""
-    s = b.s if end == 0 else (b.s[-1] - b.s[::-1])
+    s = b.oriented_s(end)
     pts = b.oriented(end)
     total = s[-1]
     if total <= 0:
@@ -680,7 +684,7 @@ def _walk(
     def knee(b: _Branch, end: int) -> tuple[float, NDArray[np.float64], tuple[int, int]] | None:
         """Where to cut a hook off the end of branch ``b`` (walked from ``end``) to bridge a gap from its
         knee: (arc length kept, the knee's point, the free end across the gap), or None."""
-        s = b.s if end == 0 else (b.s[-1] - b.s[::-1])
+        s = b.oriented_s(end)
         pts = b.oriented(end)
         total = float(s[-1])
         tail = _direction(b, 1 - end, 1.0, dlen)  # leaving the branch's far end, backwards
@@ -688,9 +692,8 @@ def _walk(
         back = step
         while back <= min(prm.hook_widths * width, total / 2.0):
             s_cut = total - back
-            at = np.array([np.interp(s_cut, s, pts[:, 0]), np.interp(s_cut, s, pts[:, 1])])
-            before = np.array([np.interp(max(0.0, s_cut - dlen), s, pts[:, 0]),
-                               np.interp(max(0.0, s_cut - dlen), s, pts[:, 1])])
+            before, at = np.column_stack([np.interp((max(0.0, s_cut - dlen), s_cut), s, pts[:, j])
+                                          for j in (0, 1)])
             heading = at - before
             if _angle_deg(heading, -tail) > prm.max_gap_angle_deg:  # the hook turns away from here on
                 jump = bridge(at, heading, prm.hook_widths * width)  # a crack, not an occlusion
@@ -755,7 +758,7 @@ def _assemble(
     for i, (bi, end, how) in enumerate(walk.steps):
         b = g.branches[bi]
         pts = b.oriented(end)
-        s = b.s if end == 0 else (b.s[-1] - b.s[::-1])
+        s = b.oriented_s(end)
         total = s[-1]
         lo, hi = 0.0, total
         # Cut the skeleton distorted by a junction on both sides; the straight join through
