@@ -56,11 +56,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dyndlo_vision.learning.segdata import SceneSampler, SegDataConfig  # noqa: E402
 from dyndlo_vision.learning.segtrain import external_split  # noqa: E402
-from dyndlo_vision.policies.segmenter import onnx_bytes  # noqa: E402
 from dyndlo_vision.sim.cable_look import CableLook  # noqa: E402
 from dyndlo_vision.tracking import BackgroundSegmenter, dice  # noqa: E402
 from dyndlo_vision.tracking.centerline import extract_centerline  # noqa: E402
 from dyndlo_vision.tracking.learned import LearnedSegmenter  # noqa: E402
+from dyndlo_vision.tracking.networks import onnx_bytes  # noqa: E402
 from dyndlo_vision.tracking.tracker import Measurement, Plane, lift_with_plane, tip_from_polyline  # noqa: E402
 
 EXTERNAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "external"

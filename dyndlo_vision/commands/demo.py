@@ -244,7 +244,7 @@ def run(args: argparse.Namespace) -> int:
             if value is not None:
                 raise ValueError(f"{option} is for --segmenter learned, not background")
     if args.segmenter_model is not None:
-        from dyndlo_vision.policies.segmenter import check_network
+        from dyndlo_vision.tracking.networks import check_network
 
         check_network(args.segmenter_model, "--segmenter-model")
     if segmenter_scale is not None:

@@ -64,8 +64,8 @@ def _hsv(text: str, name: str) -> tuple[int, int, int]:
 
 def _segmenter(args: argparse.Namespace) -> Any:
     if args.segmenter == "learned":
-        from dyndlo_vision.policies.segmenter import onnx_bytes
         from dyndlo_vision.tracking.learned import LearnedSegmenter
+        from dyndlo_vision.tracking.networks import onnx_bytes
 
         if args.short_side is not None and args.short_side < 16:
             raise ValueError(f"--short-side must be >= 16, got {args.short_side}")

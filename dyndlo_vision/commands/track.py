@@ -60,13 +60,13 @@ from typing import TYPE_CHECKING, Any, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from dyndlo_vision.policies.segmenter import check_network
 from dyndlo_vision.tracking.masks import (
     MAX_WIDTH_RATIO,
     MIN_CUT_RADIUS_PX,
     CableShapedMask,
     GripperMaskedSegmenter,
 )
+from dyndlo_vision.tracking.networks import check_network
 from dyndlo_vision.tracking.params import FilterParams
 
 if TYPE_CHECKING:
@@ -594,8 +594,8 @@ def _segmenter(cfg: _Settings, video: Path) -> tuple[Callable[[NDArray[np.uint8]
         lo, hi = cfg.hsv
         return (lambda rgb: segment_hsv(rgb, lo, hi, clean=True)), "hsv"
     if cfg.segmenter == "learned":
-        from dyndlo_vision.policies.segmenter import onnx_bytes
         from dyndlo_vision.tracking.learned import LearnedSegmenter
+        from dyndlo_vision.tracking.networks import onnx_bytes
 
         short_side = "auto" if cfg.short_side is None else cfg.short_side
         return LearnedSegmenter(onnx_bytes(cfg.segmenter_model), short_side=short_side), "learned"

@@ -442,8 +442,8 @@ def _build_source(cfg: RunConfig, env: Any, driver: Any, calib: Any) -> tuple[An
 
         camera = RealSenseCamera(width=calib.width, height=calib.height)
     if cfg.camera.segmenter == "learned":
-        from dyndlo_vision.policies.segmenter import onnx_bytes
         from dyndlo_vision.tracking.learned import LearnedSegmenter
+        from dyndlo_vision.tracking.networks import onnx_bytes
 
         inner: Any = LearnedSegmenter(onnx_bytes())
     else:

@@ -128,8 +128,8 @@ def _camera_tracker(base: Any, camera_name: str, width: int, height: int, segmen
     home = base.scene.gripper_home[0]
     scale = pixels_per_metre(calib, home)
     if segmenter == "learned":
-        from dyndlo_vision.policies.segmenter import LOOP_NAME, onnx_bytes
         from dyndlo_vision.tracking.learned import LearnedSegmenter
+        from dyndlo_vision.tracking.networks import LOOP_NAME, onnx_bytes
 
         # By default the full-resolution network fine-tuned on the loop's own scenes (docs/RESULTS.md, "A
         # segmenter for the loop's own scenes"). The loop camera's cable is 1.6 px wide, so every network sees

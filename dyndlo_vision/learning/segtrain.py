@@ -334,7 +334,7 @@ def _with_widths(config: dict[str, Any]) -> dict[str, Any]:
 def is_onnx_init(init: str | Path) -> bool:
     """Whether ``--init`` names an ONNX network (a ``.onnx`` file or a shipped segmenter's name), which
     :func:`train` reads with :func:`net_from_onnx`, rather than a ``seg-train`` checkpoint."""
-    from dyndlo_vision.policies.segmenter import SHIPPED_NAMES
+    from dyndlo_vision.tracking.networks import SHIPPED_NAMES
 
     return str(init) in SHIPPED_NAMES or Path(init).suffix.lower() == ".onnx"
 
@@ -393,7 +393,7 @@ def train(
     init_weights = None
     if init is not None and not resume:
         if is_onnx_init(init):
-            from dyndlo_vision.policies.segmenter import onnx_bytes
+            from dyndlo_vision.tracking.networks import onnx_bytes
 
             if not config.frozen_batch_norm:
                 raise ValueError(f"--init {init} is an ONNX network, whose batch-norm statistics the export "

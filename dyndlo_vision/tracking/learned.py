@@ -1,7 +1,7 @@
 """The learned cable segmenter at run time: a small CNN (ONNX) evaluated with OpenCV's ``cv2.dnn``.
 
 Pure computation on arrays: the network arrives as ONNX bytes (the shipped ones from
-:func:`dyndlo_vision.policies.segmenter.onnx_bytes`). Two input layouts, told apart by the network's number
+:func:`dyndlo_vision.tracking.networks.onnx_bytes`). Two input layouts, told apart by the network's number
 of input channels when it is loaded:
 
 * **blocks** (48 channels, ``cablenet-s2d4``, shipped as ``cable-segmenter-fine``): the frame, as

@@ -19,8 +19,8 @@ from dyndlo_vision.control.sim_perception import (
     tracked_state,
 )
 from dyndlo_vision.control.state_sources import StereoTrackedState
-from dyndlo_vision.policies.segmenter import FINE_NAME, LOOP_NAME, onnx_bytes
 from dyndlo_vision.tracking.learned import LearnedSegmenter
+from dyndlo_vision.tracking.networks import FINE_NAME, LOOP_NAME, onnx_bytes
 from dyndlo_vision.tracking.segmentation import BackgroundSegmenter
 
 

@@ -9,10 +9,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dyndlo_vision.policies.segmenter import FINE_NAME, onnx_bytes
 from dyndlo_vision.tracking.camera_model import PinholeCamera
 from dyndlo_vision.tracking.learned import LearnedSegmenter
 from dyndlo_vision.tracking.masks import CableReachSegmenter
+from dyndlo_vision.tracking.networks import FINE_NAME, onnx_bytes
 from dyndlo_vision.tracking.synthetic import render_cable, s_curve
 
 

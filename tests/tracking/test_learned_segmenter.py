@@ -8,9 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
-from dyndlo_vision.policies.segmenter import FINE_NAME, SHIPPED_NAMES, onnx_bytes, segmenter_metadata
 from dyndlo_vision.tracking import dice
 from dyndlo_vision.tracking.learned import LearnedSegmenter
+from dyndlo_vision.tracking.networks import FINE_NAME, SHIPPED_NAMES, onnx_bytes, segmenter_metadata
 from dyndlo_vision.tracking.polylines import extract_polylines
 from dyndlo_vision.tracking.synthetic import render_cable, s_curve
 

@@ -12,8 +12,8 @@ Three networks, for three kinds of picture (docs/RESULTS.md, "Learned cable segm
   fine-tuned on renders of the loop's own scenes (``seg-data --style task-scenes``). In the loop its tip
   estimate is closer to the truth than the fine network's; on other scenes and real photos it is weaker.
 
-This module only hands out the bytes and the metadata (``policies`` imports nothing above ``tasks``); the
-network runs in :class:`dyndlo_vision.tracking.learned.LearnedSegmenter`::
+This module only hands out the bytes and the metadata, beside the code that runs them (``tracking`` imports
+nothing else of the package); the network runs in :class:`dyndlo_vision.tracking.learned.LearnedSegmenter`::
 
     seg = LearnedSegmenter(onnx_bytes())                       # the default network
     seg = LearnedSegmenter(onnx_bytes(FINE_NAME))              # the full-resolution one
