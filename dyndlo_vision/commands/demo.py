@@ -248,9 +248,11 @@ def run(args: argparse.Namespace) -> int:
 
         check_network(args.segmenter_model, "--segmenter-model")
     if segmenter_scale is not None:
-        from dyndlo_vision.control.sim_perception import checked_segmenter_scale
+        from dyndlo_vision.tracking.segmenters import MAX_SCALE, MIN_SCALE
 
-        checked_segmenter_scale(segmenter_scale, "--segmenter-scale")
+        if not MIN_SCALE <= segmenter_scale <= MAX_SCALE:  # also NaN
+            raise ValueError(f"--segmenter-scale must be a number in [{MIN_SCALE:g}, {MAX_SCALE:g}], got "
+                             f"{segmenter_scale!r}")
     noise_model, noise_name = None, None
     if getattr(args, "obs_noise", None) is not None and args.observation != "noisy":
         raise ValueError(f"--obs-noise applies to the noisy observation, not to {args.observation!r}")
@@ -297,9 +299,15 @@ def run(args: argparse.Namespace) -> int:
                    randomize_cable_every=1 if args.randomize_cable else None,
                    cable_ranges=ranges)
     check_camera(env, args.camera)
-    views, segmenter = None, None
+    views, segmenter, perception = None, None, None
+    effective_scale = None  # the learned network's enlargement, recorded as run
     if args.observation == "tracked":
-        from dyndlo_vision.control.sim_perception import default_segmenter, scene_views
+        from dyndlo_vision.control.sim_perception import (
+            LoopPerception,
+            default_segmenter,
+            loop_segmenter,
+            scene_views,
+        )
 
         available = scene_views(env)
         views = available if args.views is None else args.views
@@ -309,11 +317,10 @@ def run(args: argparse.Namespace) -> int:
         if segmenter != "learned" and (args.segmenter_model is not None or segmenter_scale is not None):
             raise ValueError(f"--segmenter-model and --segmenter-scale are for --segmenter learned; the "
                              f"{task} scene's default segmenter is {segmenter!r}")
-    effective_scale = None  # the learned network's enlargement, recorded as run
-    if segmenter == "learned":
-        from dyndlo_vision.control.sim_perception import LOOP_NETWORK_SCALE
-
-        effective_scale = LOOP_NETWORK_SCALE if segmenter_scale is None else float(segmenter_scale)
+        seg_config = loop_segmenter(segmenter, args.segmenter_model,
+                                    None if segmenter_scale is None else float(segmenter_scale))
+        effective_scale = seg_config.scale
+        perception = LoopPerception(seg_config, views, latency_s=1e-3 * args.latency_ms)
     if push is not None:
         if env.unwrapped.task.cable.model != "chain":
             raise ValueError("--push needs the chain cable; this policy's environment has the rod")
@@ -334,11 +341,7 @@ def run(args: argparse.Namespace) -> int:
                 args.observation,
                 args.camera,
                 video if i == 0 else None,
-                latency_s=1e-3 * args.latency_ms,
-                segmenter=segmenter,
-                segmenter_model=args.segmenter_model,
-                segmenter_scale=segmenter_scale,
-                views=views,
+                perception=perception,
                 goal_name=GOAL_NAMES[task],
                 actuation_latency_s=1e-3 * args.actuation_latency_ms,
                 raw=raw if i == 0 else None,
@@ -474,14 +477,9 @@ def film_episode(
     observation: str,
     camera_name: str,
     video: list[np.ndarray] | None,
-    latency_s: float = 0.0,
-    point_filter: Any = None,
-    segmenter: str | None = None,
-    segmenter_model: str | None = None,
-    segmenter_scale: float | None = None,
+    perception: Any = None,
     goal_name: str = "target",
     actuation_latency_s: float = 0.0,
-    views: int | None = None,
     raw: RawRecording | None = None,
     noise_model: Any = None,
 ) -> dict[str, Any]:
@@ -518,15 +516,10 @@ def film_episode(
         seed,
         observation,
         camera_name,
-        latency_s=latency_s,
-        point_filter=point_filter,
+        perception=perception,
         watch=film if video is not None else None,
         open_camera=video is not None,
-        segmenter=segmenter,
-        segmenter_model=segmenter_model,
-        segmenter_scale=segmenter_scale,
         actuation_latency_s=actuation_latency_s,
-        views=views,
         noise_model=noise_model,
     )
 

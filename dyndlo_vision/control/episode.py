@@ -81,11 +81,14 @@ class SecondView:
 
 def _second_view(source: Any) -> SecondView | None:
     """A two-camera source's second frame and 2D cable (None for any other source, or before a frame)."""
-    frame, meas = getattr(source, "second_frame", None), getattr(source, "second_measurement", None)
-    if frame is None or meas is None:
+    frames = getattr(source, "last_frames", [])
+    result = getattr(source, "last_result", None)
+    if len(frames) < 2 or frames[1] is None or result is None or len(result.views) < 2:
         return None
-    polyline = np.where(meas.visible[:, None], meas.nodes_uv, np.nan)
-    return SecondView(frame.rgb, polyline, source.second_tracker.camera)
+    cl = result.views[1].centerline
+    polyline = (np.full((len(result.measurement.visible), 2), np.nan) if cl is None
+                else np.where(cl.visible[:, None], cl.nodes_uv, np.nan))
+    return SecondView(frames[1].rgb, polyline, source.pipeline.views[1].camera)
 
 
 def run_loop_episode(
@@ -94,16 +97,11 @@ def run_loop_episode(
     seed: int,
     observation: str = "true",
     camera_name: str = "tracking",
-    latency_s: float = 0.0,
-    point_filter: Any = None,
+    perception: Any = None,
     watch: Callable[[EpisodeMoment], None] | None = None,
     open_camera: bool = False,
-    segmenter: str | None = None,
     actuation_latency_s: float = 0.0,
-    views: int | None = None,
-    segmenter_model: str | None = None,
     noise_model: Any = None,
-    segmenter_scale: float | None = None,
 ) -> dict[str, Any]:
     """One closed-loop episode from ``env.reset(seed=seed)``; returns its record.
 
@@ -117,21 +115,14 @@ def run_loop_episode(
         seed: The episode's reset seed (also the noise stream's for ``"noisy"``).
         observation: One of :data:`OBSERVATIONS`.
         camera_name: The scene camera the tracker (and ``watch``'s camera) looks through.
-        latency_s: Tracked observation: the camera's delay; the filter predicts across it.
-        point_filter: Tracked observation: the tip filter (default: ``tracked_state``'s).
+        perception: Tracked observation: how the loop sees the cable (a
+            :class:`~dyndlo_vision.control.sim_perception.LoopPerception`: segmenter, views, the camera's
+            latency, the filter; None: the scene's defaults).
         watch: Called at every control cycle and at every instant after the last re-plan up to the outcome.
-        segmenter: Tracked observation: ``"learned"`` (the shipped CNN) or ``"background"`` (classical); None:
-            the scene's default (:func:`~dyndlo_vision.control.sim_perception.default_segmenter`).
-        segmenter_model: With ``"learned"``: a shipped network's name or an ONNX file (default
-            ``cable-segmenter-loop``).
-        segmenter_scale: With ``"learned"``: the network sees the frame enlarged this many times (default
-            :data:`~dyndlo_vision.control.sim_perception.LOOP_NETWORK_SCALE`).
         open_camera: Give ``watch`` a camera on the scene that renders the present (the tracker's own
             camera when tracking without delay).
         actuation_latency_s: The simulated arm executes every setpoint this long after its time
             (:class:`~dyndlo_vision.control.sim_robot.DelayedRobot`); 0: at once.
-        views: Tracked observation: the cameras tracked (1, or 2 to triangulate; None: as many as the scene
-            has, :func:`~dyndlo_vision.control.sim_perception.scene_views`).
         noise_model: Noisy observation: the ``ObservationNoiseModel`` or its JSON file (default: the packaged
             one).
 
@@ -148,6 +139,9 @@ def run_loop_episode(
         raise ValueError(f"observation={observation!r}; expected one of {list(OBSERVATIONS)}")
     if noise_model is not None and observation != "noisy":
         raise ValueError(f"noise_model is for the noisy observation, not {observation!r}")
+    if perception is not None and observation != "tracked":
+        raise ValueError(f"perception is for the tracked observation, not {observation!r}")
+    latency_s = 0.0 if perception is None else perception.latency_s
     base = as_sim_env(env)
     env.reset(seed=seed)
     goal = np.asarray(base.goal, dtype=float)
@@ -155,9 +149,7 @@ def run_loop_episode(
     if observation == "tracked":
         from dyndlo_vision.control.sim_perception import tracked_state
 
-        source, camera = tracked_state(env, camera_name, point_filter=point_filter, latency_s=latency_s,
-                                       segmenter=segmenter, views=views, segmenter_model=segmenter_model,
-                                       segmenter_scale=segmenter_scale)
+        source, camera = tracked_state(env, camera_name, perception)
     elif observation == "noisy":
         source = NoisyState(env, noise_model, seed=seed)
     elif observation == "frozen":

@@ -27,7 +27,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -411,22 +411,27 @@ def _where(cfg: RunConfig, dry_run: bool) -> str:
 
 
 def _build_source(cfg: RunConfig, env: Any, driver: Any, calib: Any) -> tuple[Any, Any]:
-    """The P_DLO source and the camera the video is read from (see the module docstring)."""
+    """The P_DLO source and the camera the video is read from (see the module docstring): the loop's
+    perception pipeline on the configured camera."""
+    from dyndlo_vision.control.sim_perception import LoopPerception, loop_segmenter
+
     base = env.unwrapped
+    segmenter = loop_segmenter(cfg.camera.segmenter)
     if cfg.camera.source == "simulated":
         from dyndlo_vision.control.dry_run import FollowingCamera, place_scene_camera
         from dyndlo_vision.control.sim_perception import tracked_state
 
         place_scene_camera(base.model, base.data, "tracking", calib)
-        source, camera = tracked_state(env, "tracking", width=calib.width, height=calib.height,
-                                       segmenter=cfg.camera.segmenter)
+        source, camera = tracked_state(env, "tracking", LoopPerception(segmenter, views=1), width=calib.width,
+                                       height=calib.height)
         following = FollowingCamera(camera, env, driver)
         source.camera = following
         return source, following
-    from dyndlo_vision.control.sim_perception import GRIPPER_MASK_RADIUS_M, MOTION_PLANE, pixels_per_metre
+    from dyndlo_vision.control.sim_perception import loop_pipeline_config
     from dyndlo_vision.control.state_sources import TrackedState
-    from dyndlo_vision.tracking import LOOP_FILTER, BackgroundSegmenter, CableTracker, PointFilter
-    from dyndlo_vision.tracking.masks import GripperMaskedSegmenter
+    from dyndlo_vision.tracking.params import LOOP_FILTER
+    from dyndlo_vision.tracking.pipeline import CablePipeline
+    from dyndlo_vision.tracking.segmenters import background_from, build_segmenter, build_view_segmenter
 
     camera: Any
     if cfg.camera.source == "video":
@@ -441,31 +446,21 @@ def _build_source(cfg: RunConfig, env: Any, driver: Any, calib: Any) -> tuple[An
         from dyndlo_vision.cameras.devices import RealSenseCamera
 
         camera = RealSenseCamera(width=calib.width, height=calib.height)
-    if cfg.camera.segmenter == "learned":
-        from dyndlo_vision.tracking.learned import LearnedSegmenter
-        from dyndlo_vision.tracking.networks import onnx_bytes
-
-        inner: Any = LearnedSegmenter(onnx_bytes())
-    else:
-        import cv2
-
-        image = cv2.imread(str(cfg.camera.background), cv2.IMREAD_COLOR)
-        if image is None:
-            raise ValueError(f"{cfg.path}: camera.background: not an image OpenCV reads: "
-                             f"{cfg.camera.background}")
-        inner = BackgroundSegmenter(cv2.cvtColor(image, cv2.COLOR_BGR2RGB), open_radius=0)
-    home = base.scene.gripper_home[0]
-    masked = GripperMaskedSegmenter(inner, GRIPPER_MASK_RADIUS_M * pixels_per_metre(calib, home))
-    cable = base.scene.config.cable
-    tracker = CableTracker(calib, segmenter=masked, n_nodes=cable.num_nodes, plane=MOTION_PLANE)
-
-    def project(p: FloatArray) -> FloatArray:
-        uv = calib.project(np.asarray(p, dtype=float)[None])[0]
-        masked.center_uv = uv
-        return uv
-
-    source = TrackedState(camera, tracker, PointFilter(LOOP_FILTER), point_index=-1, project=project,
-                          cable_length_m=cable.length_m)
+    background = None
+    if segmenter.kind == "background":
+        try:
+            background = background_from(cfg.camera.background)
+        except ValueError as exc:
+            raise ValueError(f"{cfg.path}: camera.background: {exc}") from None
+    # A real camera's frames are the calibration's own size: the shipped network at its own input size.
+    if segmenter.kind == "learned":
+        segmenter = replace(segmenter, model=None, scale=None)
+    config = loop_pipeline_config(base.scene, 1.0, segmenter, LOOP_FILTER)
+    config = replace(config, reach_margin_m=None, follow_px=None, floor=None)
+    base_segmenter, _ = build_segmenter(segmenter, frame_size=(calib.width, calib.height),
+                                        background_image=background)
+    view = build_view_segmenter(base_segmenter, camera=calib, gripper_radius_px=0.0)
+    source = TrackedState(camera, CablePipeline(config, [calib], [view]))
     return source, camera
 
 
@@ -780,7 +775,8 @@ def _loop(cfg: RunConfig, dry_run: bool, say: Callable[[str], None], annotate: A
 
 def camera_calibration(camera: Any, source: Any) -> Any:
     """The pinhole model the video overlay projects with (the tracker's)."""
-    return source.tracker.camera if hasattr(source.tracker, "camera") else camera.calibration
+    pipeline = getattr(source, "pipeline", None)
+    return pipeline.views[0].camera if pipeline is not None else camera.calibration
 
 
 def moving_targets_lost(sent: list[FloatArray], received: list[FloatArray], tol: float = 1e-9) -> int:

@@ -1,15 +1,17 @@
-"""Camera-based state estimation in simulation: the tracker set up on a MuJoCo camera of a DynDLO scene.
+"""Camera-based state estimation in simulation: the perception pipeline set up on the MuJoCo cameras of a
+DynDLO scene.
 
-What a real set-up knows and uses, reproduced here: an image of the scene without the cable (the background
-model of the automatic segmentation), the camera calibration, the plane the planar trajectories move in, the
-cable's length in pixels on that plane, and the robot's own pose (the gripper is masked out of the
-segmentation by its projected position, and the projected TCP marks the held end of the cable).
+What a real set-up knows and uses, reproduced here: the camera calibration, the plane the planar trajectories
+move in, the cable's length, the robot's own pose (the gripper is masked out of the segmentation by its
+projected position, and the projected TCP marks the held end of the cable), and for the classical segmenter an
+image of the scene without the cable. :func:`loop_pipeline_config` says what the loop's
+:class:`~dyndlo_vision.tracking.pipeline.CablePipeline` does; ``run`` builds the same for a real camera.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import mujoco
@@ -18,19 +20,14 @@ from numpy.typing import NDArray
 
 from dyndlo_vision.cameras.simulated import DelayedCamera, MujocoCamera, checked_latency_s
 from dyndlo_vision.control.sim_env import as_sim_env
-from dyndlo_vision.control.state_sources import StereoTrackedState, TrackedState
+from dyndlo_vision.control.state_sources import TrackedState
 from dyndlo_vision.sim.cable_look import CableLook
 from dyndlo_vision.sim.scene import SECOND_TRACKING_CAMERA_NAME
 from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
-from dyndlo_vision.tracking import (
-    LATENT_LOOP_FILTER,
-    LOOP_FILTER,
-    BackgroundSegmenter,
-    CableTracker,
-    Plane,
-    PointFilter,
-)
-from dyndlo_vision.tracking.masks import CableReachSegmenter, GripperMaskedSegmenter
+from dyndlo_vision.tracking.params import LATENT_LOOP_FILTER, LOOP_FILTER, FilterParams
+from dyndlo_vision.tracking.pipeline import CablePipeline, PipelineConfig
+from dyndlo_vision.tracking.segmenters import SegmenterConfig, build_segmenter, build_view_segmenter
+from dyndlo_vision.tracking.tracker import Plane
 
 #: The planar tasks move in the x-z plane through the origin.
 MOTION_PLANE = Plane(np.array([0.0, 1.0, 0.0]), 0.0)
@@ -73,19 +70,53 @@ DEFAULT_LOOP_SEGMENTER = {1: "learned", 2: "background"}
 #: Longest simulated camera latency (s): beyond a quarter second the loop re-plans on a past the cable has
 #: long left.
 MAX_LATENCY_S = 0.25
-#: Range of the learned segmenter's enlargement in the loop: below 0.5 the 1.6 px cable is under a pixel;
-#: above 3 a 640x480 frame is a 1920x1440 input, beyond any cycle budget.
-MIN_SEGMENTER_SCALE, MAX_SEGMENTER_SCALE = 0.5, 3.0
 
 
-def checked_segmenter_scale(scale: Any, name: str = "segmenter_scale") -> float:
-    """``scale`` as a float, or ValueError naming it as ``name`` unless it is a number in
-    [MIN_SEGMENTER_SCALE, MAX_SEGMENTER_SCALE]."""
-    if isinstance(scale, bool) or not isinstance(scale, int | float) or not (
-            MIN_SEGMENTER_SCALE <= scale <= MAX_SEGMENTER_SCALE):
-        raise ValueError(f"{name} must be a number in [{MIN_SEGMENTER_SCALE:g}, "
-                         f"{MAX_SEGMENTER_SCALE:g}], got {scale!r}")
-    return float(scale)
+
+
+@dataclass(frozen=True)
+class LoopPerception:
+    """How the simulated loop sees the cable, checked when made (ValueError naming the bad value).
+
+    Attributes:
+        segmenter: The segmenter (None: the scene's default, :func:`default_segmenter`).
+        views: The cameras tracked, 1 or 2 (None: as many as the scene has, :func:`scene_views`).
+        latency_s: The camera's delay (s), at most :data:`MAX_LATENCY_S`: each frame reaches the tracker that
+            long after it was rendered, and the filter predicts across it.
+        filter: The tip's filter (None: :data:`~dyndlo_vision.tracking.params.LOOP_FILTER`, or
+            :data:`~dyndlo_vision.tracking.params.LATENT_LOOP_FILTER` behind a latency).
+    """
+
+    segmenter: SegmenterConfig | None = None
+    views: int | None = None
+    latency_s: float = 0.0
+    filter: FilterParams | None = None
+
+    def __post_init__(self) -> None:
+        if self.segmenter is not None and not isinstance(self.segmenter, SegmenterConfig):
+            raise ValueError(f"segmenter must be a SegmenterConfig (or None), got {self.segmenter!r}")
+        if self.segmenter is not None and self.segmenter.kind not in LOOP_SEGMENTERS:
+            raise ValueError(f"the loop's segmenter {self.segmenter.kind!r}; expected one of {list(LOOP_SEGMENTERS)}")
+        if self.views not in (None, 1, 2):
+            raise ValueError(f"views={self.views!r}; expected 1 or 2 (or None)")
+        if checked_latency_s(self.latency_s) > MAX_LATENCY_S:
+            raise ValueError(f"latency_s must be at most {MAX_LATENCY_S} s, got {self.latency_s!r}")
+        if self.filter is not None and not isinstance(self.filter, FilterParams):
+            raise ValueError(f"filter must be a FilterParams (or None), got {self.filter!r}")
+
+
+def loop_segmenter(kind: str, model: str | None = None, scale: float | None = None) -> SegmenterConfig:
+    """The loop's segmenter of ``kind`` (one of :data:`LOOP_SEGMENTERS`): the learned one defaults to the
+    loop's own network, ``cable-segmenter-loop``, seeing each frame enlarged :data:`LOOP_NETWORK_SCALE` times;
+    the classical one to the scene rendered without the cable as its background."""
+    from dyndlo_vision.tracking.networks import LOOP_NAME
+
+    if kind not in LOOP_SEGMENTERS:
+        raise ValueError(f"segmenter={kind!r}; expected one of {list(LOOP_SEGMENTERS)}")
+    if kind == "learned":
+        return SegmenterConfig("learned", model=model or LOOP_NAME,
+                               scale=LOOP_NETWORK_SCALE if scale is None else scale)
+    return SegmenterConfig("background", model=model, scale=scale)
 
 
 def render_without_cable(camera: MujocoCamera) -> NDArray[np.uint8]:
@@ -118,56 +149,6 @@ def pixels_per_metre(camera: Any, point: NDArray[np.float64], plane: Plane = MOT
     return float(np.linalg.norm(uv[1] - uv[0]) / 0.1)
 
 
-def _camera_tracker(base: Any, camera_name: str, width: int, height: int, segmenter: str,
-                    segmenter_model: str | None = None,
-                    segmenter_scale: float = LOOP_NETWORK_SCALE) -> tuple[MujocoCamera, CableTracker, Any]:
-    """A loop camera of the scene, its 2D-and-plane tracker (gripper masked), and the map from a world point
-    to its pixel that also moves the gripper mask there."""
-    camera = MujocoCamera(base.model, base.data, camera_name, width=width, height=height)
-    calib = camera.calibration
-    home = base.scene.gripper_home[0]
-    scale = pixels_per_metre(calib, home)
-    if segmenter == "learned":
-        from dyndlo_vision.tracking.learned import LearnedSegmenter
-        from dyndlo_vision.tracking.networks import LOOP_NAME, onnx_bytes
-
-        # By default the full-resolution network fine-tuned on the loop's own scenes (docs/RESULTS.md, "A
-        # segmenter for the loop's own scenes"). The loop camera's cable is 1.6 px wide, so every network sees
-        # the frame enlarged (LOOP_NETWORK_SCALE by default). It computes only the part of the frame the held
-        # cable can reach (docs/RESULTS.md, "The cable's reach").
-        network = LearnedSegmenter(onnx_bytes(segmenter_model or LOOP_NAME),
-                                   short_side=round(segmenter_scale * min(width, height)))
-        # Warmed up here, as the classical branch is by its background render: a camera's first render and a
-        # process's first network pass at the frame's size take 3-5x their usual time (up to 52 ms together),
-        # which would overrun cycle 0's deadline.
-        network.segment(camera.read().rgb)
-        reach_m = base.scene.config.cable.length_m + CABLE_REACH_MARGIN_M
-        reach: Any = CableReachSegmenter(network, calib, reach_m, follow_px=LOOP_FOLLOW_PX)
-        inner: Any = reach
-    else:
-        reach = None
-        inner = BackgroundSegmenter(render_without_cable(camera), open_radius=0)
-    masked = GripperMaskedSegmenter(inner, GRIPPER_MASK_RADIUS_M * scale)
-    # Nodes are spread over the observed centreline (from the gripper mask's edge to the far end): the last
-    # one is the tip whenever the tip is in view. (With ``cable_length_px`` the tracker would mark nodes past
-    # the observed length invisible, but the rendered 2 mm cable measures a few pixels short: no tip.)
-    # The floor, raised by the cable's radius: where the cable lies on it (vaulting's start, off the motion
-    # plane), a lift onto the motion plane would put it under the floor.
-    floor = Plane(np.array([0.0, 0.0, 1.0]), -base.scene.config.cable.radius_m)
-    tracker = CableTracker(calib, segmenter=masked, n_nodes=base.scene.config.cable.num_nodes,
-                           plane=MOTION_PLANE, floor=floor)
-
-    def project(p: NDArray[np.float64]) -> NDArray[np.float64]:
-        held = np.asarray(p, dtype=float)
-        uv = calib.project(held[None])[0]
-        masked.center_uv = uv
-        if reach is not None:
-            reach.held_world = held
-        return uv
-
-    return camera, tracker, project
-
-
 def default_segmenter(env: Any) -> str:
     """The loop's segmenter for ``env``'s scene when none is named (:data:`DEFAULT_LOOP_SEGMENTER`)."""
     return DEFAULT_LOOP_SEGMENTER[scene_views(env)]
@@ -179,74 +160,84 @@ def scene_views(env: Any) -> int:
     return 2 if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, SECOND_TRACKING_CAMERA_NAME) >= 0 else 1
 
 
-def tracked_state(env: Any, camera_name: str = "tracking", point_filter: PointFilter | None = None,
-                  width: int = 640, height: int = 480,
-                  latency_s: float = 0.0, segmenter: str | None = None,
-                  views: int | None = None,
-                  segmenter_model: str | None = None,
-                  segmenter_scale: float | None = None) -> tuple[TrackedState, MujocoCamera]:
-    """A :class:`TrackedState` on a MuJoCo camera of ``env`` (call after ``env.reset``).
+def loop_pipeline_config(scene: Any, point: float, segmenter: SegmenterConfig, filter_params: FilterParams,
+                         ) -> PipelineConfig:
+    """What the loop's pipeline does in ``scene`` (a :class:`~dyndlo_vision.sim.Scene`): the cable's length and
+    nodes, the motion plane and the floor (raised by the cable's radius: where the cable lies on it, off the
+    motion plane, a lift onto the plane would put it under the floor), the gripper masked around the TCP,
+    the learned segmenter looking only within the cable's reach, and no shape test (the gripper is masked)."""
+    cable = scene.config.cable
+    learned = segmenter.kind == "learned"
+    return PipelineConfig(
+        segmenter=segmenter,
+        nodes=cable.num_nodes,
+        point=point,
+        cable_length_m=cable.length_m,
+        plane=MOTION_PLANE,
+        floor=Plane(np.array([0.0, 0.0, 1.0]), -cable.radius_m),
+        filter=filter_params,
+        gripper_radius_m=GRIPPER_MASK_RADIUS_M,
+        max_width_share=None,
+        max_width_ratio=None,
+        reach_margin_m=CABLE_REACH_MARGIN_M if learned else None,
+        follow_px=LOOP_FOLLOW_PX if learned else None,
+    )
 
-    The background image is rendered now, with the cable hidden, so call it at the start of an episode. With
-    ``latency_s`` > 0 the tracker sees each frame that long after it was rendered (:class:`DelayedCamera`)
-    and the filter predicts across the delay. The camera returned renders the present (for videos).
-    ``segmenter`` is one of :data:`LOOP_SEGMENTERS` (None: the scene's default, :func:`default_segmenter`);
-    either way the gripper is masked by its projected pose.
-    ``segmenter_model``: the learned segmenter's network, a shipped name or an ONNX file (default
-    ``cable-segmenter-loop``). ``segmenter_scale``: the learned segmenter's network sees the frame enlarged
-    this many times (default :data:`LOOP_NETWORK_SCALE`; :func:`checked_segmenter_scale`).
-    ``views``: 1 lifts the cable onto the motion plane from ``camera_name``; 2 also tracks it in the scene's
-    second tracking camera and triangulates (:class:`StereoTrackedState`). None: as many as the scene has
-    (:func:`scene_views`).
+
+def view_segmenter(config: PipelineConfig, camera: Any, calibration: Any, background: Any = None) -> Any:
+    """One view's segmenter stack for the loop's pipeline (``background``: the scene without the cable, for
+    the classical segmenter; the learned one is warmed up on a first frame here, as the classical one is by
+    that render: a camera's first render and a process's first network pass at the frame's size take 3-5x
+    their usual time, up to 52 ms together, which would overrun cycle 0's deadline)."""
+    seg = config.segmenter
+    base, _ = build_segmenter(seg, frame_size=(calibration.width, calibration.height), background_image=background)
+    if seg.kind == "learned":
+        base.segment(camera.read().rgb)
+    reach = None if config.reach_margin_m is None else config.cable_length_m + config.reach_margin_m
+    return build_view_segmenter(base, camera=calibration, reach_m=reach, follow_px=config.follow_px,
+                                gripper_radius_px=0.0, max_width_share=config.max_width_share,
+                                max_width_ratio=config.max_width_ratio)
+
+
+def tracked_state(env: Any, camera_name: str = "tracking", perception: LoopPerception | None = None,
+                  width: int = 640, height: int = 480) -> tuple[TrackedState, MujocoCamera]:
+    """A :class:`TrackedState` on the MuJoCo cameras of ``env`` (call after ``env.reset``).
+
+    ``perception`` (default :class:`LoopPerception()`) names the segmenter, the views, the camera's latency
+    and the filter. With one view the cable is lifted onto the motion plane from ``camera_name``; with two it
+    is also tracked in the scene's second tracking camera and triangulated. The classical segmenter's
+    background is rendered now, with the cable hidden, so call it at the start of an episode. The camera
+    returned renders the present (for videos).
+
+    P_DLO's node: the free tip, or an inner node (vaulting's middle): with one view the same fraction along
+    the observed centreline as along the cable, with two the point that far along the triangulated cable
+    from the gripper.
     """
-    if segmenter is None:
-        segmenter = default_segmenter(env)
-    if segmenter not in LOOP_SEGMENTERS:
-        raise ValueError(f"segmenter={segmenter!r}; expected one of {list(LOOP_SEGMENTERS)}")
-    if segmenter_model is not None and segmenter != "learned":
-        raise ValueError(f"segmenter_model={segmenter_model!r} is for the learned segmenter, not "
-                         f"{segmenter!r}")
-    if segmenter_scale is not None and segmenter != "learned":
-        raise ValueError(f"segmenter_scale={segmenter_scale!r} is for the learned segmenter, not "
-                         f"{segmenter!r}")
-    scale = LOOP_NETWORK_SCALE if segmenter_scale is None else checked_segmenter_scale(segmenter_scale)
+    perception = perception or LoopPerception()
     available = scene_views(env)
-    views = available if views is None else views
-    if views not in (1, 2):
-        raise ValueError(f"views={views!r}; expected 1 or 2")
+    views = available if perception.views is None else perception.views
     if views > available:
         raise ValueError(f"views=2 needs a scene with a {SECOND_TRACKING_CAMERA_NAME!r} camera; this one has "
                          "only one loop camera")
-    if checked_latency_s(latency_s) > MAX_LATENCY_S:
-        raise ValueError(f"latency_s must be at most {MAX_LATENCY_S} s, got {latency_s!r}")
+    segmenter = perception.segmenter or loop_segmenter(DEFAULT_LOOP_SEGMENTER[available])
+    latency_s = perception.latency_s
     base = as_sim_env(env)
     mujoco.mj_forward(base.model, base.data)
-    camera, tracker, project = _camera_tracker(base, camera_name, width, height, segmenter, segmenter_model,
-                                               scale)
-
     # The newest measurement is always at least the latency old, so the filter's coasting limit and the
     # frames the camera may miss in a row (the first ones have not arrived yet) grow with it.
-    params = LOOP_FILTER if latency_s == 0 else LATENT_LOOP_FILTER
-    point_filter = point_filter or PointFilter(replace(params, max_coast_s=params.max_coast_s + latency_s))
-    frames = DelayedCamera(camera, latency_s) if latency_s > 0 else camera
-    not_yet_arrived = math.ceil(latency_s / CONTROL_PERIOD_S - 1e-9)
-    # The known cable: a polyline shorter than it ends where the cable disappears (behind the target sphere,
-    # say), so its end is not the tip; the tip is placed by continuing it (tracker.tip_from_polyline).
-    # P_DLO's node: the free tip (-1, continued past where the tracked cable disappears), or an inner node
-    # (vaulting's middle): with one view the same fraction along the observed centreline as along the cable,
-    # with two the point that far along the triangulated cable from the gripper.
+    params = perception.filter or (LOOP_FILTER if latency_s == 0 else LATENT_LOOP_FILTER)
+    params = replace(params, max_coast_s=params.max_coast_s + latency_s)
     node = base.task.p_dlo_node(base.scene)
-    point_index = -1 if node == base.scene.config.cable.num_nodes - 1 else node
-    missing = 3 + not_yet_arrived
-    length = base.scene.config.cable.length_m
-    if views == 1:
-        source = TrackedState(frames, tracker, point_filter, point_index=point_index, project=project,
-                              max_missing_frames=missing, cable_length_m=length)
-        return source, camera
-    camera2, tracker2, project2 = _camera_tracker(base, SECOND_TRACKING_CAMERA_NAME, width, height, segmenter,
-                                                  segmenter_model, scale)
-    frames2 = DelayedCamera(camera2, latency_s) if latency_s > 0 else camera2
-    stereo = StereoTrackedState(frames, frames2, tracker, tracker2, point_filter, point_index=point_index,
-                                project=project, second_project=project2, max_missing_frames=missing,
-                                cable_length_m=length)
-    return stereo, camera
+    point = node / (base.scene.config.cable.num_nodes - 1)
+    config = loop_pipeline_config(base.scene, point, segmenter, params)
+    names = ["tracking" if camera_name is None else camera_name, SECOND_TRACKING_CAMERA_NAME][:views]
+    cameras = [MujocoCamera(base.model, base.data, name, width=width, height=height) for name in names]
+    calibrations = [c.calibration for c in cameras]
+    segmenters = [view_segmenter(config, cam, calib, None if segmenter.kind == "learned"
+                                 else render_without_cable(cam))
+                  for cam, calib in zip(cameras, calibrations, strict=True)]
+    pipeline = CablePipeline(config, calibrations, segmenters)
+    frames = [DelayedCamera(c, latency_s) if latency_s > 0 else c for c in cameras]
+    not_yet_arrived = math.ceil(latency_s / CONTROL_PERIOD_S - 1e-9)
+    source = TrackedState(frames, pipeline, max_missing_frames=3 + not_yet_arrived)
+    return source, cameras[0]

@@ -103,11 +103,11 @@ def test_finish_plan_ends_the_episode_as_the_environment_does() -> None:
 @pytest.mark.slow
 @pytest.mark.parametrize(("latency_s", "median_error_m"), [(0.0, 0.01), (0.08, 0.04)])
 def test_tracked_state_follows_the_tip_in_simulation(latency_s: float, median_error_m: float) -> None:
-    from dyndlo_vision.control.sim_perception import tracked_state
+    from dyndlo_vision.control.sim_perception import LoopPerception, tracked_state
 
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
     env.reset(seed=4)
-    source, camera = tracked_state(env, latency_s=latency_s)
+    source, camera = tracked_state(env, perception=LoopPerception(latency_s=latency_s))
     action = np.zeros(env.action_space.shape, np.float32)
     action[0] = 0.5  # a moderate sideways swing
     loop, _ = _loop(env, source, lambda obs: action)
@@ -139,41 +139,54 @@ class StoppingCamera:
         pass
 
 
-def _tip_measurement(tip: np.ndarray) -> object:
-    """A one-node tracker measurement whose tracked point is ``tip``."""
+class TruthPipeline:
+    """A perception pipeline double: it measures what ``measure(t_capture, held_world)`` says (None: nothing)
+    and filters that with the real filter, so that only the source's own work is tested (frames, clocks, the
+    gripper at the capture time). It records the held ends it was given."""
 
-    class Meas:
-        visible = np.ones(1, bool)
-        nodes_uv = np.zeros((1, 2))
+    def __init__(self, measure: object, params: object = None) -> None:
+        from dyndlo_vision.tracking.filter import PointFilter
+        from dyndlo_vision.tracking.params import FilterParams
 
-        @staticmethod
-        def point(index: int) -> np.ndarray:
-            return tip
-
-    return Meas()
-
-
-class TipFromTruth:
-    """A 'tracker' that measures the true tip (so only the camera's failure matters)."""
-
-    def __init__(self, env: gym.Env) -> None:
-        self.env = env.unwrapped
+        self.views = [None]
+        self.measure = measure
+        self.filter = PointFilter(params or FilterParams(sigma_accel=200.0))
+        self.helds: list[tuple[float, np.ndarray]] = []
 
     def reset(self) -> None:
-        pass
+        self.filter.reset()
 
-    def process(self, rgb: np.ndarray, t: float, depth: object = None, anchor_uv: object = None) -> object:
-        return _tip_measurement(self.env.p_dlo())
+    def estimate(self, t: float) -> object:
+        return self.filter.estimate(t)
+
+    def _result(self, t: float, point: np.ndarray | None) -> object:
+        from dyndlo_vision.tracking.pipeline import FrameResult, Status
+        from dyndlo_vision.tracking.tracker import Measurement
+
+        accepted = self.filter.update(point, t)
+        est = self.filter.estimate(t)
+        status = Status.MEASURED if accepted else Status.LOST if est.lost else Status.PREDICTED
+        empty = Measurement(np.full((1, 3), np.nan), np.full((1, 2), np.nan), np.zeros(1, bool), t)
+        return FrameResult(t, status, point if accepted else None, np.zeros(2) if accepted else None, est, empty,
+                           ())
+
+    def step(self, images: object, t: float, held_world: np.ndarray | None = None, depth: object = None) -> object:
+        self.helds.append((t, np.array(held_world)))
+        return self._result(t, self.measure(t, held_world))
+
+    def skip(self, t: float, reason: str) -> object:
+        return self._result(t, None)
 
 
 def test_camera_that_stops_makes_the_loop_predict_then_stop(caplog: pytest.LogCaptureFixture) -> None:
-    from dyndlo_vision.tracking import PointFilter
+    from dyndlo_vision.tracking.params import FilterParams
 
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
     env.reset(seed=1)
-    source = TrackedState(
-        StoppingCamera(env, frames=5), TipFromTruth(env), PointFilter(max_coast_s=0.2), max_missing_frames=100
-    )
+    base = env.unwrapped
+    source = TrackedState(StoppingCamera(env, frames=5),
+                          TruthPipeline(lambda t, held: base.p_dlo(), FilterParams(max_coast_s=0.2)),
+                          max_missing_frames=100)
     loop, robot = _loop(env, source, lambda obs: np.zeros(env.action_space.shape, np.float32))
     with caplog.at_level(logging.WARNING):
         report = loop.run(duration_s=1.6)
@@ -204,41 +217,24 @@ class RecordingCamera:
         pass
 
 
-class TipAtCapture:
-    """A 'tracker' that measures the true tip at the frame's capture time and records the anchors it gets."""
-
-    def __init__(self, camera: RecordingCamera) -> None:
-        self.camera = camera
-        self.anchors: list[tuple[float, np.ndarray]] = []
-
-    def reset(self) -> None:
-        pass
-
-    def process(self, rgb: np.ndarray, t: float, depth: object = None, anchor_uv: object = None) -> object:
-        self.anchors.append((t, np.asarray(anchor_uv)))
-        return _tip_measurement(self.camera.tip[t])
-
-
 def test_a_delayed_camera_is_tracked_with_the_gripper_where_it_was_and_predicted_to_now() -> None:
     from dyndlo_vision.cameras.simulated import DelayedCamera
-    from dyndlo_vision.tracking import PointFilter
 
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
-    action = np.full(env.action_space.shape, 0.4, np.float32)  # the gripper moves: anchors must follow it
+    action = np.full(env.action_space.shape, 0.4, np.float32)  # the gripper moves: the held end must follow it
     errors = {}
     for latency in (0.0, 0.08):
         env.reset(seed=2)
         camera = RecordingCamera(env)
-        tracker = TipAtCapture(camera)
-        source = TrackedState(DelayedCamera(camera, latency), tracker, PointFilter(sigma_accel=200.0),
-                              project=lambda p: np.array(p, dtype=float), max_missing_frames=5)
+        pipeline = TruthPipeline(lambda t, held, cam=camera: cam.tip[t])
+        source = TrackedState(DelayedCamera(camera, latency), pipeline, max_missing_frames=5)
         loop, _ = _loop(env, source, lambda obs: action)
         report = loop.run(duration_s=0.6)
         assert report.stop_reason == "duration"
         # Every frame was tracked with the gripper at that frame's capture time, not at the loop's time.
-        assert len(tracker.anchors) == len(report.cycles) - 2 * (latency > 0)
-        for t, anchor in tracker.anchors:
-            np.testing.assert_allclose(anchor, camera.tcp[t], atol=1e-12)
+        assert len(pipeline.helds) == len(report.cycles) - 2 * (latency > 0)
+        for t, held in pipeline.helds:
+            np.testing.assert_allclose(held, camera.tcp[t], atol=1e-12)
         moved = max(np.linalg.norm(camera.tcp[t] - camera.tcp[0.0]) for t in camera.tcp)
         assert moved > 0.05
         errors[latency] = report.estimate_errors()
@@ -267,19 +263,11 @@ class LiveCamera(RecordingCamera):
         return Frame(np.zeros((4, 4, 3), np.uint8), self.local_time())
 
 
-class TipOfLatestFrame(TipAtCapture):
-    """Measures the true tip at the capture of the frame just read, whatever clock the time is on."""
-
-    def process(self, rgb: np.ndarray, t: float, depth: object = None, anchor_uv: object = None) -> object:
-        return _tip_measurement(self.camera.last_tip)
-
-
 @pytest.mark.parametrize("offset_s", [53_000.0, -53_000.0])
 def test_a_live_camera_clock_is_put_on_the_robot_clock(offset_s: float) -> None:
     """A live camera stamps with time.monotonic(), a robot driver with the controller's clock. The source maps
     one onto the other; without that the filter predicts across the gap between the clocks."""
     from dyndlo_vision.control.clocks import ClockSync
-    from dyndlo_vision.tracking import PointFilter
 
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
     action = np.full(env.action_space.shape, 0.4, np.float32)
@@ -288,8 +276,8 @@ def test_a_live_camera_clock_is_put_on_the_robot_clock(offset_s: float) -> None:
         env.reset(seed=2)
         camera = LiveCamera(env, offset_s)
         sync = ClockSync(clock=camera.local_time) if synced else None
-        source = TrackedState(camera, TipOfLatestFrame(camera), PointFilter(sigma_accel=200.0),
-                              clock_sync=sync)
+        # The true tip at the capture of the frame just read, whatever clock the time is on.
+        source = TrackedState(camera, TruthPipeline(lambda t, held, cam=camera: cam.last_tip), clock_sync=sync)
         loop, _ = _loop(env, source, lambda obs: action)
         report = loop.run(duration_s=0.6)
         errors[synced] = (report.stop_reason, report.estimate_errors())
@@ -301,16 +289,15 @@ def test_a_live_camera_clock_is_put_on_the_robot_clock(offset_s: float) -> None:
 
 def test_tracked_state_syncs_a_monotonic_camera_by_itself() -> None:
     from dyndlo_vision.control.clocks import ClockSync
-    from dyndlo_vision.tracking import PointFilter
 
     env = gym.make("DynDLO/TipControl-v0")
     env.reset(seed=0)
     live, sim = LiveCamera(env, 1.0), RecordingCamera(env)
-    assert isinstance(TrackedState(live, None, PointFilter()).clock_sync, ClockSync)
-    assert TrackedState(live, None, PointFilter(), clock_sync=None).clock_sync is None
-    assert TrackedState(sim, None, PointFilter()).clock_sync is None
+    assert isinstance(TrackedState(live, None).clock_sync, ClockSync)
+    assert TrackedState(live, None, clock_sync=None).clock_sync is None
+    assert TrackedState(sim, None).clock_sync is None
     with pytest.raises(ValueError, match="clock_sync"):
-        TrackedState(sim, None, PointFilter(), clock_sync="monotonic")
+        TrackedState(sim, None, clock_sync="monotonic")
 
 
 def test_missed_deadline_is_reported(caplog: pytest.LogCaptureFixture) -> None:
@@ -439,87 +426,11 @@ def test_loop_keeps_the_period_on_a_wall_clock_robot() -> None:
 
 
 def test_tracked_state_refuses_latencies_it_cannot_bridge() -> None:
-    from dyndlo_vision.control.sim_perception import tracked_state
+    from dyndlo_vision.control.sim_perception import LoopPerception
 
-    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
-    env.reset(seed=0)
     for bad, match in ((0.3, "at most 0.25 s"), (-0.01, ">= 0"), (float("nan"), ">= 0"), ("40ms", ">= 0")):
         with pytest.raises(ValueError, match=match):
-            tracked_state(env, latency_s=bad)  # type: ignore[arg-type]
-
-
-class ShortPolyline:
-    """A 'tracker' that sees the true cable only over its first ``seen`` share (the rest hidden)."""
-
-    def __init__(self, env: gym.Env, seen: float) -> None:
-        self.env = env.unwrapped
-        self.seen = seen
-        self.camera = None
-
-    def reset(self) -> None:
-        pass
-
-    def process(self, rgb: np.ndarray, t: float, depth: object = None, anchor_uv: object = None) -> object:
-        from dyndlo_vision.tracking.tracker import Measurement
-
-        # As the tracker does: nodes spread over what it sees, the last one where the cable disappears.
-        nodes = self.env.cable_nodes()[1:]  # node 0 is the held end
-        seen = nodes[: round(self.seen * len(nodes))]
-        return Measurement(seen, np.zeros((len(seen), 2)), np.ones(len(seen), bool), t)
-
-
-@pytest.mark.parametrize(("seen", "measured"), [(1.0, True), (0.8, True), (0.3, False)])
-def test_with_the_known_cable_a_short_polyline_is_continued_or_not_taken_for_the_tip(
-    seen: float, measured: bool
-) -> None:
-    """The loop knows its cable: the end of a polyline that stops short is not the tip. Continued straight by
-    the missing length it is, for a cable hanging at rest; with under half the cable seen nothing is
-    measured."""
-    from dyndlo_vision.tracking import PointFilter
-
-    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
-    env.reset(seed=0)
-    base = env.unwrapped
-    length = base.scene.config.cable.length_m
-    camera = StoppingCamera(env, frames=100)
-    source = TrackedState(camera, ShortPolyline(env, seen), PointFilter(sigma_accel=200.0),
-                          cable_length_m=length)
-    reading = source.read(base.scene.time, SimRobot(env).state())
-    assert reading.measured is measured
-    assert reading.continued is (measured and seen < 1.0)
-    if measured:
-        # The settled cable hangs almost straight: the continued tip is within a few millimetres of the truth.
-        assert np.linalg.norm(reading.position - base.p_dlo()) < 0.005
-        assert source.extended_tips == (seen < 1.0) and source.unseen_tips == 0
-    else:
-        assert source.unseen_tips == 1
-    # Without the cable's length the polyline's end is taken as the tip, however short.
-    naive = TrackedState(StoppingCamera(env, 100), ShortPolyline(env, 0.8), PointFilter(sigma_accel=200.0))
-    assert np.linalg.norm(naive.read(base.scene.time, SimRobot(env).state()).position - base.p_dlo()) > 0.05
-
-
-def test_an_inner_point_on_a_bridged_gap_is_interpolated_between_the_seen_nodes() -> None:
-    """Vaulting's P_DLO is the cable's middle. Where the tracker bridged a gap (the box in front of the
-    cable), its nodes are unseen; the middle, with the cable seen on both sides, lies between them. Without
-    this the filter coasted on a wild velocity to 2.5 m RMSE (seed 100010 of `demo --task vaulting`)."""
-    from dyndlo_vision.control.state_sources import bridged_point
-    from dyndlo_vision.tracking.tracker import Measurement
-
-    xyz = np.column_stack([np.linspace(0.4, 1.0, 7), np.zeros(7), np.linspace(0.2, 0.0, 7)])
-    visible = np.array([True, True, False, False, False, True, True])
-    meas = Measurement(np.where(visible[:, None], xyz, np.nan), np.zeros((7, 2)), visible, 0.0)
-    for k in (2, 3, 4):  # between nodes 1 and 5: at k/4 of the way, in 3D, on the straight cable
-        np.testing.assert_allclose(bridged_point(meas, k), xyz[k], atol=1e-12)
-    assert bridged_point(meas, 1) is None  # seen: the tracker's own answer stands
-    assert bridged_point(meas, -1) is None and bridged_point(meas, 6) is None  # the tip is never bridged
-    short = np.array([True, True, True, True, False, False, False])
-    beyond = Measurement(meas.nodes_xyz, meas.nodes_uv, short, 0.0)
-    assert bridged_point(beyond, 5) is None  # past the last seen node nothing says where the cable goes
-    bent = xyz.copy()
-    bent[5] = [1.0, 0.0, 0.4]
-    meas = Measurement(np.where(visible[:, None], bent, np.nan), np.zeros((7, 2)), visible, 0.0)
-    # From the nearest seen nodes on either side:
-    np.testing.assert_allclose(bridged_point(meas, 3), 0.5 * (xyz[1] + bent[5]))
+            LoopPerception(latency_s=bad)  # type: ignore[arg-type]
 
 
 def test_estimate_errors_leave_out_cycles_whose_source_was_lost() -> None:

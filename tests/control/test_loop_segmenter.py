@@ -15,10 +15,11 @@ from dyndlo_vision.cli import main
 from dyndlo_vision.control.sim_perception import (
     LOOP_FOLLOW_PX,
     LOOP_NETWORK_SCALE,
+    LoopPerception,
     default_segmenter,
+    loop_segmenter,
     tracked_state,
 )
-from dyndlo_vision.control.state_sources import StereoTrackedState
 from dyndlo_vision.tracking.learned import LearnedSegmenter
 from dyndlo_vision.tracking.networks import FINE_NAME, LOOP_NAME, onnx_bytes
 from dyndlo_vision.tracking.segmentation import BackgroundSegmenter
@@ -29,14 +30,14 @@ def test_tracked_state_segmenters() -> None:
     try:
         env.reset(seed=0)
         with pytest.raises(ValueError, match="'bogus'"):
-            tracked_state(env, segmenter="bogus")
+            loop_segmenter("bogus")
         for name, kind in (("background", BackgroundSegmenter), ("learned", LearnedSegmenter)):
-            source, camera = tracked_state(env, segmenter=name)
+            source, camera = tracked_state(env, perception=LoopPerception(loop_segmenter(name)))
             try:
-                segmenter = source.tracker.segmenter
+                segmenter = source.pipeline.views[0].segmenter
+                assert isinstance(segmenter.base, kind)
                 # The learned one looks only where the held cable can reach (test_cable_reach.py).
-                inner = segmenter.base.base if name == "learned" else segmenter.base
-                assert isinstance(inner, kind)
+                assert (segmenter.reach is not None) == (name == "learned")
                 mask = segmenter(camera.read().rgb)
                 assert mask.shape == (480, 640) and mask.any()
             finally:
@@ -56,13 +57,11 @@ def test_the_default_segmenter_is_the_network_with_one_camera_and_classical_with
             assert default_segmenter(env) == wanted
             source, camera = tracked_state(env)
             camera.close()
-            trackers = ([source.tracker, source.second_tracker] if isinstance(source, StereoTrackedState)
-                        else [source.tracker])
-            assert len(trackers) == (2 if wanted == "background" else 1)
-            for tracker in trackers:
-                masked = tracker.segmenter  # the gripper mask around the segmenter
-                inner = masked.base.base if wanted == "learned" else masked.base
-                assert isinstance(inner, inner_kind), env_id
+            views = source.pipeline.views
+            assert len(views) == (2 if wanted == "background" else 1)
+            for view in views:
+                assert view.segmenter.gripper is not None  # the gripper masked around the segmenter
+                assert isinstance(view.segmenter.base, inner_kind), env_id
         finally:
             env.close()
 
@@ -92,22 +91,24 @@ def test_the_loop_runs_the_segmenter_model_it_is_given() -> None:
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
     try:
         env.reset(seed=0)
-        with pytest.raises(ValueError, match="segmenter_model"):
-            tracked_state(env, segmenter="background", segmenter_model="cable-segmenter")
-        source, camera = tracked_state(env, segmenter="learned", segmenter_model="cable-segmenter")
+        with pytest.raises(ValueError, match="model 'cable-segmenter' is for the learned segmenter"):
+            loop_segmenter("background", "cable-segmenter")
+        source, camera = tracked_state(env, perception=LoopPerception(loop_segmenter("learned", "cable-segmenter")))
         camera.close()
-        assert not source.tracker.segmenter.base.base.blocks  # the half-resolution network, not the default
-        assert source.tracker.segmenter.base.base.short_side == 720  # every network sees the frame at 1.5x
-        source, camera = tracked_state(env, segmenter="learned")  # the default: the loop's own network
+        network = source.pipeline.views[0].segmenter.base
+        assert not network.blocks  # the half-resolution network, not the default
+        assert network.short_side == 720  # every network sees the frame at 1.5x
+        source, camera = tracked_state(env, perception=LoopPerception(loop_segmenter("learned")))  # the default
         try:
             rgb = camera.read().rgb
         finally:
             camera.close()
         assert LOOP_NETWORK_SCALE == 1.5
-        assert source.tracker.segmenter.base.follow_px == LOOP_FOLLOW_PX == 80  # follows the cable
+        reach = source.pipeline.views[0].segmenter.reach
+        assert reach.follow_px == LOOP_FOLLOW_PX == 80  # follows the cable
         own = LearnedSegmenter(onnx_bytes(LOOP_NAME), short_side=720)(rgb)  # 480 rows seen as 720
         assert own.any()
-        np.testing.assert_array_equal(source.tracker.segmenter.base(rgb), own)
+        np.testing.assert_array_equal(reach(rgb), own)
         assert not np.array_equal(LearnedSegmenter(onnx_bytes(FINE_NAME), short_side=720)(rgb), own)
     finally:
         env.close()
@@ -118,14 +119,14 @@ def test_the_segmenter_scale_reaches_the_network_and_is_checked() -> None:
     try:
         env.reset(seed=0)
         for scale, short_side in ((None, 720), (1.0, 480), (2, 960)):
-            source, camera = tracked_state(env, segmenter="learned", segmenter_scale=scale)
+            source, camera = tracked_state(env, perception=LoopPerception(loop_segmenter("learned", scale=scale)))
             camera.close()
-            assert source.tracker.segmenter.base.base.short_side == short_side
-        with pytest.raises(ValueError, match="segmenter_scale=1.0 is for the learned segmenter"):
-            tracked_state(env, segmenter="background", segmenter_scale=1.0)
+            assert source.pipeline.views[0].segmenter.base.short_side == short_side
+        with pytest.raises(ValueError, match="scale 1.0 is for the learned segmenter"):
+            loop_segmenter("background", scale=1.0)
         for bad in (0.2, 3.5, True, "1.5", float("nan")):
-            with pytest.raises(ValueError, match=r"segmenter_scale must be a number in \[0.5, 3\], got"):
-                tracked_state(env, segmenter="learned", segmenter_scale=bad)
+            with pytest.raises(ValueError, match=r"scale must be a number in \[0.5, 3\], got"):
+                loop_segmenter("learned", scale=bad)
     finally:
         env.close()
 
@@ -179,8 +180,8 @@ def test_the_loop_network_enlarged_finds_more_of_the_thin_cable() -> None:
     strays: dict[str, int] = {"loop": 0, "own size": 0}
     try:
         obs, _ = env.reset(seed=200000)
-        source, camera = tracked_state(env, segmenter="learned")
-        loop_network = source.tracker.segmenter.base.base
+        source, camera = tracked_state(env, perception=LoopPerception(loop_segmenter("learned")))
+        loop_network = source.pipeline.views[0].segmenter.base
         own_size = LearnedSegmenter(onnx_bytes(LOOP_NAME))
         try:
             for k in range(12):
@@ -230,7 +231,8 @@ def test_the_learned_loop_tracks_the_thin_cable() -> None:
         return model.predict(obs, deterministic=True)[0]
 
     try:
-        records = [run_loop_episode(env, act, 100000 + k, "tracked", segmenter="learned") for k in range(3)]
+        perception = LoopPerception(loop_segmenter("learned"))
+        records = [run_loop_episode(env, act, 100000 + k, "tracked", perception=perception) for k in range(3)]
     finally:
         env.close()
     assert all(r["success"] and r["lost_cycles"] == 0 for r in records)
@@ -243,22 +245,23 @@ def test_the_learned_loop_looks_only_within_the_cables_reach() -> None:
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
     try:
         env.reset(seed=0)
-        source, camera = tracked_state(env, segmenter="learned")
+        source, camera = tracked_state(env, perception=LoopPerception(loop_segmenter("learned")))
         try:
             rgb = camera.read().rgb
         finally:
             camera.close()
         scene = env.unwrapped.scene
         tcp = np.asarray(scene.tcp_positions())[0]
-        source.project(tcp)  # as the loop does with the held end, every frame
-        reach = source.tracker.segmenter.base
+        segmenter = source.pipeline.views[0].segmenter
+        segmenter.hold(tcp, camera.calibration.project(tcp[None])[0])  # as the pipeline does every frame
+        reach = segmenter.reach
         region = reach.region(480, 640)
         assert region is not None
         u0, v0, u1, v1 = region
         assert (u1 - u0) * (v1 - v0) < 0.8 * 480 * 640
         uv = camera.calibration.project(scene.cable_nodes())
         assert np.all((uv >= [u0, v0]) & (uv < [u1, v1]))  # every node of the cable lies inside
-        mask = source.tracker.segmenter(rgb)
+        mask = segmenter(rgb)
         assert mask.any()
         outside = np.ones_like(mask)
         outside[v0:v1, u0:u1] = False

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from dyndlo_vision.cli import main
-from dyndlo_vision.commands.track import parse_point, point_on_nodes, sample_evenly
+from dyndlo_vision.commands.track import parse_point, sample_evenly
+from dyndlo_vision.tracking.pipeline import point_on_nodes
 from dyndlo_vision.tracking.annotate import annotate_frame, covariance_ellipse, project_point_covariance
 from dyndlo_vision.tracking.camera_model import PinholeCamera
 from dyndlo_vision.tracking.centerline import extract_centerline

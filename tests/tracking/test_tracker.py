@@ -1,4 +1,4 @@
-"""Tests of dyndlo_vision.tracking.tracker: temporal consistency and 3D lifting."""
+"""Tests of dyndlo_vision.tracking.tracker: 3D lifting of centreline nodes."""
 
 from __future__ import annotations
 
@@ -6,72 +6,10 @@ import numpy as np
 import pytest
 
 from dyndlo_vision.tracking.camera_model import PinholeCamera
-from dyndlo_vision.tracking.centerline import polyline_distance
-from dyndlo_vision.tracking.synthetic import draw_occluder, render_cable, s_curve
-from dyndlo_vision.tracking.tracker import CableTracker, Plane, lift_with_depth, lift_with_plane
-
-
-def _moving_curve(k: int) -> np.ndarray:
-    """Frame k of a cable that sways, bends and drifts (up to ~10 px per frame)."""
-    t = k / 25.0
-    return s_curve(
-        u0=90 + 30 * np.sin(2.0 * t),
-        u1=550 + 40 * np.sin(1.3 * t + 0.5),
-        v0=240 + 50 * np.sin(3.0 * t),
-        amp=100 * np.cos(2.5 * t),
-        periods=0.9 + 0.3 * np.sin(1.7 * t),
-        phase=0.8 * np.sin(2.2 * t),
-    )
-
-
-@pytest.mark.parametrize("use_anchor", [False, True])
-def test_no_head_tail_flips_over_50_frames(use_anchor: bool) -> None:
-    tracker = CableTracker(n_nodes=20)
-    flips = 0
-    errors = []
-    start = None
-    for k in range(50):
-        curve = _moving_curve(k)
-        rgb, _ = render_cable(curve, noise_sigma=4.0, seed=k)
-        anchor = curve[0] if use_anchor else None
-        meas = tracker.process(rgb, t_capture=k / 25.0, anchor_uv=anchor)
-        assert meas.visible.all()
-        d0 = np.hypot(*(meas.nodes_uv[0] - curve[0]))
-        d1 = np.hypot(*(meas.nodes_uv[0] - curve[-1]))
-        if start is None:
-            # Without an anchor the first frame may pick either end; it must then stick.
-            start = 0 if d0 < d1 else 1
-        flips += (0 if d0 < d1 else 1) != start
-        gt = curve if start == 0 else curve[::-1]
-        errors.append(polyline_distance(meas.nodes_uv, gt))
-    if use_anchor:
-        assert start == 0
-    assert flips == 0
-    assert np.mean(errors) < 1.5
-
-
-def test_tracker_keeps_orientation_when_held_end_is_hidden() -> None:
-    """The held end disappears behind an occluder for a while: no anchor, still no flip."""
-    tracker = CableTracker(n_nodes=20)
-    head_first = None
-    for k in range(12):
-        curve = _moving_curve(k)
-        rgb, _ = render_cable(curve, seed=k)
-        if 4 <= k < 8:
-            rgb = draw_occluder(rgb, (0, 0), (int(curve[0, 0]) + 40, 479))
-        meas = tracker.process(rgb, t_capture=k / 25.0)
-        last = meas.nodes_uv[meas.visible][-1]
-        tail_is_free_end = np.hypot(*(last - curve[-1])) < np.hypot(*(last - curve[0]))
-        if head_first is None:
-            head_first = tail_is_free_end
-        assert tail_is_free_end == head_first, f"flip at frame {k}"
-
-
-def test_empty_frame_gives_invisible_measurement(camera: PinholeCamera) -> None:
-    tracker = CableTracker(camera, plane=Plane(np.array([0, 0, 1.0]), 0.0))
-    meas = tracker.process(np.full((480, 640, 3), 50, np.uint8), t_capture=1.0)
-    assert not meas.visible.any() and np.isnan(meas.nodes_xyz).all()
-    assert meas.point(-1) is None and meas.t_capture == 1.0
+from dyndlo_vision.tracking.centerline import extract_centerline
+from dyndlo_vision.tracking.segmentation import BackgroundSegmenter
+from dyndlo_vision.tracking.synthetic import render_cable
+from dyndlo_vision.tracking.tracker import Measurement, Plane, lift_with_depth, lift_with_plane
 
 
 def _planar_scene(camera: PinholeCamera) -> tuple[np.ndarray, np.ndarray]:
@@ -85,10 +23,9 @@ def _planar_scene(camera: PinholeCamera) -> tuple[np.ndarray, np.ndarray]:
 
 def test_lift_with_plane_recovers_3d_curve(camera: PinholeCamera) -> None:
     xyz, rgb = _planar_scene(camera)
-    tracker = CableTracker(
-        camera, n_nodes=30, plane=Plane(np.array([0, 0, 1.0]), 0.0), anchor_uv=camera.project(xyz[:1])[0]
-    )
-    meas = tracker.process(rgb, t_capture=0.0)
+    cl = extract_centerline(BackgroundSegmenter()(rgb), 30, anchor_uv=camera.project(xyz[:1])[0])
+    nodes = lift_with_plane(cl.nodes_uv, camera, Plane(np.array([0, 0, 1.0]), 0.0), cl.visible)
+    meas = Measurement(nodes, cl.nodes_uv, cl.visible, 0.0, cl)
     assert meas.visible.all()
     # Mean distance of the lifted nodes to the true 3D curve: sub-millimetre at ~1.4 m.
     d = np.min(np.linalg.norm(meas.nodes_xyz[:, None] - xyz[None], axis=2), axis=1)
@@ -115,8 +52,6 @@ def test_lift_with_plane_puts_what_lies_on_the_floor_off_the_plane_on_the_floor(
     np.testing.assert_allclose(lifted[:2], on_floor, atol=1e-9)
     np.testing.assert_allclose(lifted[2:4], in_plane, atol=1e-9)
     assert plain[4, 2] > 0.01 and np.array_equal(lifted[4], plain[4])  # above the floor: the plane's answer
-    tracker = CableTracker(camera, plane=plane, floor=floor)
-    assert tracker.floor is floor
 
 
 def test_lift_with_depth_matches_plane(camera: PinholeCamera) -> None:

@@ -1,0 +1,768 @@
+"""The perception pipeline: frames of one or two views -> the held cable's ordered nodes -> the tracked point
+-> a filtered estimate that says whether it was measured, continued, predicted or lost.
+
+One object, :class:`CablePipeline`, built from one typed configuration (:class:`PipelineConfig`), runs every
+step for ``dyndlo-vision track``, the simulated control loop and ``run`` (``segment`` uses its segmenter
+alone, one photo at a time):
+
+1. segment each view (:mod:`~dyndlo_vision.tracking.segmenters`: the network or a background model, the
+   gripper cleared where the robot says it is, regions too thick to be cable removed);
+2. the ordered centreline (:func:`~dyndlo_vision.tracking.centerline.extract_centerline`), walked from the
+   end nearest where the held end should be;
+3. which end is held (:mod:`~dyndlo_vision.tracking.identity`): continuity of the held end's motion, the
+   last frame's nodes registered to the new centreline, and the robot's pose where it is known, checked
+   again in every frame. A frame whose ends cannot be told apart is not measured;
+4. 3D: rays intersected with the motion plane (and the floor), a depth image, or two views triangulated;
+5. the tracked point (the tip, or a fraction of the cable from the held end), measured only where the cable
+   ends free at it: not at the image border, not inside a region too thick to be cable, and not shorter or
+   longer than the cable (its length given, or learned from the frames where both ends are seen). A
+   polyline shorter than a given cable length is continued straight to the tip when at least half of it is
+   seen;
+6. the Kalman filter (:mod:`~dyndlo_vision.tracking.filter`), updated at the frame's capture time.
+
+Each frame's :class:`FrameResult` says what happened and why; :meth:`CablePipeline.estimate` predicts the
+filtered point to any time (the controller's ``t_now``).
+
+Statuses (:class:`Status`), true by construction:
+
+* ``measured``: the point is this frame's measurement, accepted by the filter;
+* ``continued``: this frame's cable, continued past where it disappears (a hidden tip), or an inner point
+  interpolated across a bridged gap, accepted by the filter;
+* ``predicted``: no accepted measurement this frame; the filter's prediction;
+* ``lost``: no estimate (nothing accepted for longer than the filter's coasting limit).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import Counter, deque
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from enum import Enum
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dyndlo_vision.tracking.identity import GripperTemplate, HeldEnd, IdentityParams, Orientation, orient
+from dyndlo_vision.tracking.params import TRACK_FILTER, FilterParams
+from dyndlo_vision.tracking.segmenters import SegmenterConfig, ViewSegmenter
+from dyndlo_vision.tracking.tracker import (
+    MIN_SEEN_LENGTH_FRACTION,
+    Measurement,
+    Plane,
+    lift_with_depth,
+    lift_with_plane,
+)
+
+__all__ = ["CablePipeline", "FrameResult", "PipelineConfig", "Status", "point_on_nodes"]
+
+#: The image scale assumed without a calibration (pixels per metre): a cable filling a 640 px wide image from
+#: about a metre away.
+NOMINAL_PX_PER_M = 500.0
+
+
+class Status(str, Enum):
+    """What an estimate rests on (see the module docstring)."""
+
+    MEASURED = "measured"
+    CONTINUED = "continued"
+    PREDICTED = "predicted"
+    LOST = "lost"
+
+    @property
+    def seen(self) -> bool:
+        """This frame's measurement (or its continuation) entered the estimate."""
+        return self in (Status.MEASURED, Status.CONTINUED)
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Everything the pipeline does, checked once (ValueError naming the bad value).
+
+    Attributes:
+        segmenter: The segmenter (:class:`~dyndlo_vision.tracking.segmenters.SegmenterConfig`).
+        nodes: Centreline nodes N (node 0 at the held end).
+        point: The tracked point: the tip (1.0) or this fraction of the cable from the held end, in [0, 1].
+        cable_length_m: The cable's length from the held end, if known: a shorter polyline is continued to
+            the tip, and an inner point is that share of the length along the cable with two views. None:
+            the length is learned from the frames (world units, or pixels without a calibration) and used only
+            to refuse polylines that are too short or too long to end at the tip.
+        plane: One view: the world plane the cable moves in (its rays are intersected with it).
+        floor: With ``plane``: the plane the cable cannot go below.
+        filter: The point's Kalman filter (world units; pixels are scaled by :data:`NOMINAL_PX_PER_M`).
+        gripper_radius_m: Where the robot reports the held end: clear a sphere of this radius around it in
+            every view (None: nothing cleared).
+        max_width_share: Remove regions thicker than this share of the image's shorter side (None: no shape
+            test).
+        max_width_ratio: With ``max_width_share``: also those thicker than this many cable widths (None: off).
+        reach_margin_m: Where the robot reports the held end and ``cable_length_m`` is known: segment only
+            within the cable's length plus this of it (None: the whole frame).
+        follow_px: With ``reach_margin_m`` and a learned segmenter: follow the last mask's box grown by this.
+        long_tolerance: A polyline longer than ``1 + long_tolerance`` times the cable does not end at its tip
+            (the walk went on into something else): the tip is not measured.
+        short_tolerance: With a learned length, a polyline shorter by more than this share of it is continued
+            straight to the tip (its end is where the cable disappears: a faint tip, an occluder), when at
+            least ``min_seen_learned`` of it is seen, else the tip is not measured. With a given length every
+            shortfall is continued when at least half of the cable is seen
+            (:func:`~dyndlo_vision.tracking.tracker.tip_from_polyline`).
+        min_seen_learned: See ``short_tolerance``.
+        identity: The held end's identification (:class:`~dyndlo_vision.tracking.identity.IdentityParams`).
+        learn_length_frames: The learned length is the 80th percentile of the last this many clean frames'
+            lengths (both ends seen free, no gap bridged, the held end identified): a faint or hidden tip
+            shortens a polyline, often, while a wrong one that is longer is rare. It is used once at least
+            ``min_length_frames`` were seen and they agree (median absolute deviation at most
+            ``max_length_spread`` of the median). Without a length, given or learned, the tip is not measured:
+            the end of a polyline of unknown length may be anywhere along the cable.
+        min_length_frames: See ``learn_length_frames``.
+        max_length_spread: See ``learn_length_frames``.
+    """
+
+    segmenter: SegmenterConfig = field(default_factory=SegmenterConfig)
+    nodes: int = 20
+    point: float = 1.0
+    cable_length_m: float | None = None
+    plane: Plane | None = None
+    floor: Plane | None = None
+    filter: FilterParams = TRACK_FILTER
+    gripper_radius_m: float | None = None
+    max_width_share: float | None = 0.1
+    max_width_ratio: float | None = 3.0
+    reach_margin_m: float | None = None
+    follow_px: int | None = None
+    short_tolerance: float = 0.03
+    long_tolerance: float = 0.15
+    min_seen_learned: float = 0.75
+    identity: IdentityParams = field(default_factory=IdentityParams)
+    learn_length_frames: int = 31
+    min_length_frames: int = 5
+    max_length_spread: float = 0.05
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.segmenter, SegmenterConfig):
+            raise ValueError(f"segmenter must be a SegmenterConfig, got {self.segmenter!r}")
+        if isinstance(self.nodes, bool) or not isinstance(self.nodes, int) or self.nodes < 2:
+            raise ValueError(f"nodes must be an int of at least 2, got {self.nodes!r}")
+        if not (isinstance(self.point, int | float) and 0.0 <= self.point <= 1.0):
+            raise ValueError(f"point must be a fraction of the cable in [0, 1] (1: the tip), got {self.point!r}")
+        for name in ("cable_length_m", "gripper_radius_m", "reach_margin_m"):
+            value = getattr(self, name)
+            if value is not None and not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive length in metres (or None), got {value!r}")
+        if self.max_width_share is not None and not 0 < self.max_width_share <= 1:
+            raise ValueError(f"max_width_share must be in (0, 1] (or None), got {self.max_width_share!r}")
+        if self.max_width_ratio is not None and not self.max_width_ratio > 1:
+            raise ValueError(f"max_width_ratio must be above 1 (or None), got {self.max_width_ratio!r}")
+        if self.floor is not None and self.plane is None:
+            raise ValueError("a floor needs the motion plane")
+        for name in ("short_tolerance", "long_tolerance", "min_seen_learned"):
+            value = getattr(self, name)
+            if not 0 < value < 1:
+                raise ValueError(f"{name} must be in (0, 1), got {value!r}")
+        if self.min_length_frames < 1 or self.learn_length_frames < self.min_length_frames:
+            raise ValueError(f"need 1 <= min_length_frames <= learn_length_frames, got {self.min_length_frames}, "
+                             f"{self.learn_length_frames}")
+        if not isinstance(self.filter, FilterParams):
+            raise ValueError(f"filter must be a FilterParams, got {self.filter!r}")
+
+    @property
+    def tip(self) -> bool:
+        """Whether the tracked point is the tip."""
+        return self.point == 1.0
+
+
+def point_on_nodes(nodes: NDArray[np.float64], visible: NDArray[np.bool_],
+                   fraction: float) -> NDArray[np.float64] | None:
+    """The point at ``fraction`` of the node chain (linear between the two nearest nodes), or None.
+
+    Nodes are equally spaced along the cable, so node ``i`` of ``N`` is at fraction ``i / (N - 1)``. The point
+    is measured only where the nodes it is interpolated from are visible and finite.
+    """
+    n = nodes.shape[0]
+    s = fraction * (n - 1)
+    i0 = min(int(math.floor(s)), n - 2)
+    w = s - i0
+    used = [i0] if w == 0 else ([i0 + 1] if w == 1 else [i0, i0 + 1])
+    if not all(visible[i] and np.all(np.isfinite(nodes[i])) for i in used):
+        return None
+    return (1.0 - w) * nodes[i0] + w * nodes[i0 + 1]
+
+
+def bridged_point(nodes: NDArray[np.float64], visible: NDArray[np.bool_],
+                  fraction: float) -> NDArray[np.float64] | None:
+    """An inner point on a bridged gap (nodes unseen there, seen on both sides), interpolated between the
+    nearest seen nodes along the node index (the nodes are evenly spaced along the cable); None for a point
+    at either end or without seen nodes on both sides."""
+    n = nodes.shape[0]
+    s = fraction * (n - 1)
+    seen = np.flatnonzero(visible & np.all(np.isfinite(nodes), axis=1))
+    if seen.size < 2 or not seen[0] < s < seen[-1]:
+        return None
+    after = int(np.searchsorted(seen, s))
+    a, b = int(seen[after - 1]), int(seen[after])
+    w = (s - a) / (b - a)
+    return np.asarray((1.0 - w) * nodes[a] + w * nodes[b], dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class ViewResult:
+    """One view's part of a frame: its oriented centreline (None where none was found or its ends could
+    not be told apart), how its held end was identified, and where it was expected."""
+
+    centerline: Any
+    orientation: Orientation | None
+    held_uv: NDArray[np.float64] | None
+    gate_px: float
+    reason: str = ""
+    #: Where the gripper's template matched in this frame (its centre; None: not followed, or no match).
+    gripper_uv: NDArray[np.float64] | None = None
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """What the pipeline made of one frame.
+
+    Attributes:
+        t: The frame's capture time.
+        status: :class:`Status` of the estimate at ``t``.
+        point: This frame's measured (or continued) point, world (m) or ``(u, v, 0)`` pixels without a
+            calibration; None when not measured.
+        point_uv: Its pixel in the first view.
+        estimate: The filter's :class:`~dyndlo_vision.tracking.filter.Estimate` at ``t``.
+        measurement: The frame's nodes (world and first-view pixels; triangulated with two views).
+        views: Each view's :class:`ViewResult`.
+        reason: Why the point was not measured ("" when it was).
+        length: The measured cable's length from the held end (world m, or px), NaN when none.
+        stage_ms: Wall time of the frame's stages: ``track`` (segmentation to the point) and ``filter``.
+    """
+
+    t: float
+    status: Status
+    point: NDArray[np.float64] | None
+    point_uv: NDArray[np.float64] | None
+    estimate: Any
+    measurement: Measurement
+    views: tuple[ViewResult, ...]
+    reason: str = ""
+    length: float = float("nan")
+    stage_ms: dict[str, float] = field(default_factory=dict)
+
+
+class _View:
+    """One camera's state: its segmenter, calibration, held end track and last nodes."""
+
+    #: The cable is still when both its ends moved less than this share of its length on the image, in each
+    #: of the last two frames (a swinging tip moves farther; at the top of a swing it is still for less).
+    STILL_SHARE = 0.015
+
+    def __init__(self, camera: Any, segmenter: ViewSegmenter, anchor_uv: Any, config: PipelineConfig,
+                 px_per_m: float) -> None:
+        self.camera = camera
+        self.segmenter = segmenter
+        self.anchor = None if anchor_uv is None else np.asarray(anchor_uv, dtype=np.float64).reshape(2)
+        self.config = config
+        self.held = HeldEnd(config.identity, px_per_m)
+        self.px_per_m = px_per_m
+        self.reset()
+
+    def reset(self) -> None:
+        self.held.reset()
+        self.gripper: GripperTemplate | None = None
+        self.offsets: deque[NDArray[np.float64]] = deque(maxlen=9)
+        self.prev_nodes: NDArray[np.float64] | None = None
+        self.prev_t = -math.inf
+        self.prev_ends: NDArray[np.float64] | None = None
+        self.still_frames = 0
+        self.first_rule = ""
+        reset = getattr(self.segmenter.reach, "reset", None)
+        if reset is not None:
+            reset()
+
+    def _stillness(self, cl: Any) -> None:
+        """Counts the frames in a row in which the cable's two ends stayed where they were."""
+        ends = cl.path_uv[[0, -1]]
+        if self.prev_ends is None:
+            self.still_frames = 0
+        else:
+            moved = min(np.max(np.hypot(*(ends - self.prev_ends).T)),
+                        np.max(np.hypot(*(ends[::-1] - self.prev_ends).T)))
+            self.still_frames = self.still_frames + 1 if moved <= self.STILL_SHARE * cl.length_px else 0
+        self.prev_ends = ends
+
+    def _upper_end(self, cl: Any) -> tuple[int, float] | None:
+        """Which end of the path is higher in the world (0: its start, 1: its end) and by how much (m); None
+        without a calibration and a plane."""
+        if self.camera is None or self.config.plane is None:
+            return None
+        try:
+            ends = lift_with_plane(cl.path_uv[[0, -1]], self.camera, self.config.plane)
+        except ValueError:
+            return None
+        if not np.all(np.isfinite(ends)):
+            return None
+        return (0 if ends[0, 2] >= ends[1, 2] else 1), float(abs(ends[0, 2] - ends[1, 2]))
+
+    def _at_rest_upper(self, cl: Any) -> int | None:
+        """At rest (still for two frames), the clearly upper end (0 or 1): a hanging cable's held end."""
+        if self.still_frames < 2:
+            return None
+        upper = self._upper_end(cl)
+        length_m = cl.length_px / max(self.px_per_m, 1e-9)
+        if upper is None or upper[1] < 0.25 * length_m:
+            return None
+        return upper[0]
+
+    def measure(self, rgb: NDArray[np.uint8], t: float, held_world: NDArray[np.float64] | None,
+                first_view_held: tuple[Any, NDArray[np.float64]] | None = None) -> ViewResult:
+        """Segment, centreline, and which end is held."""
+        from dyndlo_vision.tracking.centerline import extract_centerline
+
+        cfg = self.config
+        ident = cfg.identity
+        known_uv = None
+        radius_px = None
+        if held_world is not None and self.camera is not None:
+            held3 = np.asarray(held_world, dtype=np.float64).reshape(1, 3)
+            depth = float(self.camera.world_to_camera(held3)[0, 2])
+            if depth <= 0:
+                raise ValueError(f"the held end at {np.round(held3[0], 3).tolist()} m is behind the camera; is it "
+                                 "in the calibration's world frame?")
+            known_uv = self.camera.project(held3)[0]
+            if cfg.gripper_radius_m is not None:
+                radius_px = cfg.gripper_radius_m * float(self.camera.K[0, 0]) / depth
+        self.segmenter.hold(held_world, known_uv, radius_px)
+        mask = self.segmenter(rgb)
+        if known_uv is None and self.gripper is None and self.anchor is not None:
+            self.gripper = GripperTemplate(rgb, self.anchor, self._template_size(rgb))
+        lost = self.held.lost_at(t)
+        gripper_uv = centre = None
+        if known_uv is None and self.gripper is not None and self.gripper.usable:
+            if not self.offsets:
+                centre = self.anchor  # the first frame: the click
+            else:
+                dt = abs(t - self.gripper.t) if math.isfinite(self.gripper.t) else 0.0
+                search = 0.5 * self.gripper.size + ident.max_speed_m_s * max(dt, 0.04) * self.px_per_m
+                centre = self.gripper.locate(rgb, t, search)
+                if centre is not None:
+                    gripper_uv = centre + np.median(np.array(self.offsets), axis=0)
+                    # The template's word only where the held end's own track allows it (a gripper that looks
+                    # like something else nearby, a blurred one).
+                    if not lost and np.hypot(*(gripper_uv - self.held.predict(t))) > self.held.gate(
+                            t, 2.0, math.inf, noise_px=0.5 * self.gripper.size):
+                        gripper_uv = centre = None
+        if known_uv is not None:
+            hint = known_uv
+        elif gripper_uv is not None:
+            hint = gripper_uv
+        elif self.held.known:
+            hint = self.held.predict(t) if not lost else self.held.uv
+        else:
+            hint = self.anchor
+        cl = extract_centerline(mask, cfg.nodes, anchor_uv=hint)
+        if not cl.any_visible:
+            self.prev_ends = None
+            return ViewResult(None, None, hint, float("nan"), "no cable found")
+        self._stillness(cl)
+        width = float(cl.width_px) if np.isfinite(cl.width_px) else 2.0
+        recent = self.prev_nodes is not None and t - self.prev_t <= 0.1
+        prev = self.prev_nodes if recent else None
+        shift = None
+        if known_uv is not None:
+            gripper = radius_px if radius_px is not None else 0.0
+            gate = 1.5 * gripper + max(ident.min_gate_px, 3.0 * width)
+            if prev is not None and self.held.known:
+                shift = known_uv - self.held.uv
+        elif gripper_uv is not None:
+            gate = max(ident.min_gate_px, 3.0 * width, 0.6 * self.gripper.size)
+            if prev is not None and self.held.known:
+                shift = hint - self.held.uv
+        elif self.held.known and not lost:
+            gate = self.held.gate(t, width, cl.length_px, noise_px=max(2.0, width))
+            if prev is not None:
+                shift = hint - self.held.uv
+        elif self.held.known:
+            # Lost: found again only where the cable hangs still, at its upper end.
+            upper = self._at_rest_upper(cl)
+            if upper is None:
+                return ViewResult(None, None, hint, float("nan"), "held end lost: waiting for the cable to hang "
+                                  "still")
+            return self._oriented(cl, upper == 0, Orientation(upper == 0, "gravity"), mask.shape, t, hint,
+                                  float("nan"))
+        elif self.anchor is not None:
+            # First found from the user's click: the end nearest it, the other end well apart.
+            gate = max(ident.min_gate_px * 3, 0.25 * cl.length_px)
+            prev = None
+        else:
+            return self._first_without_hint(cl, mask.shape, first_view_held, t)
+        register = max(ident.register_widths * width, ident.min_gate_px, 0.1 * cl.length_px)
+        decision = orient(cl.path_uv, hint, gate, prev, register, ident, shift)
+        if decision.held_at_start is None:
+            return ViewResult(None, decision, hint, gate, decision.reason)
+        upper = self._at_rest_upper(cl)
+        if upper is not None and known_uv is None and (upper == 0) != decision.held_at_start:
+            why = "the held end is below the tip while the cable hangs still"
+            return ViewResult(None, Orientation(None, why), hint, gate, why)
+        return replace(self._oriented(cl, decision.held_at_start, decision, mask.shape, t, hint, gate),
+                       gripper_uv=centre)
+
+    def _oriented(self, cl: Any, held_at_start: bool, decision: Orientation, shape: tuple[int, ...], t: float,
+                  hint: Any, gate: float) -> ViewResult:
+        if not held_at_start:
+            cl = cl.reversed(None, shape)
+        self._identified(cl, t)
+        return ViewResult(cl, decision, hint, gate)
+
+    def _first_without_hint(self, cl: Any, shape: tuple[int, ...], first_view_held: Any, t: float) -> ViewResult:
+        """No click, no robot pose, never identified: the held end is the cable end on the first view's held
+        end's epipolar line (a second view), else the upper end (a hanging cable's held end)."""
+        flip = bool(cl.path_uv[-1, 1] < cl.path_uv[0, 1])
+        self.first_rule = "the upper cable end"
+        if first_view_held is not None and self.camera is not None:
+            from dyndlo_vision.tracking.stereo import essential_matrix
+
+            cam_a, uv_a = first_view_held
+            xa = np.append(cam_a.normalized_coords(np.asarray(uv_a, dtype=float).reshape(1, 2))[0], 1.0)
+            line = essential_matrix(cam_a, self.camera) @ xa
+            ends = cl.path_uv[[0, -1]]
+            xb = np.column_stack([self.camera.normalized_coords(ends), np.ones(2)])
+            gaps = np.abs(xb @ line) / max(float(np.linalg.norm(line[:2])), 1e-300)
+            if abs(gaps[0] - gaps[1]) > 1e-3:  # normalised units: about half a pixel at f = 500
+                flip = bool(gaps[1] < gaps[0])
+                self.first_rule = "the cable end on the epipolar line of the first view's held end"
+        return self._oriented(cl, not flip, Orientation(not flip, "first frame, no anchor"), shape, t, None,
+                              float("nan"))
+
+    @staticmethod
+    def _template_size(rgb: NDArray[np.uint8]) -> int:
+        """The gripper template's side: 8 % of the image's shorter side, 25-71 px."""
+        return int(np.clip(round(0.08 * min(rgb.shape[:2])), 25, 71))
+
+    def _identified(self, cl: Any, t: float) -> None:
+        if not cl.start_at_border:
+            self.held.update(cl.path_uv[0], t, noise_px=max(2.0, float(cl.width_px)))
+            if self.gripper is not None and abs(self.gripper.t - t) < 1e-9 or (
+                    self.gripper is not None and not self.offsets):
+                self.offsets.append(cl.path_uv[0] - self.gripper.uv)
+        self.prev_nodes = np.where(cl.visible[:, None], cl.nodes_uv, np.nan)
+        self.prev_t = t
+        self.prev_ends = cl.path_uv[[0, -1]]
+
+
+class CablePipeline:
+    """One or two views of a held cable, tracked through time (see the module docstring).
+
+    Args:
+        config: What the pipeline does.
+        cameras: Each view's calibration (:class:`~dyndlo_vision.tracking.camera_model.PinholeCamera`); one
+            view may be None (pixel mode: no world positions); two views need both.
+        segmenters: Each view's segmenter stack (:func:`~dyndlo_vision.tracking.segmenters.
+            build_view_segmenter`).
+        anchors: Each view's held end clicked in the first frame with a cable (pixels), or None.
+    """
+
+    def __init__(self, config: PipelineConfig, cameras: Sequence[Any], segmenters: Sequence[ViewSegmenter],
+                 anchors: Sequence[Any] | None = None) -> None:
+        from dyndlo_vision.tracking.filter import PointFilter
+
+        if len(cameras) not in (1, 2) or len(segmenters) != len(cameras):
+            raise ValueError(f"expected one or two views with a segmenter each, got {len(cameras)} cameras and "
+                             f"{len(segmenters)} segmenters")
+        if len(cameras) == 2 and any(c is None for c in cameras):
+            raise ValueError("two views need both calibrations")
+        if len(cameras) == 1 and cameras[0] is not None and config.plane is None:
+            raise ValueError("one calibrated view needs the motion plane (or a depth image per frame: give the "
+                             "plane anyway, depth replaces it)")
+        anchors = list(anchors) if anchors is not None else [None] * len(cameras)
+        self.config = config
+        self.world = cameras[0] is not None
+        self.stereo = len(cameras) == 2
+        self.views = [_View(cam, seg, anchor, config, self._px_per_m(cam, anchor))
+                      for cam, seg, anchor in zip(cameras, segmenters, anchors, strict=True)]
+        params = config.filter if self.world else config.filter.scaled(NOMINAL_PX_PER_M)
+        self.filter = PointFilter(params)
+        self._lengths: deque[float] = deque(maxlen=config.learn_length_frames)
+        #: Frames seen, and why points were not measured (reason -> frames).
+        self.n_frames = 0
+        self.reasons: Counter[str] = Counter()
+        self.n_measured = 0
+        self.n_continued = 0
+
+    def _px_per_m(self, camera: Any, anchor: Any) -> float:
+        if camera is None or self.config.plane is None:
+            return NOMINAL_PX_PER_M if camera is None else float(camera.K[0, 0])
+        uv = np.asarray(anchor if anchor is not None else [(camera.width - 1) / 2, (camera.height - 1) / 2],
+                        dtype=np.float64).reshape(1, 2)
+        try:
+            p = camera.intersect_plane(uv, self.config.plane.normal, self.config.plane.d)[0]
+        except ValueError:
+            return float(camera.K[0, 0])
+        depth = float(camera.world_to_camera(p[None])[0, 2])
+        return float(camera.K[0, 0]) / max(depth, 1e-6)
+
+    # ------------------------------------------------------------------ state
+    def reset(self) -> None:
+        """Forgets the cable, the held end and the filter (a new episode or video)."""
+        for view in self.views:
+            view.reset()
+        self.filter.reset()
+        self._lengths.clear()
+
+    @property
+    def learned_length(self) -> float | None:
+        """The cable's length learned from the frames (world m, or px), None until enough agreeing ones were
+        seen."""
+        if len(self._lengths) < self.config.min_length_frames:
+            return None
+        lengths = np.asarray(self._lengths)
+        median = float(np.median(lengths))
+        if not median > 0 or np.median(np.abs(lengths - median)) > self.config.max_length_spread * median:
+            return None
+        return float(np.percentile(lengths, 80))
+
+    @property
+    def first_view_rule(self) -> str:
+        """How the first view's held end was first chosen without a click or a robot pose ("" otherwise)."""
+        return self.views[0].first_rule
+
+    def estimate(self, t: float) -> Any:
+        """The filtered point predicted to ``t`` (the filter's :class:`~dyndlo_vision.tracking.filter.Estimate`;
+        ``lost`` when it has no estimate)."""
+        return self.filter.estimate(t)
+
+    # ------------------------------------------------------------------ one frame
+    def step(self, images: Sequence[NDArray[np.uint8]], t_capture: float,
+             held_world: NDArray[np.float64] | None = None,
+             depth: NDArray[np.floating] | None = None) -> FrameResult:
+        """Tracks one frame (one image per view, taken at ``t_capture``).
+
+        Args:
+            images: RGB uint8 frames, one per view.
+            t_capture: The frames' capture time (s).
+            held_world: The held end (the gripper's TCP) in the world frame, where the robot reports it.
+            depth: One view: a depth image aligned with it, which replaces the plane.
+        """
+        if len(images) != len(self.views):
+            raise ValueError(f"expected {len(self.views)} images, got {len(images)}")
+        t0 = time.perf_counter()
+        t = float(t_capture)
+        held = None if held_world is None else np.asarray(held_world, dtype=np.float64).reshape(3)
+        results = []
+        for k, (view, rgb) in enumerate(zip(self.views, images, strict=True)):
+            first = None
+            if k == 1 and results[0].centerline is not None:
+                first = (self.views[0].camera, results[0].centerline.path_uv[0])
+            results.append(view.measure(rgb, t, held, first))
+        measurement, held_xyz, reason = self._measurement(results, t, held, depth)
+        point, point_uv, length, continued = None, None, float("nan"), False
+        if not reason:
+            point, point_uv, length, continued, reason = self._point(measurement, results, held_xyz)
+        return self._filtered(t, point, point_uv, continued, reason, measurement, tuple(results), length, t0)
+
+    def skip(self, t_capture: float, reason: str) -> FrameResult:
+        """A frame that cannot be measured (``reason``): the filter predicts."""
+        return self._filtered(float(t_capture), None, None, False, reason, self._empty(float(t_capture)), (),
+                              float("nan"), time.perf_counter())
+
+    def _filtered(self, t: float, point: Any, point_uv: Any, continued: bool, reason: str,
+                  measurement: Measurement, results: tuple[ViewResult, ...], length: float,
+                  t0: float) -> FrameResult:
+        """Updates the filter with the frame's point (None: not measured) and says what it rests on."""
+        t1 = time.perf_counter()
+        self.n_frames += 1
+        accepted = self.filter.update(point, t)
+        if point is not None and not accepted:
+            reason = "rejected by the filter's gate"
+        estimate = self.filter.estimate(t)
+        if accepted:
+            status = Status.CONTINUED if continued else Status.MEASURED
+            self.n_measured += 1
+            self.n_continued += int(continued)
+        else:
+            status = Status.LOST if estimate.lost else Status.PREDICTED
+            self.reasons[reason] += 1
+        stage = {"track": 1e3 * (t1 - t0), "filter": 1e3 * (time.perf_counter() - t1)}
+        return FrameResult(t, status, point if accepted else None, point_uv if accepted else None, estimate,
+                           measurement, results, "" if accepted else reason, length, stage)
+
+    def _empty(self, t: float, cl: Any = None) -> Measurement:
+        n = self.config.nodes
+        return Measurement(np.full((n, 3), np.nan), np.full((n, 2), np.nan), np.zeros(n, dtype=bool), t, cl)
+
+    def _measurement(self, results: list[ViewResult], t: float, held: NDArray[np.float64] | None,
+                     depth: Any) -> tuple[Measurement, NDArray[np.float64] | None, str]:
+        """The frame's nodes (world, or pixels with NaN world), the held end in the world, and why there are
+        none ("" when there are)."""
+        for r in results:
+            if r.centerline is None:
+                return self._empty(t), held, r.reason
+        cl = results[0].centerline
+        view = self.views[0]
+        if not self.stereo:
+            if not self.world:
+                return Measurement(np.full((cl.n_nodes, 3), np.nan), cl.nodes_uv, cl.visible.copy(), t, cl), None, ""
+            if depth is not None:
+                xyz = lift_with_depth(cl.nodes_uv, depth, view.camera, cl.visible)
+            else:
+                xyz = lift_with_plane(cl.nodes_uv, view.camera, self.config.plane, cl.visible, self.config.floor)
+            visible = cl.visible & np.all(np.isfinite(xyz), axis=1)
+            meas = Measurement(xyz, cl.nodes_uv, visible, t, cl)
+            if held is None and results[0].gripper_uv is not None:  # the gripper, where its template matched
+                grip = lift_with_plane(results[0].gripper_uv[None], view.camera, self.config.plane)[0]
+                held = grip if np.all(np.isfinite(grip)) else None
+            if held is None and visible[0]:
+                held = xyz[0].copy()
+            return meas, held, ""
+        from dyndlo_vision.tracking.stereo import stereo_measurement, triangulate
+
+        cams = [v.camera for v in self.views]
+        metas = [Measurement(np.full((r.centerline.n_nodes, 3), np.nan), r.centerline.nodes_uv,
+                             r.centerline.visible, t, r.centerline) for r in results]
+        if held is None:  # where the two centrelines start
+            starts = [r.centerline.path_uv[0] for r in results]
+            held = triangulate(cams[0], starts[0][None], cams[1], starts[1][None])[0][0]
+            if not np.all(np.isfinite(held)):
+                return self._empty(t, cl), None, "the two views' held ends do not triangulate"
+        length = self.config.cable_length_m if not self.config.tip else None
+        meas = stereo_measurement(metas[0], cams[0], metas[1], cams[1], held, length)
+        if not meas.visible.any():
+            return meas, held, "the two views' centrelines do not match"
+        return meas, held, ""
+
+    def _cut(self, results: list[ViewResult]) -> str:
+        """Why fractions of the cable mean nothing in this frame ("" when they do): in some view the cable runs
+        out of the image, or into a region too thick to be cable, at an end the point is counted from."""
+        need_end, need_start = self.config.point > 0, self.config.point < 1
+        for view, r in zip(self.views, results, strict=True):
+            cl = r.centerline
+            start_zone, end_zone = view.segmenter.ends_in_zone(cl.path_uv, cl.width_px)
+            if (need_end and cl.end_at_border) or (need_start and cl.start_at_border):
+                return "the cable leaves the image"
+            if (need_end and end_zone) or (need_start and start_zone):
+                return "the cable runs into a region too thick to be cable"
+        return ""
+
+    def _path_length(self, meas: Measurement, held: NDArray[np.float64] | None,
+                     gripper_uv: NDArray[np.float64] | None) -> float:
+        """The measured cable's length from the held end (the robot's TCP, the gripper where its template
+        matched, else the polyline's start): world (m) through the lifted nodes, or pixels."""
+        if self.world:
+            if held is None or not meas.lifted.any():
+                return float("nan")
+            return _length_from(meas.nodes_xyz[meas.lifted], held)
+        cl = meas.centerline
+        if cl is None:
+            return float("nan")
+        if gripper_uv is None:
+            return float(cl.length_px)
+        return _length_from(cl.path_uv, gripper_uv)
+
+    def _point(self, meas: Measurement, results: list[ViewResult], held: NDArray[np.float64] | None
+               ) -> tuple[NDArray[np.float64] | None, NDArray[np.float64] | None, float, bool, str]:
+        """(point, its first-view pixel, the measured length, continued?, why not measured)."""
+        cfg = self.config
+        cut = self._cut(results)
+        length = self._path_length(meas, held, results[0].gripper_uv)
+        clean = (not cut and all(not np.any(~r.centerline.path_visible) for r in results)
+                 and all(r.orientation is not None and r.orientation.reason in ("continuity", "registration",
+                                                                                "gravity")
+                         for r in results) and np.isfinite(length) and not self.stereo)
+        if cut:
+            return None, None, length, False, cut
+        if clean:
+            self._lengths.append(length)
+        reference = cfg.cable_length_m if self.world else None
+        ref = reference if reference is not None else self.learned_length
+        point_space = meas.nodes_xyz if self.world else np.column_stack([meas.nodes_uv, np.zeros(len(meas.nodes_uv))])
+        if cfg.tip:
+            seen = np.flatnonzero(meas.visible & np.all(np.isfinite(point_space), axis=1))
+            if seen.size == 0:
+                return None, None, length, False, "the tip's node is not seen"
+            if ref is None and self.stereo:
+                if not _reaches_far_ends(meas, self.views, results):
+                    return None, None, length, False, ("the triangulated cable does not reach its far end in both "
+                                                       "views")
+            elif ref is None:
+                return None, None, length, False, "the cable's length is not known yet"
+            elif np.isfinite(length):
+                ratio = length / ref
+                if ratio > 1.0 + cfg.long_tolerance:
+                    return None, None, length, False, "longer than the cable"
+                given = reference is not None
+                if ratio < (MIN_SEEN_LENGTH_FRACTION if given else cfg.min_seen_learned):
+                    return None, None, length, False, "shorter than the cable: its tip is hidden"
+                if ratio < 1.0 - (0.0 if given else cfg.short_tolerance):
+                    if self.world:
+                        start = held if held is not None else point_space[seen[0]]
+                    else:
+                        grip = results[0].gripper_uv
+                        start = None if grip is None else np.append(grip, 0.0)
+                    tip = _continued(point_space, meas.visible, ref - length, start)
+                    if tip is None:
+                        return None, None, length, False, "shorter than the cable: its tip is hidden"
+                    uv = self.views[0].camera.project(tip[None])[0] if self.world else tip[:2].copy()
+                    return tip, uv, length, True, ""
+            if seen[-1] != len(meas.visible) - 1:
+                return None, None, length, False, "the tip's node is not seen"
+            return point_space[-1].copy(), meas.nodes_uv[-1].copy(), length, False, ""
+        if self.stereo and cfg.cable_length_m is None and cfg.point > 0 and not _reaches_far_ends(
+                meas, self.views, results):
+            return None, None, length, False, "the triangulated cable does not reach its far end in both views"
+        point = point_on_nodes(point_space, meas.visible, cfg.point)
+        continued = False
+        if point is None:
+            point = bridged_point(point_space, meas.visible, cfg.point)
+            continued = point is not None
+        if point is None:
+            return None, None, length, False, "the point's nodes are not seen"
+        uv = (self.views[0].camera.project(point[None])[0] if self.world else point[:2].copy())
+        return point, uv, length, continued, ""
+
+
+def _length_from(points: NDArray[np.float64], held: NDArray[np.float64]) -> float:
+    """The length of a polyline from ``held``: straight to the polyline's point nearest to it (among its first
+    half: a polyline that runs on into the gripper's blob past the held point does not count that stretch
+    twice), then along the polyline."""
+    pts = np.asarray(points, dtype=np.float64)
+    held = np.asarray(held, dtype=np.float64).reshape(-1)[: pts.shape[1]]
+    head = max(1, (len(pts) + 1) // 2)
+    j = int(np.argmin(np.linalg.norm(pts[:head] - held, axis=1)))
+    return float(np.linalg.norm(pts[j] - held) + np.linalg.norm(np.diff(pts[j:], axis=0), axis=1).sum())
+
+
+def _continued(points: NDArray[np.float64], visible: NDArray[np.bool_], missing: float,
+               start: NDArray[np.float64] | None) -> NDArray[np.float64] | None:
+    """The tip of a polyline (its seen nodes, after ``start`` when given) continued straight by ``missing``,
+    along its last two segments (less pixel noise than the last one); None for a polyline of one point."""
+    pts = points[visible & np.all(np.isfinite(points), axis=1)]
+    if start is not None:
+        pts = np.vstack([np.asarray(start, dtype=np.float64).reshape(1, 3), pts])
+    if len(pts) < 2:
+        return None
+    direction = pts[-1] - pts[max(0, len(pts) - 3)]
+    norm = float(np.linalg.norm(direction))
+    if norm < 1e-12:
+        return None
+    return pts[-1] + direction / norm * missing
+
+
+#: Two views: a point past the held end is measured only if the triangulated cable's far end lies this close
+#: to the far end of the cable in each image (px), plus two of the matching's sample spacings along the longer
+#: of the two centrelines: else one view hides part of the cable and the far end is not the cable's.
+_STEREO_END_TOL_PX = 3.0
+
+
+def _reaches_far_ends(meas: Measurement, views: list[_View], results: list[ViewResult]) -> bool:
+    """Whether the triangulated cable's last node projects onto the far end of the cable in every view."""
+    from dyndlo_vision.tracking.stereo import StereoParams
+
+    last = meas.nodes_xyz[np.all(np.isfinite(meas.nodes_xyz), axis=1)]
+    if len(last) == 0:
+        return False
+    longest = max(float(r.centerline.length_px) for r in results)
+    tol = _STEREO_END_TOL_PX + 2.0 * longest / max(StereoParams().samples - 1, 1)
+    for view, r in zip(views, results, strict=True):
+        end = r.centerline.path_uv[-1]
+        if float(np.linalg.norm(view.camera.project(last[-1:])[0] - end)) > tol:
+            return False
+    return True
