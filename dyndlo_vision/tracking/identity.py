@@ -277,15 +277,19 @@ class GripperTemplate:
         rgb: The first frame.
         uv: The clicked pixel.
         size_px: The patch's side (odd).
-        min_score: The least correlation of a match.
+        min_score: The least correlation of a match ...
+        min_margin: ... by at least this much above any other place in the search window.
+        max_other_score: In the first frame, a template that matches anywhere else near it above this is not
+            distinctive.
     """
 
     def __init__(self, rgb: NDArray[np.uint8], uv: NDArray[np.float64], size_px: int,
-                 min_score: float = 0.8, max_other_score: float = 0.6) -> None:
+                 min_score: float = 0.8, max_other_score: float = 0.6, min_margin: float = 0.1) -> None:
         import cv2
 
         self.size = int(size_px) | 1
         self.min_score = float(min_score)
+        self.min_margin = float(min_margin)
         self.template = self._patch(rgb, np.asarray(uv, dtype=np.float64))
         self.uv = np.asarray(uv, dtype=np.float64).reshape(2)
         self.velocity = np.zeros(2)
@@ -338,6 +342,11 @@ class GripperTemplate:
         _, best, _, (bu, bv) = cv2.minMaxLoc(scores)
         self.score = float(best)
         if not best >= self.min_score:
+            return None
+        # Unique: nothing away from the peak (half the template's size) matches nearly as well.
+        vv, uu = np.mgrid[0 : scores.shape[0], 0 : scores.shape[1]]
+        away = np.hypot(uu - bu, vv - bv) > self.size / 2
+        if away.any() and float(scores[away].max()) > best - self.min_margin:
             return None
         # sub-pixel peak: a parabola through the neighbours on each axis
         du = dv = 0.0

@@ -111,9 +111,9 @@ class PipelineConfig:
         identity: The held end's identification (:class:`~dyndlo_vision.tracking.identity.IdentityParams`).
         learn_length_frames: The learned length is the 80th percentile of the last this many clean frames'
             lengths (both ends seen free, no gap bridged, the held end identified): a faint or hidden tip
-            shortens a polyline, often, while a wrong one that is longer is rare. It is used once at least
-            ``min_length_frames`` were seen and they agree (median absolute deviation at most
-            ``max_length_spread`` of the median). Without a length, given or learned, the tip is not measured:
+            shortens a polyline, often and for long (a cable hanging still with its tip over a patch of its own
+            colour), while a wrong one that is longer is rare. It is used once at least ``min_length_frames``
+            of them agree with it (lie within ``max_length_spread`` of it). Without a length, given or learned, the tip is not measured:
             the end of a polyline of unknown length may be anywhere along the cable.
         min_length_frames: See ``learn_length_frames``.
         max_length_spread: See ``learn_length_frames``.
@@ -133,11 +133,11 @@ class PipelineConfig:
     follow_px: int | None = None
     short_tolerance: float = 0.03
     long_tolerance: float = 0.15
-    min_seen_learned: float = 0.75
+    min_seen_learned: float = 0.9
     identity: IdentityParams = field(default_factory=IdentityParams)
-    learn_length_frames: int = 31
+    learn_length_frames: int = 1000
     min_length_frames: int = 5
-    max_length_spread: float = 0.05
+    max_length_spread: float = 0.03
 
     def __post_init__(self) -> None:
         if not isinstance(self.segmenter, SegmenterConfig):
@@ -252,9 +252,10 @@ class FrameResult:
 class _View:
     """One camera's state: its segmenter, calibration, held end track and last nodes."""
 
-    #: The cable is still when both its ends moved less than this share of its length on the image, in each
-    #: of the last two frames (a swinging tip moves farther; at the top of a swing it is still for less).
-    STILL_SHARE = 0.015
+    #: The cable is still when its quarter, middle and three-quarter points moved less than this share of its
+    #: length on the image, in each of the last two frames (a swinging cable moves farther; at the top of a
+    #: swing it is still for less).
+    STILL_SHARE = 0.02
 
     def __init__(self, camera: Any, segmenter: ViewSegmenter, anchor_uv: Any, config: PipelineConfig,
                  px_per_m: float) -> None:
@@ -280,15 +281,19 @@ class _View:
             reset()
 
     def _stillness(self, cl: Any) -> None:
-        """Counts the frames in a row in which the cable's two ends stayed where they were."""
-        ends = cl.path_uv[[0, -1]]
-        if self.prev_ends is None:
+        """Counts the frames in a row in which the cable stayed where it was: its ends and its middle (the
+        points at a quarter, half and three quarters of it, from either end: a flickering tip moves its ends
+        and little else)."""
+        s = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(cl.path_uv, axis=0).T))))
+        marks = np.array([np.interp(f * s[-1], s, cl.path_uv[:, k]) for f in (0.25, 0.5, 0.75) for k in (0, 1)])
+        marks = marks.reshape(3, 2)
+        if self.prev_ends is None or len(self.prev_ends) != 3:
             self.still_frames = 0
         else:
-            moved = min(np.max(np.hypot(*(ends - self.prev_ends).T)),
-                        np.max(np.hypot(*(ends[::-1] - self.prev_ends).T)))
+            moved = min(np.max(np.hypot(*(marks - self.prev_ends).T)),
+                        np.max(np.hypot(*(marks[::-1] - self.prev_ends).T)))
             self.still_frames = self.still_frames + 1 if moved <= self.STILL_SHARE * cl.length_px else 0
-        self.prev_ends = ends
+        self.prev_ends = marks
 
     def _upper_end(self, cl: Any) -> tuple[int, float] | None:
         """Which end of the path is higher in the world (0: its start, 1: its end) and by how much (m); None
@@ -403,14 +408,21 @@ class _View:
         if upper is not None and known_uv is None and (upper == 0) != decision.held_at_start:
             why = "the held end is below the tip while the cable hangs still"
             return ViewResult(None, Orientation(None, why), hint, gate, why)
-        return replace(self._oriented(cl, decision.held_at_start, decision, mask.shape, t, hint, gate),
+        # The held end's track moves to this frame's cable start only where that start is pinned down: at the
+        # robot's reported gripper, at the gripper's template, or well inside the track's gate (half of it, or
+        # a few cable widths). A cable cut below the gripper starts lower down; followed, the track would creep
+        # along the cable to its tip.
+        start = cl.path_uv[0] if decision.held_at_start else cl.path_uv[-1]
+        pinned = (known_uv is not None or gripper_uv is not None or decision.reason == "registration"
+                  or float(np.hypot(*(start - hint))) <= max(ident.min_gate_px, 3.0 * width, 0.5 * gate))
+        return replace(self._oriented(cl, decision.held_at_start, decision, mask.shape, t, hint, gate, pinned),
                        gripper_uv=centre)
 
     def _oriented(self, cl: Any, held_at_start: bool, decision: Orientation, shape: tuple[int, ...], t: float,
-                  hint: Any, gate: float) -> ViewResult:
+                  hint: Any, gate: float, anchored: bool = True) -> ViewResult:
         if not held_at_start:
             cl = cl.reversed(None, shape)
-        self._identified(cl, t)
+        self._identified(cl, t, anchored)
         return ViewResult(cl, decision, hint, gate)
 
     def _first_without_hint(self, cl: Any, shape: tuple[int, ...], first_view_held: Any, t: float) -> ViewResult:
@@ -438,15 +450,14 @@ class _View:
         """The gripper template's side: 8 % of the image's shorter side, 25-71 px."""
         return int(np.clip(round(0.08 * min(rgb.shape[:2])), 25, 71))
 
-    def _identified(self, cl: Any, t: float) -> None:
-        if not cl.start_at_border:
+    def _identified(self, cl: Any, t: float, anchored: bool = True) -> None:
+        if not cl.start_at_border and anchored:
             self.held.update(cl.path_uv[0], t, noise_px=max(2.0, float(cl.width_px)))
             if self.gripper is not None and abs(self.gripper.t - t) < 1e-9 or (
                     self.gripper is not None and not self.offsets):
                 self.offsets.append(cl.path_uv[0] - self.gripper.uv)
         self.prev_nodes = np.where(cl.visible[:, None], cl.nodes_uv, np.nan)
         self.prev_t = t
-        self.prev_ends = cl.path_uv[[0, -1]]
 
 
 class CablePipeline:
@@ -515,10 +526,9 @@ class CablePipeline:
         if len(self._lengths) < self.config.min_length_frames:
             return None
         lengths = np.asarray(self._lengths)
-        median = float(np.median(lengths))
-        if not median > 0 or np.median(np.abs(lengths - median)) > self.config.max_length_spread * median:
-            return None
-        return float(np.percentile(lengths, 80))
+        length = float(np.percentile(lengths, 80))
+        agree = np.abs(lengths - length) <= self.config.max_length_spread * length
+        return length if length > 0 and np.count_nonzero(agree) >= self.config.min_length_frames else None
 
     @property
     def first_view_rule(self) -> str:
@@ -646,16 +656,23 @@ class CablePipeline:
                      gripper_uv: NDArray[np.float64] | None) -> float:
         """The measured cable's length from the held end (the robot's TCP, the gripper where its template
         matched, else the polyline's start): world (m) through the lifted nodes, or pixels."""
+        view = self.views[0]
+        radius_px = 0.0 if gripper_uv is None or view.gripper is None else 0.5 * view.gripper.size
         if self.world:
             if held is None or not meas.lifted.any():
                 return float("nan")
-            return _length_from(meas.nodes_xyz[meas.lifted], held)
+            points = meas.nodes_xyz[meas.lifted]
+            if not self.stereo and meas.centerline is not None:  # the dense path, lifted as the nodes are
+                path = lift_with_plane(meas.centerline.path_uv, view.camera, self.config.plane, None,
+                                       self.config.floor)
+                points = path[np.all(np.isfinite(path), axis=1)]
+            return _length_from(points, held, radius_px / view.px_per_m)
         cl = meas.centerline
         if cl is None:
             return float("nan")
         if gripper_uv is None:
             return float(cl.length_px)
-        return _length_from(cl.path_uv, gripper_uv)
+        return _length_from(cl.path_uv, gripper_uv, radius_px)
 
     def _point(self, meas: Measurement, results: list[ViewResult], held: NDArray[np.float64] | None
                ) -> tuple[NDArray[np.float64] | None, NDArray[np.float64] | None, float, bool, str]:
@@ -719,14 +736,15 @@ class CablePipeline:
         return point, uv, length, continued, ""
 
 
-def _length_from(points: NDArray[np.float64], held: NDArray[np.float64]) -> float:
-    """The length of a polyline from ``held``: straight to the polyline's point nearest to it (among its first
-    half: a polyline that runs on into the gripper's blob past the held point does not count that stretch
-    twice), then along the polyline."""
+def _length_from(points: NDArray[np.float64], held: NDArray[np.float64], radius: float = 0.0) -> float:
+    """The length of a polyline from ``held``: straight to where it last leaves the disc of ``radius`` around
+    ``held`` (among its first half; else to its start), then along it. A skeleton that wanders into the
+    gripper's blob (segmented with the cable) adds nothing."""
     pts = np.asarray(points, dtype=np.float64)
     held = np.asarray(held, dtype=np.float64).reshape(-1)[: pts.shape[1]]
     head = max(1, (len(pts) + 1) // 2)
-    j = int(np.argmin(np.linalg.norm(pts[:head] - held, axis=1)))
+    inside = np.flatnonzero(np.linalg.norm(pts[:head] - held, axis=1) <= radius)
+    j = int(inside[-1]) if inside.size else 0
     return float(np.linalg.norm(pts[j] - held) + np.linalg.norm(np.diff(pts[j:], axis=0), axis=1).sum())
 
 
