@@ -109,12 +109,15 @@ class PipelineConfig:
             (:func:`~dyndlo_vision.tracking.tracker.tip_from_polyline`).
         min_seen_learned: See ``short_tolerance``.
         identity: The held end's identification (:class:`~dyndlo_vision.tracking.identity.IdentityParams`).
-        learn_length_frames: The learned length is the 80th percentile of the last this many clean frames'
-            lengths (both ends seen free, no gap bridged, the held end identified): a faint or hidden tip
-            shortens a polyline, often and for long (a cable hanging still with its tip over a patch of its own
-            colour), while a wrong one that is longer is rare. It is used once at least ``min_length_frames``
-            of them agree with it (lie within ``max_length_spread`` of it). Without a length, given or learned, the tip is not measured:
-            the end of a polyline of unknown length may be anywhere along the cable.
+        learn_length_frames: The learned length is the longest length that at least ``min_length_frames``
+            of the last this many clean frames (both ends seen free, no gap bridged, the held end identified)
+            agree with, within ``max_length_spread`` of it (their median). A faint or hidden tip shortens a
+            polyline, often and for long (a cable hanging still with its tip over a patch of its own colour);
+            a length learned from such frames would report the cable's middle as its tip, while one learned
+            too long only withholds tips. Frames with a gap bridged are kept apart: when enough of them agree
+            on a longer length (beyond ``long_tolerance``), the learned one is in doubt and not used. Without
+            a length, given or learned, the tip is not measured: the end of a polyline of unknown length may
+            be anywhere along the cable.
         min_length_frames: See ``learn_length_frames``.
         max_length_spread: See ``learn_length_frames``.
     """
@@ -409,12 +412,14 @@ class _View:
             why = "the held end is below the tip while the cable hangs still"
             return ViewResult(None, Orientation(None, why), hint, gate, why)
         # The held end's track moves to this frame's cable start only where that start is pinned down: at the
-        # robot's reported gripper, at the gripper's template, or well inside the track's gate (half of it, or
-        # a few cable widths). A cable cut below the gripper starts lower down; followed, the track would creep
-        # along the cable to its tip.
+        # robot's reported gripper, at the gripper's template, or within a few cable widths of the prediction
+        # (within half the gate while the track's velocity is not known yet: after its first identification).
+        # A cable cut below the gripper starts lower down; followed, the track would creep along the cable to
+        # its tip.
         start = cl.path_uv[0] if decision.held_at_start else cl.path_uv[-1]
         pinned = (known_uv is not None or gripper_uv is not None or decision.reason == "registration"
-                  or float(np.hypot(*(start - hint))) <= max(ident.min_gate_px, 3.0 * width, 0.5 * gate))
+                  or float(np.hypot(*(start - hint))) <= max(ident.min_gate_px, 3.0 * width,
+                                                              0.5 * gate if self.held.updates < 2 else 0.0))
         return replace(self._oriented(cl, decision.held_at_start, decision, mask.shape, t, hint, gate, pinned),
                        gripper_uv=centre)
 
@@ -493,6 +498,7 @@ class CablePipeline:
         params = config.filter if self.world else config.filter.scaled(NOMINAL_PX_PER_M)
         self.filter = PointFilter(params)
         self._lengths: deque[float] = deque(maxlen=config.learn_length_frames)
+        self._bridged_lengths: deque[float] = deque(maxlen=config.learn_length_frames)
         #: Frames seen, and why points were not measured (reason -> frames).
         self.n_frames = 0
         self.reasons: Counter[str] = Counter()
@@ -518,17 +524,38 @@ class CablePipeline:
             view.reset()
         self.filter.reset()
         self._lengths.clear()
+        self._bridged_lengths.clear()
 
     @property
     def learned_length(self) -> float | None:
         """The cable's length learned from the frames (world m, or px), None until enough agreeing ones were
-        seen."""
-        if len(self._lengths) < self.config.min_length_frames:
+        seen, or while it is in doubt (:attr:`length_doubt`)."""
+        length = self._longest_agreed(self._lengths)
+        return None if length is None or self.length_doubt else length
+
+    @property
+    def length_doubt(self) -> bool:
+        """Frames in which the cable was bridged across a gap agree on a length longer than the one learned
+        from the frames without gaps (beyond ``long_tolerance``): the cable's far part is faint, and what
+        looked like its tip may be its middle."""
+        length = self._longest_agreed(self._lengths)
+        bridged = self._longest_agreed(self._bridged_lengths)
+        return length is not None and bridged is not None and bridged > length * (1.0 + self.config.long_tolerance)
+
+    def _longest_agreed(self, values: deque[float]) -> float | None:
+        """The median of the longest group of at least ``min_length_frames`` values within
+        ``max_length_spread`` of one of them; None without one."""
+        if len(values) < self.config.min_length_frames:
             return None
-        lengths = np.asarray(self._lengths)
-        length = float(np.percentile(lengths, 80))
-        agree = np.abs(lengths - length) <= self.config.max_length_spread * length
-        return length if length > 0 and np.count_nonzero(agree) >= self.config.min_length_frames else None
+        lengths = np.sort(np.asarray(values))
+        spread = self.config.max_length_spread
+        lo = np.searchsorted(lengths, lengths * (1.0 - spread), side="left")
+        hi = np.searchsorted(lengths, lengths * (1.0 + spread), side="right")
+        ok = np.flatnonzero((hi - lo >= self.config.min_length_frames) & (lengths > 0))
+        if ok.size == 0:
+            return None
+        k = ok[-1]
+        return float(np.median(lengths[lo[k] : hi[k]]))
 
     @property
     def first_view_rule(self) -> str:
@@ -680,14 +707,14 @@ class CablePipeline:
         cfg = self.config
         cut = self._cut(results)
         length = self._path_length(meas, held, results[0].gripper_uv)
-        clean = (not cut and all(not np.any(~r.centerline.path_visible) for r in results)
-                 and all(r.orientation is not None and r.orientation.reason in ("continuity", "registration",
+        bridged = any(np.any(~r.centerline.path_visible) for r in results)
+        clean = (not cut and all(r.orientation is not None and r.orientation.reason in ("continuity", "registration",
                                                                                 "gravity")
                          for r in results) and np.isfinite(length) and not self.stereo)
         if cut:
             return None, None, length, False, cut
         if clean:
-            self._lengths.append(length)
+            (self._bridged_lengths if bridged else self._lengths).append(length)
         reference = cfg.cable_length_m if self.world else None
         ref = reference if reference is not None else self.learned_length
         point_space = meas.nodes_xyz if self.world else np.column_stack([meas.nodes_uv, np.zeros(len(meas.nodes_uv))])
@@ -699,6 +726,8 @@ class CablePipeline:
                 if not _reaches_far_ends(meas, self.views, results):
                     return None, None, length, False, ("the triangulated cable does not reach its far end in both "
                                                        "views")
+            elif ref is None and reference is None and self.length_doubt:
+                return None, None, length, False, "the cable's length is in doubt: bridged frames show it longer"
             elif ref is None:
                 return None, None, length, False, "the cable's length is not known yet"
             elif np.isfinite(length):
