@@ -138,9 +138,9 @@ DEFAULT_CABLE_RANGES: dict[str, tuple[float, float]] = {
     "damping_s": (0.5, 2.0),
 }
 
-#: Issue 16's evaluation ranges, beyond the training ones: length 0.8-1.2x, mass 0.5-2x, Young's modulus
-#: 0.25-4x (0.5-8 MPa for the paper's 2 MPa cable) and damping 0.25-4x. For testing whether a policy copes
-#: with a cable it was not trained on; training uses :data:`DEFAULT_CABLE_RANGES`.
+#: The evaluation ranges beyond the training ones (``--cable-ranges beyond``): length 0.8-1.2x, mass 0.5-2x,
+#: Young's modulus 0.25-4x (0.5-8 MPa for the paper's 2 MPa cable) and damping 0.25-4x. For testing whether
+#: a policy copes with a cable it was not trained on; training uses :data:`DEFAULT_CABLE_RANGES`.
 BEYOND_TRAINING_CABLE_RANGES: dict[str, tuple[float, float]] = {
     "length_m": (0.8, 1.2),
     "mass_kg": (0.5, 2.0),
@@ -151,7 +151,7 @@ BEYOND_TRAINING_CABLE_RANGES: dict[str, tuple[float, float]] = {
 CABLE_RANGES = {"training": DEFAULT_CABLE_RANGES, "beyond": BEYOND_TRAINING_CABLE_RANGES}
 #: Where a task's scene cannot take a named range whole: vaulting's cable must pass the box's side on the
 #: floor on its way to the support, which takes at least 0.807 m (0.897x the paper's 0.9 m), so its "beyond"
-#: lengths start at 0.9x, the training ranges' low end; the other parameters are issue 16's.
+#: lengths start at 0.9x, the training ranges' low end; the other parameters are the beyond ranges'.
 TASK_CABLE_RANGES: dict[tuple[str, str], dict[str, tuple[float, float]]] = {
     ("vaulting", "beyond"): {**BEYOND_TRAINING_CABLE_RANGES, "length_m": (0.9, 1.2)},
 }
