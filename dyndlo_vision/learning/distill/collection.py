@@ -26,8 +26,8 @@ from dyndlo_vision.learning.distill.teachers import (
     ReplanSearch,
 )
 
-__all__ = ["Episodes", "with_history", "with_noise", "run_episode", "make_distill_env", "check_teacher",
-           "collect"]
+__all__ = ["Episodes", "load_rounds", "episode_cables", "with_history", "with_noise", "run_episode",
+           "make_distill_env", "check_teacher", "collect"]
 
 
 @dataclass
@@ -79,6 +79,45 @@ class Episodes:
             fields = {k: data[k] for k in Episodes.__dataclass_fields__ if k in data}
         fields.setdefault("replans", np.zeros(len(fields["successes"]), dtype=np.int64))
         return Episodes(**fields)
+
+
+def load_rounds(run: Path, rounds: Sequence[int] | None = None) -> Episodes:
+    """A distillation run's round files (``round<r>.npz`` in the folder ``run``), those of ``rounds`` or all,
+    in one.
+
+    Raises:
+        FileNotFoundError: A round asked for has no file, or the run has none.
+    """
+    run = Path(run)
+    files = sorted(run.glob("round*.npz"), key=lambda p: int(p.stem[5:]))
+    if rounds is not None:
+        files = [run / f"round{r}.npz" for r in rounds]
+    missing = [str(f) for f in files if not f.is_file()]
+    if missing or not files:
+        raise FileNotFoundError(f"no round data: {missing or run}")
+    return Episodes.concatenate([Episodes.load(f) for f in files])
+
+
+def episode_cables(data: Episodes, config: dict[str, Any]) -> NDArray[np.float64] | None:
+    """Each decision's cable as factors of the nominal one (length, mass, Young's modulus, damping), drawn
+    again from its episode's seed as the run drew it; None for a run on the nominal cable. ``config`` is the
+    run's ``config.json``."""
+    from dyndlo_vision.tasks.wrappers import cable_for_seed, cable_ranges_for
+
+    ranges = config.get("cable_ranges")
+    if ranges is None:
+        return None
+    task = config.get("task", TEACHER_TASK)
+    env = make_distill_env(config.get("task_options", {}), None, None, task)
+    nominal = env.unwrapped.task.cable
+    env.close()
+    factors = cable_ranges_for(task, ranges)
+    rows = {}
+    for seed in data.episode_seeds.tolist():
+        c = cable_for_seed(nominal, factors, seed)
+        rows[seed] = [c.length_m / nominal.length_m, c.mass_kg / nominal.mass_kg,
+                      c.young_pa / nominal.young_pa, c.damping_s / nominal.damping_s]
+    return np.array([rows[s] for s in data.seeds.tolist()])
 
 
 def with_history(data: Episodes, length: int) -> Episodes:
