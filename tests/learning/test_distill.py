@@ -999,3 +999,17 @@ def test_refit_fits_the_finished_rounds_again_as_the_run_did(tmp_path) -> None:
     assert [e["obs_noise"] for e in other] == [str(quiet)] * 2
     assert not all(torch.equal(a, b) for a, b in zip(run_weights, weights(), strict=True))
     assert json.loads((out / "history.json").read_text()) == other
+
+
+@pytest.mark.parametrize("removed", ["decision_clock", "correction_gate"])
+def test_a_policy_asking_for_a_removed_feature_is_refused_by_name(tmp_path, removed: str) -> None:
+    """A student of an older version that read the decision clock or carried a correction gate is refused,
+    naming the feature, not run without it."""
+    path, meta = policies.resolve("tip-control-single-step")
+    copy = tmp_path / "old.zip"
+    shutil.copyfile(path, copy)
+    copy.with_suffix(".json").write_text(json.dumps({**meta, removed: True}))
+    with pytest.raises(ValueError, match=removed):
+        policies.load(copy)
+    copy.with_suffix(".json").write_text(json.dumps({**meta, removed: False}))
+    assert policies.load(copy) is not None
