@@ -222,49 +222,14 @@ def distill(
 
     from dyndlo_vision import policies
     from dyndlo_vision._atomic import write_atomic
-    from dyndlo_vision.tasks.noise import noise_model_file, portable_noise_model
+    from dyndlo_vision.tasks.noise import noise_model_file
 
     out = Path(out)
     if refit and not resume:
         raise ValueError("refit re-fits a run's finished rounds: it needs resume")
     config_file, history_file = out / "config.json", out / "history.json"
     # Everything that can refuse the run comes before the first write into ``out``.
-    if resume:
-        if not config_file.is_file():
-            raise FileNotFoundError(f"nothing to resume: {config_file} does not exist")
-        stored = {**_LATER_OPTIONS, **json.loads(config_file.read_text())}
-        for name, default in _REMOVED_OPTIONS.items():
-            if stored.pop(name, default) != default:
-                raise ValueError(f"{config_file}: the run used {name}, an option this version no longer has "
-                                 "(it made the students worse); it cannot be resumed")
-        # A run stored before "packaged" was kept as the word holds the shipped model's path in its install.
-        stored["noise_model"] = portable_noise_model(stored.get("noise_model"))
-        wanted = json.loads(json.dumps(config.to_json()))
-        if {k: v for k, v in stored.items() if k not in _CHANGEABLE_OPTIONS} != {
-            k: v for k, v in wanted.items() if k not in _CHANGEABLE_OPTIONS
-        }:
-            raise ValueError(
-                f"{config_file} holds another configuration ({stored}); resume with the same options "
-                "(only --rounds, --expert-rounds, --workers and --obs-noise may change)"
-            )
-        if stored["noise_model"] != wanted["noise_model"]:
-            log(f"noise model changed from {stored['noise_model']} to {wanted['noise_model']}: the student "
-                "is fitted on every round's observations drawn again through the new one")
-        history: list[dict[str, Any]] = json.loads(history_file.read_text()) if history_file.is_file() else []
-        for entry in history:  # a finished round's kind cannot be changed afterwards
-            was_expert = entry["acting"] == "expert"
-            if was_expert != config.expert_acts(int(entry["round"])):
-                raise ValueError(
-                    f"round {entry['round']} of {out} was {'an expert' if was_expert else 'a DAgger'} round; "
-                    f"expert_rounds={config.expert_rounds} would make it "
-                    f"{'a DAgger' if was_expert else 'an expert'} round"
-                )
-    else:
-        if out.exists() and not out.is_dir():
-            raise ValueError(f"{out} is a file; expected a run folder")
-        if out.exists() and any(out.iterdir()):
-            raise ValueError(f"{out} exists and is not empty; use --resume or another --out")
-        history = []
+    history = _stored_history(config, out, log) if resume else _new_run_history(out)
     refitted: dict[int, dict[str, Any]] = {}
     if refit:
         if not history:
@@ -304,25 +269,7 @@ def distill(
                 episodes = Episodes.load(round_file)
                 log(f"round {r}: reusing {round_file} ({len(episodes.successes)} episodes)")
             else:
-                seeds = config.round_seeds(r)
-                expert = config.expert_acts(r)
-                log(f"round {r}: {'expert' if expert else 'student'} acts, {len(seeds)} episodes")
-                with _bar(len(seeds), f"round {r} episodes", "episode", progress) as bar:
-                    episodes = collect(
-                        seeds,
-                        config.teacher,
-                        None if expert else str(model_file),
-                        config.noise_model,
-                        config.task_options,
-                        config.workers,
-                        task=config.task,
-                        cable_ranges=config.cable_ranges,
-                        teacher_search=config.teacher_search,
-                        expert_smoothing=config.expert_smoothing,
-                        commit_decision=config.teacher_commit_decision,
-                        search_candidates=config.search_candidates,
-                        on_episode=_success_counter(bar),
-                    )
+                episodes = _collect_round(config, r, model_file, log, progress)
                 episodes.save(round_file)
             collect_s = time.monotonic() - start
             data.append(episodes)
@@ -338,17 +285,7 @@ def distill(
             model.save(model_file)
             shutil.copyfile(model_file, out / f"model_round{r}.zip")  # every round's student stays selectable
             entry = {
-                "round": r,
-                "acting": "expert" if config.expert_acts(r) else f"student of round {r - 1}",
-                "episodes": int(len(episodes.successes)),
-                "samples": int(len(episodes.actions)),
-                "total_samples": int(sum(len(d.actions) for d in data)),
-                "success_rate": float(np.mean(episodes.successes)),
-                "avoid_rate": float(np.mean(episodes.avoided)),
-                "expert_fit_rms_mm": float(1000 * np.median(episodes.fit_rms_m)),
-                "replanned_labels": int(episodes.replans.sum()),
-                "obs_noise": config.noise_model,  # what the fit saw every round through
-                **losses,
+                **_round_entry(config, r, episodes, data, losses),
                 "collect_s": round(collect_s, 1),
                 "wall_s": round(time.monotonic() - start, 1),
             }
@@ -369,6 +306,104 @@ def distill(
     finally:
         env.close()
     return history
+
+
+def _stored_history(config: DistillConfig, out: Path, log: Callable[[str], Any]) -> list[dict[str, Any]]:
+    """The finished rounds of the run in ``out``, after checking that ``config`` may resume it.
+
+    Raises:
+        FileNotFoundError: ``out`` holds no run.
+        ValueError: The run used a removed option, holds another configuration, or a finished round would
+            change its kind.
+    """
+    from dyndlo_vision.tasks.noise import portable_noise_model
+
+    config_file, history_file = out / "config.json", out / "history.json"
+    if not config_file.is_file():
+        raise FileNotFoundError(f"nothing to resume: {config_file} does not exist")
+    stored = {**_LATER_OPTIONS, **json.loads(config_file.read_text())}
+    for name, default in _REMOVED_OPTIONS.items():
+        if stored.pop(name, default) != default:
+            raise ValueError(f"{config_file}: the run used {name}, an option this version no longer has "
+                             "(it made the students worse); it cannot be resumed")
+    # A run stored before "packaged" was kept as the word holds the shipped model's path in its install.
+    stored["noise_model"] = portable_noise_model(stored.get("noise_model"))
+    wanted = json.loads(json.dumps(config.to_json()))
+    if {k: v for k, v in stored.items() if k not in _CHANGEABLE_OPTIONS} != {
+        k: v for k, v in wanted.items() if k not in _CHANGEABLE_OPTIONS
+    }:
+        raise ValueError(
+            f"{config_file} holds another configuration ({stored}); resume with the same options "
+            "(only --rounds, --expert-rounds, --workers and --obs-noise may change)"
+        )
+    if stored["noise_model"] != wanted["noise_model"]:
+        log(f"noise model changed from {stored['noise_model']} to {wanted['noise_model']}: the student "
+            "is fitted on every round's observations drawn again through the new one")
+    history: list[dict[str, Any]] = json.loads(history_file.read_text()) if history_file.is_file() else []
+    for entry in history:  # a finished round's kind cannot be changed afterwards
+        was_expert = entry["acting"] == "expert"
+        if was_expert != config.expert_acts(int(entry["round"])):
+            raise ValueError(
+                f"round {entry['round']} of {out} was {'an expert' if was_expert else 'a DAgger'} round; "
+                f"expert_rounds={config.expert_rounds} would make it "
+                f"{'a DAgger' if was_expert else 'an expert'} round"
+            )
+    return history
+
+
+def _new_run_history(out: Path) -> list[dict[str, Any]]:
+    """No rounds yet, after checking that ``out`` can hold a new run (new or empty folder).
+
+    Raises:
+        ValueError: ``out`` is a file or a folder that is not empty.
+    """
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{out} is a file; expected a run folder")
+    if out.exists() and any(out.iterdir()):
+        raise ValueError(f"{out} exists and is not empty; use --resume or another --out")
+    return []
+
+
+def _collect_round(config: DistillConfig, r: int, model_file: Path, log: Callable[[str], Any],
+                   progress: bool) -> Episodes:
+    """Round ``r``'s episodes: the expert acts in an expert round, else the student in ``model_file``."""
+    seeds = config.round_seeds(r)
+    expert = config.expert_acts(r)
+    log(f"round {r}: {'expert' if expert else 'student'} acts, {len(seeds)} episodes")
+    with _bar(len(seeds), f"round {r} episodes", "episode", progress) as bar:
+        return collect(
+            seeds,
+            config.teacher,
+            None if expert else str(model_file),
+            config.noise_model,
+            config.task_options,
+            config.workers,
+            task=config.task,
+            cable_ranges=config.cable_ranges,
+            teacher_search=config.teacher_search,
+            expert_smoothing=config.expert_smoothing,
+            commit_decision=config.teacher_commit_decision,
+            search_candidates=config.search_candidates,
+            on_episode=_success_counter(bar),
+        )
+
+
+def _round_entry(config: DistillConfig, r: int, episodes: Episodes, data: list[Episodes],
+                 losses: dict[str, float]) -> dict[str, Any]:
+    """Round ``r``'s line of ``history.json``, but for its times."""
+    return {
+        "round": r,
+        "acting": "expert" if config.expert_acts(r) else f"student of round {r - 1}",
+        "episodes": int(len(episodes.successes)),
+        "samples": int(len(episodes.actions)),
+        "total_samples": int(sum(len(d.actions) for d in data)),
+        "success_rate": float(np.mean(episodes.successes)),
+        "avoid_rate": float(np.mean(episodes.avoided)),
+        "expert_fit_rms_mm": float(1000 * np.median(episodes.fit_rms_m)),
+        "replanned_labels": int(episodes.replans.sum()),
+        "obs_noise": config.noise_model,  # what the fit saw every round through
+        **losses,
+    }
 
 
 def _bar(total: int, desc: str, unit: str, progress: bool) -> Any:
