@@ -24,9 +24,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from label_conflict import episode_cables, load_rounds  # the run's cables, drawn again from its seeds
 
 import dyndlo_vision  # noqa: F401  (before mujoco)
+from dyndlo_vision.learning.distill import episode_cables, load_rounds  # the run's cables, from its seeds
 
 P_DLO = slice(6, 9)  # table II for one gripper: TCP position (3), velocity (3), P_DLO (3), goal (3)
 

@@ -1,4 +1,4 @@
-"""Divergence and stretch of the cable under random actions, per task and mode (issue 15, step 2).
+"""Divergence and stretch of the cable under random actions, per task and mode.
 
 For every task and mode, runs ``--episodes`` episodes with uniformly random actions (the agent's exploration)
 and counts:
@@ -15,8 +15,10 @@ and counts:
 * torn (vaulting): episodes ended because the TCP went farther from the support than the cable is long
   (``info["avoid"]["torn"]``), which the environment stops before the chain is dragged off its support.
 
-    python benchmarks/chain_robustness.py [--model chain] [--episodes 1000] [--tasks TipControl Hooking]
-        [--modes single multi] [--damping S] [--integrator discrete] [--solver CG] [--json out.json]
+    python benchmarks/chain_robustness.py [--model chain] [--episodes 1000] [--tasks tip-control hooking]
+        [--modes single multi] [--damping S] [--integrator discrete] [--solver CG] [--json out.json] [--quick]
+
+``--quick``: 1 episode per task and mode.
 
 Prints one markdown row per task and mode, and a JSON summary with ``--json``.
 """
@@ -152,7 +154,10 @@ def main() -> None:
     parser.add_argument("--timestep", type=float, default=None)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", help="write the results here")
+    parser.add_argument("--quick", action="store_true", help="1 episode per task and mode")
     args = parser.parse_args()
+    if args.quick:
+        args.episodes = 1
     mujoco.set_mju_user_warning(_count_warning)
     print(f"# {platform.machine()}, {os.cpu_count()} cpus; mujoco {mujoco.__version__}; "
           f"{' '.join(sys.argv[1:])}", flush=True)

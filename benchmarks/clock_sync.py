@@ -31,7 +31,10 @@ PERIOD_S = 0.04
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seconds", type=float, default=5.0, help="how long to read pairs (default 5)")
+    parser.add_argument("--quick", action="store_true", help="read pairs for 1.5 s")
     args = parser.parse_args()
+    if args.quick:
+        args.seconds = 1.5
     if not args.seconds > 1.0:
         parser.error(f"--seconds must be > 1, got {args.seconds}")
     kin = ArmKinematics(abb_gofa_crb15000())

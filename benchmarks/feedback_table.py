@@ -1,4 +1,4 @@
-"""Issue 16's table: policies through the control loop on randomised cables, with success by stiffness and
+"""The feedback table: policies through the control loop on randomised cables, with success by stiffness and
 length tercile.
 
 Each row is one ``dyndlo-vision demo --randomize-cable --episodes N --quiet`` run in a subprocess, as a user
@@ -8,7 +8,9 @@ cables the seeds draw (the same for every row of one range: the cable is drawn f
 
     python benchmarks/feedback_table.py --out /tmp/fb [--task tip-control] [--ranges beyond,training]
         [--rows "single=tip-control-single-step:true;ms=tip-control-multi-step:true,tracked,frozen"]
-        [--extra="--push 0.2,-0.002,0,0"]
+        [--extra="--push 0.2,-0.002,0,0"] [--quick]
+
+``--quick``: 1 episode, the first range, each row's first observation only (a check that it runs).
 
 Writes ``OUT/<ranges>-<row>-<observation>/`` (the demo's outputs) and ``OUT/table.json``; prints the table
 as Markdown.
@@ -59,13 +61,19 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=100000)
     ap.add_argument("--extra", default="",
                     help="more demo options for every row, given as --extra='--push 0.2,-0.002,0,0'")
+    ap.add_argument("--quick", action="store_true", help="1 episode, the first range, first observations")
     args = ap.parse_args()
+    ranges_list = args.ranges.split(",")
+    rows_spec = parse_rows(args.rows or DEFAULT_ROWS[args.task])
+    if args.quick:
+        args.episodes, ranges_list = 1, ranges_list[:1]
+        rows_spec = [(name, policy, observations[:1]) for name, policy, observations in rows_spec]
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     table = {"machine": f"{platform.machine()} {platform.processor() or ''}".strip(), "task": args.task,
              "episodes": args.episodes, "seed": args.seed, "rows": []}
-    for ranges in args.ranges.split(","):
-        for name, policy, observations in parse_rows(args.rows or DEFAULT_ROWS[args.task]):
+    for ranges in ranges_list:
+        for name, policy, observations in rows_spec:
             for obs in observations:
                 run = out / f"{ranges}-{name}-{obs}"
                 cmd = [sys.executable, "-m", "dyndlo_vision", "demo", "--task", args.task, "--policy", policy,
@@ -86,7 +94,7 @@ def main() -> int:
                     "estimate_rmse_m_median": m["estimate_rmse_m_median"], "cycle_ms_p95": m["cycle_ms_p95"],
                 })
     (out / "table.json").write_text(json.dumps(table, indent=1))
-    for ranges in args.ranges.split(","):
+    for ranges in ranges_list:
         rows = [r for r in table["rows"] if r["ranges"] == ranges]
         young = np.array(rows[0]["young_pa"])
         length = np.array(rows[0]["length_m"])

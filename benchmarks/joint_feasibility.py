@@ -1,4 +1,4 @@
-"""What judging plans on a real arm costs per episode, and how many plans pass (issue 18).
+"""What judging plans on a real arm costs per episode, and how many plans pass.
 
 For each seed, the same action is stepped in a tip-control environment without an arm and in one with the
 arm (``make_env(robot=...)``): the step's wall time with and without the check, and the verdict. Random
@@ -32,7 +32,10 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=100_000)
     parser.add_argument("--policy", default="tip-control-single-step", help="shipped name or .zip")
     parser.add_argument("--out", default=None, help="JSON file for the figures")
+    parser.add_argument("--quick", action="store_true", help="3 episodes (a check that it runs)")
     args = parser.parse_args()
+    if args.quick:
+        args.episodes = 3
 
     plain = make_env("tip-control")
     judged = make_env("tip-control", robot=args.robot)

@@ -4,7 +4,9 @@ Task IV starts from the same state every episode and its goal is fixed, so a det
 same episode every time: one episode each is the comparison. The geometric baseline
 (``dyndlo_vision.tasks.baselines.GeometricLift``) gets the planned trajectory time of the learned plan.
 
-    python benchmarks/task4_vs_geometric.py POLICY.zip [--target up|down] [--layout diagonal|vertical]
+    python benchmarks/task4_vs_geometric.py POLICY [--target up|down] [--layout diagonal|vertical] [--quick]
+
+``--quick`` runs the same comparison: one episode each is all there is.
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ def main() -> None:
     parser.add_argument("policy")
     parser.add_argument("--target", default="up", choices=["up", "down"])
     parser.add_argument("--layout", default="diagonal", choices=["diagonal", "vertical"])
+    parser.add_argument("--quick", action="store_true", help="the same (one episode each is the comparison)")
     args = parser.parse_args()
     env = gym.make("DynDLO/TimeOscillation-v0", target=args.target, layout=args.layout)
     model = policies.load(args.policy, env=env)

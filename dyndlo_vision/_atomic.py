@@ -2,26 +2,17 @@
 
 from __future__ import annotations
 
-import logging
 import os
 import shutil
 import signal
 import tempfile
 import threading
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-log = logging.getLogger(__name__)
-
-#: MP4 codecs tried in order: H.264 plays in browsers and editors; MPEG-4 Part 2 ("mp4v") is in every OpenCV
-#: build with FFmpeg, but browsers and some editors refuse it. (The opencv-python wheels' FFmpeg has no
-#: software H.264 encoder, only Video4Linux hardware ones, so on most machines the fallback is what you get.)
-VIDEO_CODECS = ("avc1", "mp4v")
-
 _UMASK_LOCK = threading.Lock()
-_codec_cache: dict[str, bool] = {}
 
 
 def current_umask() -> int:
@@ -148,114 +139,13 @@ def _existing_ancestor(path: Path) -> Path:
     return Path(".")
 
 
-def video_codec_available(fourcc: str) -> bool:
-    """Whether this OpenCV build can write MP4 with ``fourcc`` (probed once in a temporary file, cached).
-
-    FFmpeg and OpenCV report a missing encoder on stderr (several lines per try); the probe silences
-    stderr while it runs, since not finding H.264 is the expected case with the opencv-python wheels.
-
-    Raises:
-        ValueError: ``fourcc`` is not four characters.
-    """
-    if len(fourcc) != 4:
-        raise ValueError(f"a FourCC code is four characters, got {fourcc!r}")
-    if fourcc not in _codec_cache:
-        import cv2
-        import numpy as np
-
-        with tempfile.TemporaryDirectory() as tmp, _quiet_stderr():
-            writer = cv2.VideoWriter(str(Path(tmp) / "probe.mp4"), cv2.VideoWriter_fourcc(*fourcc), 25.0,
-                                     (64, 48))
-            ok = bool(writer.isOpened())
-            if ok:
-                writer.write(np.zeros((48, 64, 3), dtype=np.uint8))
-            writer.release()
-        _codec_cache[fourcc] = ok
-        log.debug("MP4 codec %s: %s", fourcc, "available" if ok else "not available")
-    return _codec_cache[fourcc]
-
-
-def write_video_atomic(path: Path, frames: Sequence[Any], fps: float = 25.0, rgb: bool = True) -> str:
-    """Write equally sized uint8 frames (RGB, or BGR with ``rgb=False``) to an MP4, atomically.
-
-    H.264 when this OpenCV build can encode it, else MPEG-4 Part 2 (see :data:`VIDEO_CODECS`).
-
-    Returns:
-        The codec written (``"avc1"`` or ``"mp4v"``).
-
-    Raises:
-        ValueError: No frames, or frames that are not all (H, W, 3) uint8 of the first frame's size.
-        RuntimeError: OpenCV cannot write MP4 here.
-    """
-    import cv2
-    import numpy as np
-
-    if not frames:
-        raise ValueError(f"no frames to write to {path}")
-    h, w = frames[0].shape[:2]
-    for i, frame in enumerate(frames):
-        # OpenCV drops a frame of another size without a word: the video would silently be short.
-        if frame.shape != (h, w, 3) or frame.dtype != np.uint8:
-            raise ValueError(
-                f"frame {i} is {frame.shape} {frame.dtype}; expected ({h}, {w}, 3) uint8 like frame 0"
-            )
-    codecs = [c for c in VIDEO_CODECS if video_codec_available(c)]
-    if not codecs:
-        raise RuntimeError(f"OpenCV cannot write MP4 here with any of {list(VIDEO_CODECS)}")
-    used: list[str] = []
-
-    def write(tmp: str) -> None:
-        for fourcc in codecs:
-            # An encoder that opened for the probe's size may still refuse this one (H.264 wants even sizes).
-            with _quiet_stderr():
-                writer = cv2.VideoWriter(tmp, cv2.VideoWriter_fourcc(*fourcc), fps, (w, h))
-            if writer.isOpened():
-                break
-        else:
-            raise RuntimeError(f"OpenCV cannot write a {w}x{h} MP4 with any of {codecs} to {tmp}")
-        try:
-            for frame in frames:
-                writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR) if rgb else frame)
-        finally:
-            writer.release()
-        used.append(fourcc)
-
-    write_atomic(Path(path), write)
-    return used[-1]
-
-
-@contextmanager
-def _quiet_stderr() -> Iterator[None]:
-    """Send file descriptor 2 to /dev/null for the block (C libraries write there, not to ``sys.stderr``).
-
-    For a moment only (opening a writer): what other threads write to stderr meanwhile is lost too.
-    """
-    import sys
-
-    try:
-        sys.stderr.flush()
-        saved: int | None = os.dup(2)
-    except (OSError, ValueError):  # no usable stderr (closed or replaced): nothing to silence
-        saved = None
-    if saved is None:
-        yield
-        return
-    try:
-        with open(os.devnull, "w") as devnull:
-            os.dup2(devnull.fileno(), 2)
-        yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
-
-
 @contextmanager
 def interrupts_held() -> Iterator[None]:
     """Hold SIGINT and SIGTERM for the block; if one came, raise KeyboardInterrupt when the block is done.
 
     For checkpoint writes. A Ctrl-C that lands inside torch's zip writer cuts the file, and the writer's
     clean-up then raises its own RuntimeError in place of the KeyboardInterrupt: ``train`` exited 1 instead
-    of 130, with no resume hint (a CI run, session 32). Outside the main thread, where signals cannot be
+    of 130, with no resume hint (seen in CI). Outside the main thread, where signals cannot be
     handled, the block runs as it is.
     """
     if threading.current_thread() is not threading.main_thread():

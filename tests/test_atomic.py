@@ -1,4 +1,4 @@
-"""Atomic writes: whole files with the umask's mode, no partial outputs, MP4 with the best codec there is."""
+"""Atomic writes: whole files with the umask's mode, no partial outputs."""
 
 from __future__ import annotations
 
@@ -7,23 +7,11 @@ import stat
 from collections.abc import Iterator
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
-from dyndlo_vision import _atomic
-from dyndlo_vision._atomic import (
-    VIDEO_CODECS,
-    check_output_folder,
-    current_umask,
-    staged_folder,
-    video_codec_available,
-    write_atomic,
-    write_video_atomic,
-)
-
-# What OpenCV reports as CAP_PROP_FOURCC when it reads back a file written with each codec.
-READ_BACK_FOURCC = {"avc1": {"avc1", "h264", "H264"}, "mp4v": {"FMP4", "mp4v"}, "vp09": {"VP90", "vp09"}}
+from dyndlo_vision._atomic import check_output_folder, current_umask, staged_folder, write_atomic
+from dyndlo_vision._video import write_video_atomic
 
 
 @pytest.fixture
@@ -138,55 +126,3 @@ def test_check_output_folder_names_the_file_in_the_way(tmp_path: Path) -> None:
     check_output_folder(tmp_path)
     check_output_folder(tmp_path / "new" / "out")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["f"]  # checking creates nothing
-
-
-def test_video_is_written_with_the_first_codec_the_build_has(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    monkeypatch.setattr(_atomic, "_codec_cache", {})
-    codec = write_video_atomic(tmp_path / "v.mp4", frames(5))
-    expected = next(c for c in VIDEO_CODECS if video_codec_available(c))
-    assert codec == expected and codec in ("avc1", "mp4v")
-    cap = cv2.VideoCapture(str(tmp_path / "v.mp4"))
-    fourcc = int(cap.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, "little").decode()
-    assert fourcc in READ_BACK_FOURCC[codec]
-    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 5
-    # The order is a preference: a codec listed first that the build has wins over mp4v. (VP9 stands in for
-    # H.264, which the opencv-python wheels cannot encode.)
-    monkeypatch.setattr(_atomic, "VIDEO_CODECS", ("zzzz", "vp09", "mp4v"))
-    if not video_codec_available("vp09"):
-        pytest.skip("this OpenCV build has no VP9 encoder either")
-    assert write_video_atomic(tmp_path / "v9.mp4", frames(5)) == "vp09"
-    cap = cv2.VideoCapture(str(tmp_path / "v9.mp4"))
-    assert int(cap.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, "little").decode() in READ_BACK_FOURCC["vp09"]
-    assert _atomic._codec_cache["zzzz"] is False
-
-
-def test_a_codec_that_probed_fine_but_refuses_the_size_falls_back(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    monkeypatch.setattr(_atomic, "VIDEO_CODECS", ("zzzz", "mp4v"))
-    monkeypatch.setattr(_atomic, "_codec_cache", {"zzzz": True, "mp4v": True})
-    assert write_video_atomic(tmp_path / "v.mp4", frames(3)) == "mp4v"
-    assert int(cv2.VideoCapture(str(tmp_path / "v.mp4")).get(cv2.CAP_PROP_FRAME_COUNT)) == 3
-
-
-def test_probing_a_missing_encoder_is_silent_and_cached(
-    capfd: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
-) -> None:
-    monkeypatch.setattr(_atomic, "_codec_cache", {})
-    capfd.readouterr()
-    video_codec_available("avc1")  # FFmpeg and OpenCV print several lines on stderr when it is missing
-    video_codec_available("zzzz")
-    assert capfd.readouterr().err == ""
-    assert set(_atomic._codec_cache) == {"avc1", "zzzz"}
-    with pytest.raises(ValueError, match="four characters, got 'h264x'"):
-        video_codec_available("h264x")
-
-
-def test_video_rejects_frames_it_would_silently_drop(tmp_path: Path) -> None:
-    with pytest.raises(ValueError, match="no frames"):
-        write_video_atomic(tmp_path / "v.mp4", [])
-    with pytest.raises(ValueError, match=r"frame 2 is \(40, 64, 3\) uint8; expected \(48, 64, 3\) uint8"):
-        write_video_atomic(tmp_path / "v.mp4", [*frames(2), np.zeros((40, 64, 3), np.uint8)])
-    assert list(tmp_path.iterdir()) == []

@@ -260,7 +260,13 @@ def test_demo_progress_bar_for_several_episodes_and_quiet_turns_it_off(
     assert "success rate 2/3" in captured.out
     metrics = json.loads((tmp_path / "a" / "metrics.json").read_text())
     assert metrics["success_rate"] == pytest.approx(2 / 3) and len(metrics["episodes"]) == 3
-    assert metrics["video"]["frames"] == 3 and metrics["video"]["codec"] in ("avc1", "mp4v")
+    assert metrics["video"]["frames"] == 3 and metrics["video"]["codec"] == "h264"
+    import av  # what browsers play: H.264 in yuv420p, as PyAV reads the file back
+
+    with av.open(str(tmp_path / "a" / "demo.mp4")) as container:
+        stream = container.streams.video[0]
+        assert (stream.codec_context.name, stream.codec_context.pix_fmt) == ("h264", "yuv420p")
+        assert sum(1 for _ in container.decode(stream)) == 3
 
 
 def test_demo_rejects_bad_input_and_writes_nothing(tmp_path: Path) -> None:

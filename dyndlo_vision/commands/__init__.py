@@ -13,7 +13,6 @@ COMMANDS: dict[str, str] = {
     "plot": "plot",
     "train": "train",
     "distill": "distill",
-    "gate": "gate",
     "seg-data": "seg_data",
     "seg-train": "seg_train",
     "segment": "segment",

@@ -24,7 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from dyndlo_vision._atomic import check_output_folder, staged_folder, write_atomic, write_video_atomic
+from dyndlo_vision._atomic import check_output_folder, staged_folder, write_atomic
+from dyndlo_vision._video import write_video_atomic
 
 HELP = "closed-loop tip control or vaulting in simulation on tracked state: video, plot and metrics"
 #: Tasks the demo runs: their scenes have a "tracking" camera placed for them and a shipped policy.
@@ -347,10 +348,6 @@ def run(args: argparse.Namespace) -> int:
                 raw=raw if i == 0 else None,
                 noise_model=noise_model,
             )
-            if isinstance(model, policies.GatedPolicy):  # whether its gate corrected, and how sure it was
-                record["gate_probability"] = model.last_gate_probability
-                record["gate_corrected"] = (model.last_gate_probability is not None
-                                            and model.last_gate_probability >= model.gate.threshold)
             episodes.append(record)
             bar.update(1)
             # tqdm.write keeps the line and the bar apart on a terminal (plain print otherwise).
@@ -405,7 +402,7 @@ def run(args: argparse.Namespace) -> int:
     keys = ("success", "final_distance_m", "estimate_rmse_m") if args.episodes == 1 else (
         "success_rate", "success_ci95", "final_distance_m_median", "estimate_rmse_m_median")
     print(json.dumps({k: metrics[k] for k in (*keys, "cycle_ms_p50", "cycle_ms_p95")}))
-    note = "" if codec == "avc1" else " (MPEG-4 Part 2: this OpenCV build has no H.264 encoder)"
+    note = "" if codec == "h264" else " (MPEG-4 Part 2: PyAV could not encode H.264 here)"
     print(f"wrote {out / 'demo.mp4'} ({len(video)} frames, {codec}{note}), {out / 'p_dlo.png'}, "
           f"{out / 'metrics.json'}")
     if raw is not None:

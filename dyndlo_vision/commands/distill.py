@@ -8,20 +8,8 @@ from pathlib import Path
 
 HELP = (
     "distil a single-step policy (tip control or vaulting) into a multi-step (re-planning) PPO policy by "
-    "imitation "
-    "(behaviour cloning, optional DAgger rounds); resumable"
+    "imitation (behaviour cloning, optional DAgger rounds); resumable"
 )
-
-
-def _search_candidates(text: str) -> str:
-    """``--search-candidates``: ``episode``, ``shared`` or ``line:N``, checked before anything runs."""
-    from dyndlo_vision.learning.distill import ReplanSearch
-
-    try:
-        ReplanSearch.line_offset(text)
-    except ValueError as err:
-        raise argparse.ArgumentTypeError(str(err)) from None
-    return text
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -42,8 +30,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--rounds",
         type=int,
         default=1,
-        help="rounds: the first --expert-rounds are behaviour cloning, later ones DAgger (default 1; see "
-        "docs/RESULTS.md)",
+        help="rounds: the first --expert-rounds are behaviour cloning, later ones DAgger (default 1; DAgger "
+        "rounds made every student worse, docs/guides/multi-step-policies.md)",
     )
     p.add_argument(
         "--expert-rounds",
@@ -76,18 +64,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--epochs", type=int, default=300, help="regression passes over the data per round (default 300)"
     )
     p.add_argument(
-        "--expert-speed-limit",
-        type=float,
-        default=None,
-        metavar="M_S",
-        help="penalise the expert's commanded TCP speeds above this (e.g. 1.7; default: off)",
-    )
-    p.add_argument(
         "--cable-ranges",
         choices=("training", "beyond"),
         default=None,
         help="draw every episode's cable from these ranges (training: evaluate --randomize-cable's; beyond: "
-        "issue 16's wider ones); default: the nominal cable",
+        "the wider ones of the feedback benchmark); default: the nominal cable",
     )
     p.add_argument(
         "--teacher-search",
@@ -102,51 +83,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="K",
         help="privileged teacher that commits late: follow the teacher's plan for K decisions, then correct "
         "it for the episode's cable and state by search in simulation; pick K from when P_DLO shows the "
-        "cable (benchmarks/cable_visibility.py); not with --teacher-search (default: off)",
+        "cable; not with --teacher-search (default: off)",
     )
     p.add_argument(
         "--search-candidates",
-        type=_search_candidates,
+        choices=("episode", "shared"),
         default="episode",
-        metavar="episode|shared|line:N",
-        help="the offsets the privileged search (--teacher-commit, --expert-replan) tries: new ones for "
-        "every episode (default); the same ones in every search, so that look-alike states get the same "
-        "correction (shared); or only lengths of 0.05-0.6 either way along the direction of shared offset N "
-        "(line:N, N = 0-47; 'ring R #i' of benchmarks/correction_directions.py is N = 12 (R - 1) + i), so "
-        "that every correction is one number",
-    )
-    p.add_argument(
-        "--student-noise",
-        type=float,
-        default=0.0,
-        metavar="SIGMA",
-        help="in DAgger rounds, add Gaussian noise of this standard deviation (normalised action units) to "
-        "the student's executed actions, so that the expert labels states off its path (default 0)",
-    )
-    p.add_argument(
-        "--dagger-beta",
-        type=float,
-        default=0.0,
-        metavar="BETA",
-        help="in DAgger rounds, execute the expert's action instead of the student's at each decision with "
-        "this probability, so the roll-in stays near the expert's plan (default 0: the student acts)",
-    )
-    p.add_argument(
-        "--expert-replan",
-        type=float,
-        default=None,
-        metavar="MM",
-        help="in DAgger rounds, where the expert cannot rejoin its plan (fit residual above MM, e.g. 2), "
-        "label with a re-plan searched from the student's state in simulation (privileged) and follow "
-        "that plan from then on (default: off; the plan-following label everywhere)",
-    )
-    p.add_argument(
-        "--expert-noise",
-        type=float,
-        default=0.0,
-        metavar="SIGMA",
-        help="in expert rounds after round 0, the same noise on the expert's executed actions (DART): its "
-        "labels then show how to rejoin its plan from near it (default 0)",
+        help="the offsets the late commitment's search (--teacher-commit) tries: new ones for every episode "
+        "(episode, default), or the same ones in every search, so that look-alike states get the same "
+        "correction (shared)",
     )
     p.add_argument(
         "--expert-smoothing",
@@ -163,28 +108,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="H",
         help="the student also reads P_DLO's velocity over the last 1..H decisions, from which it can tell "
         "how the cable moves (default 0: the table-II observation only)",
-    )
-    p.add_argument(
-        "--replan-anchor",
-        choices=("plan", "student"),
-        default="plan",
-        help="with --expert-replan: centre the search on the plan-following label where its residual exceeds "
-        "MM (plan, default), or on the student's own action at every decision it takes (student: its action "
-        "where coasting on it succeeds, else the nearest good correction; MM unused)",
-    )
-    p.add_argument(
-        "--replan-score",
-        choices=("coast", "student"),
-        default="coast",
-        help="with --expert-replan: score a candidate by coasting on its plan to the end (coast, default: "
-        "open loop), or with the student re-planning every decision after it (student: labels after which "
-        "the student's own feedback succeeds)",
-    )
-    p.add_argument(
-        "--decision-clock",
-        action="store_true",
-        help="the student also reads the time since the episode began (k x 40 ms at its k-th decision), so "
-        "that look-alike states at different phases of the expert's plan can get different actions",
     )
     p.add_argument(
         "--out", default=None, help="run folder (default: runs/<task>-multi-step-distill-s<seed>)"
@@ -222,20 +145,12 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         workers=args.workers,
         epochs=args.epochs,
-        expert_speed_limit_m_s=args.expert_speed_limit,
         cable_ranges=args.cable_ranges,
         teacher_search=args.teacher_search,
         teacher_commit_decision=args.teacher_commit,
         search_candidates=args.search_candidates,
-        student_noise=args.student_noise,
-        dagger_beta=args.dagger_beta,
-        expert_noise=args.expert_noise,
         p_dlo_history=args.p_dlo_history,
-        decision_clock=args.decision_clock,
         expert_smoothing=args.expert_smoothing,
-        expert_replan_mm=args.expert_replan,
-        expert_replan_anchor=args.replan_anchor,
-        expert_replan_score=args.replan_score,
     )
     out = Path(args.out or f"runs/{args.task}-multi-step-distill-s{args.seed}")
     try:

@@ -10,7 +10,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from dyndlo_vision._atomic import write_atomic, write_video_atomic
+from dyndlo_vision._atomic import write_atomic
+from dyndlo_vision._video import write_video_atomic
 
 HELP = "evaluate a policy (shipped name, .zip, 'geometric', 'flick-vault' or 'random') over N episodes"
 

@@ -34,7 +34,8 @@ from typing import Any
 
 import numpy as np
 
-from dyndlo_vision._atomic import check_output_folder, staged_folder, write_atomic, write_video_atomic
+from dyndlo_vision._atomic import check_output_folder, staged_folder, write_atomic
+from dyndlo_vision._video import write_video_atomic
 
 HELP = "tip control on a real arm (ABB EGM / UR RTDE) from a YAML config; --dry-run against fake controllers"
 

@@ -808,9 +808,9 @@ def _run(args: argparse.Namespace) -> int:
             writer = None
             if cfg.annotated is not None:
                 size = (source.width, source.height)
-                writer = cv2.VideoWriter(str(temps[1]), cv2.VideoWriter.fourcc(*"mp4v"), source.fps, size)
-                if not writer.isOpened():
-                    raise ValueError(f"OpenCV cannot write an MP4 video to {cfg.annotated}")
+                from dyndlo_vision._video import VideoWriter  # H.264 through PyAV, else mp4v
+
+                writer = VideoWriter(temps[1], source.fps, size)
             try:
                 with (
                     open(temps[0], "w", newline="", encoding="utf-8") as f,

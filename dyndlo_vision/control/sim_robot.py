@@ -87,8 +87,8 @@ class DelayedRobot:
     ``send`` executes, over the span the new setpoints cover, the setpoints sent so far shifted by the
     latency (sample and hold): the motion commanded for time ``t`` happens at ``t + latency_s``, while the
     planner goes on from the state it commanded, as with a real arm whose driver delays the commands. Before
-    the first setpoint is due, the first position is held at rest. Issue 16's optional disturbance; for a
-    robot whose clock is the simulator's (:class:`SimRobot`).
+    the first setpoint is due, the first position is held at rest. An optional disturbance
+    (``demo --actuation-latency-ms``); for a robot whose clock is the simulator's (:class:`SimRobot`).
 
     Raises:
         ValueError: A latency that is not a finite time in [0, 1] s.

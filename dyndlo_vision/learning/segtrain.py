@@ -9,7 +9,7 @@ output when it runs at 320x240, and comes out in fragments.
 Training computes the loss on the logits at the input's resolution exactly as they are made at run time
 (:func:`full_res_logits`), so what is trained is what runs. Inference runs through ``cv2.dnn`` on the
 exported ONNX file (:class:`dyndlo_vision.tracking.learned.LearnedSegmenter`): on one core it runs several
-times faster than torch (docs/RESULTS.md, "Learned cable segmenter").
+times faster than torch (``benchmarks/segmentation_generalisation.py``).
 
 Fine-tuning on labelled real photos (``--external``) mixes them into the batches; only the ``train`` half
 of :func:`external_split` is used, the other half is held out for reporting.

@@ -419,7 +419,7 @@ def close_vec_env(vec: Any, grace_s: float = 2.0) -> None:
     checkpoint and a resume hint) behind a traceback: stop the remaining workers instead.
 
     A Ctrl-C inside ``step_wait`` leaves the environment ``waiting`` with some workers' results already
-    read; close() would then wait for those again, for ever (a CI run hung so, session 27). So the results
+    read; close() would then wait for those again, for ever (a CI run hung so). So the results
     still on their way are read first, until none has arrived for ``grace_s``, and ``waiting`` is cleared.
     """
     if getattr(vec, "waiting", False) and getattr(vec, "remotes", None):

@@ -9,13 +9,9 @@ algorithm, training budget and the success rate it was measured at. stable-basel
 pickled Python objects: load only files you trust.
 
 A policy whose metadata has ``p_dlo_history`` H reads, besides the table-II observation, how P_DLO moved over
-the last H decisions (:class:`~dyndlo_vision.tasks.wrappers.PDloHistory`); one with ``decision_clock`` true
-also reads the time since the episode began (:class:`~dyndlo_vision.tasks.wrappers.DecisionClock`).
-:func:`load` returns such a policy as a :class:`HistoryPolicy`, which takes table-II observations like any
-other and keeps that history and clock itself: call its ``reset()`` at the start of every episode. One whose
-metadata also has ``correction_gate`` (``dyndlo-vision gate``) loads as a :class:`GatedPolicy`: at one
-decision a classifier on its input decides whether to add a fixed correction to its action
-(:mod:`dyndlo_vision.policies.correction_gate`).
+the last H decisions (:class:`~dyndlo_vision.tasks.wrappers.PDloHistory`). :func:`load` returns such a policy
+as a :class:`HistoryPolicy`, which takes table-II observations like any other and keeps that history itself:
+call its ``reset()`` at the start of every episode.
 """
 
 from __future__ import annotations
@@ -28,8 +24,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-
-from dyndlo_vision.policies.correction_gate import CorrectionGate
 
 #: The learning algorithms: name -> stable-baselines3 class name.
 ALGORITHMS: dict[str, str] = {"ppo": "PPO", "sac": "SAC"}
@@ -93,8 +87,7 @@ def resolve(name_or_path: str | Path) -> tuple[Path, dict[str, Any]]:
         config = json.loads((path.parent / "config.json").read_text())
         meta = {
             k: config[k]
-            for k in ("task", "multi_step", "algo", "timesteps", "env_options", "p_dlo_history",
-                      "decision_clock")
+            for k in ("task", "multi_step", "algo", "timesteps", "env_options", "p_dlo_history")
             if k in config
         }
         if "first_round_episodes" in config:  # a distill run's student (from before model_round<r>.json)
@@ -130,18 +123,12 @@ def load(name_or_path: str | Path, env: Any = None, algo: str | None = None) -> 
             errors.append(f"{cls.__name__}: {type(err).__name__}: {err}")
     else:
         raise ValueError(f"{path} could not be loaded as a stable-baselines3 policy: " + "; ".join(errors))
-    history, clock = int(meta.get("p_dlo_history") or 0), bool(meta.get("decision_clock"))
-    if meta.get("correction_gate") is not None:
-        if not (history or clock):
-            raise ValueError(f"{path}: a correction_gate needs a student with p_dlo_history or "
-                             "decision_clock (the gate reads how the cable moved)")
-        try:
-            gate = CorrectionGate.from_json(meta["correction_gate"])
-        except (TypeError, ValueError, KeyError) as err:
-            raise ValueError(f"{path}: bad correction_gate in its metadata: {err}") from None
-        model = GatedPolicy(model, gate, history, clock)
-    elif history or clock:
-        model = HistoryPolicy(model, history, clock)
+    for removed in ("decision_clock", "correction_gate"):  # experimental students' features, since removed
+        if meta.get(removed):
+            raise ValueError(f"{path}: its metadata asks for {removed}, which this version does not support")
+    history = int(meta.get("p_dlo_history") or 0)
+    if history:
+        model = HistoryPolicy(model, history)
     if env is not None:
         for space in ("observation_space", "action_space"):
             theirs, ours = getattr(model, space), getattr(env, space)
@@ -155,31 +142,30 @@ def load(name_or_path: str | Path, env: Any = None, algo: str | None = None) -> 
 class HistoryPolicy:
     """A stable-baselines3 model trained on observations with student features, fed table-II observations.
 
-    ``predict`` appends :class:`~dyndlo_vision.tasks.wrappers.StudentFeatures` (the P_DLO history and/or
-    the decision clock) to the observation it is given and remembers what they need; ``reset`` starts a new
-    episode (without it, the first decision of the next episode would see the jump from the last one's P_DLO
-    as motion, and its clock would run on). Its ``observation_space`` is the table-II one.
+    ``predict`` appends :class:`~dyndlo_vision.tasks.wrappers.StudentFeatures` (the P_DLO history) to the
+    observation it is given and remembers what they need; ``reset`` starts a new episode (without it, the
+    first decision of the next episode would see the jump from the last one's P_DLO as motion). Its
+    ``observation_space`` is the table-II one.
 
     Args:
         model: The stable-baselines3 model, whose observation has the features' values more than table II.
-        length: H, the history's number of periods (0: no history).
-        clock: Whether the model reads the decision clock.
+        length: H, the history's number of periods.
     """
 
-    def __init__(self, model: Any, length: int = 0, clock: bool = False) -> None:
+    def __init__(self, model: Any, length: int) -> None:
         import gymnasium as gym
 
         from dyndlo_vision.tasks.wrappers import StudentFeatures
 
         space = model.observation_space
         self.sb3_model = model
-        self.features = StudentFeatures.for_input_size(int(space.shape[0]), length, clock)
+        self.features = StudentFeatures.for_input_size(int(space.shape[0]), length)
         size = self.features.observation_size
         self.observation_space = gym.spaces.Box(space.low[:size], space.high[:size], dtype=space.dtype)
         self.action_space = model.action_space
 
     def reset(self, *_: Any) -> None:
-        """Forget the episode's history, restart its clock (extra arguments, e.g. an env, are ignored)."""
+        """Forget the episode's history (extra arguments, e.g. an env, are ignored)."""
         self.features.reset()
 
     def student_input(self, observation: Any) -> NDArray[np.float32]:
@@ -195,46 +181,3 @@ class HistoryPolicy:
     def predict(self, observation: Any, deterministic: bool = True, **kwargs: Any) -> tuple[Any, Any]:
         """The action for one table-II observation (not a batch), as ``model.predict`` gives it."""
         return self.sb3_model.predict(self.student_input(observation), deterministic=deterministic, **kwargs)
-
-
-class GatedPolicy(HistoryPolicy):
-    """A :class:`HistoryPolicy` whose late correction is decided by a :class:`CorrectionGate`.
-
-    The model reads a P_DLO history or the clock. Decisions are counted from :meth:`reset`, one per
-    :meth:`predict` call (as the decision clock counts them). At the gate's decision the model's action gets
-    the gate's correction (clipped to the action space); ``last_gate_probability`` keeps the gate's
-    probability then (None before it is asked).
-
-    Args:
-        model: The stable-baselines3 model (see :class:`HistoryPolicy`).
-        gate: The gate; its input size must be the model's.
-        length, clock: The model's features (see :class:`HistoryPolicy`).
-    """
-
-    def __init__(self, model: Any, gate: CorrectionGate, length: int = 0, clock: bool = False) -> None:
-        super().__init__(model, length, clock)
-        size, actions = int(model.observation_space.shape[0]), int(model.action_space.shape[0])
-        if gate.input_size != size or len(gate.direction) != actions:
-            raise ValueError(
-                f"correction gate for inputs of {gate.input_size} and actions of {len(gate.direction)} "
-                f"values; the model has {size} and {actions}"
-            )
-        self.gate = gate
-        self.decision = 0
-        self.last_gate_probability: float | None = None
-
-    def reset(self, *_: Any) -> None:
-        """A new episode: features afresh, decisions counted from 0."""
-        super().reset()
-        self.decision, self.last_gate_probability = 0, None
-
-    def predict(self, observation: Any, deterministic: bool = True, **kwargs: Any) -> tuple[Any, Any]:
-        """The model's action for one table-II observation, with the gate's correction at its decision."""
-        x = self.student_input(observation)
-        action, state = self.sb3_model.predict(x, deterministic=deterministic, **kwargs)
-        if self.decision == self.gate.decision:
-            self.last_gate_probability = self.gate.probability(x)
-            low, high = self.action_space.low, self.action_space.high
-            action = np.clip(action + self.gate.correction(x), low, high).astype(np.asarray(action).dtype)
-        self.decision += 1
-        return action, state

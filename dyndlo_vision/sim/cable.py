@@ -7,7 +7,7 @@ Two models of the cable (``CableParams.model``):
   the paper's own MuJoCo 3 model (docs/CHAIN.md).
 * ``"rod"``: a MuJoCo 4 discrete elastic rod, a 1D ``flexcomp`` with ``<elasticity>`` (bending and torsion).
   Its edges are held by soft equality constraints and stretch under fast motion (up to 15 % in tip control,
-  125 % in task IV at 40 ms decisions); it was the default before issue 15.
+  125 % in task IV at 40 ms decisions); it was the default before the chain.
 
 Defaults follow the DynDLO paper (section III-A and V-B):
 a 50 cm cable of 20 segments, 10 g, Young's modulus 2 MPa. The paper gives no radius; we take 2 mm, which
@@ -28,7 +28,8 @@ PAPER_LONG_CABLE = (0.90, 60)
 CABLE_MODELS = ("rod", "chain")
 #: Default damping of each model (``CableParams.damping_s`` / ``damping_quadratic_s2`` left as None).
 #: Chain: without the quadratic term it diverged in 5 of 50 random tip-control episodes at 1 ms; with these
-#: values 0 of 600 in tip control and hooking, 4 of 600 in task IV (docs/CHAIN.md, docs/RESULTS.md).
+#: values 0 of 600 in tip control and hooking, 4 of 600 in task IV (docs/CHAIN.md,
+#: ``benchmarks/chain_robustness.py``).
 DEFAULT_DAMPING_S = {"rod": 0.002, "chain": 0.005}
 DEFAULT_DAMPING_QUADRATIC_S2 = {"rod": 0.0, "chain": 0.05}
 

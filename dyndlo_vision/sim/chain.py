@@ -19,8 +19,9 @@ Elasticity per joint (discrete elastic rod energy with Voronoi length = segment 
 
 Integrator: the scenes' default, ``discrete`` at 1 ms (implicit in the joint springs, so the stiff twist DOFs,
 about 1000 rad/s, need no armature). ``implicitfast`` is 1.01-1.07x faster per step but diverged more often
-under random actions (73 of 300 task IV multi-step episodes against 3; docs/RESULTS.md, issue 15). The scene
-uses the dense constraint Jacobian for the chain (``PhysicsOptions.jacobian``; same physics, 1.1-1.3x).
+under random actions (73 of 300 task IV multi-step episodes against 3; ``benchmarks/chain_robustness.py``).
+The scene uses the dense constraint Jacobian for the chain (``PhysicsOptions.jacobian``; same physics,
+1.1-1.3x).
 
 Capsules collide with the floor and the props but not with each other (contype 2, conaffinity 1; the props
 have MuJoCo's default 1/1).

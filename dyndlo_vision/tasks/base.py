@@ -148,7 +148,7 @@ class Task(ABC):
 
 @dataclass(frozen=True)
 class CablePush:
-    """A disturbance in every episode: an impulse on one cable node at one instant (issue 16).
+    """A disturbance in every episode: an impulse on one cable node at one instant (``demo --push``).
 
     Attributes:
         time_s: When, in episode time; rounded up to the next monitor instant (2 ms).
@@ -224,7 +224,7 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         the episode ends there with the avoid condition ``joints``, scored on the state reached (a
         single-step episode: the cable never moved, so no success), and with an avoid term that grows with
         how far the plan breaks the limits (:data:`JOINT_EXCESS_CAP`; not in the paper, whose avoid term is
-        flat: with it, SAC learned plans the GoFa can follow more slowly; docs/RESULTS.md).
+        flat: with it, SAC learned plans the GoFa can follow more slowly).
         ``info["joint_feasible"]`` says whether every plan passed, ``info["joint_usage"]`` how close the last
         judged one came to the limits, and ``info["joint_limit_reason"]`` why a plan was refused.
 

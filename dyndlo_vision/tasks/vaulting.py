@@ -36,10 +36,10 @@ TRACKING_CAMERA = CameraPose.looking_at((0.70, -1.7, 0.90), (0.70, 0.0, 0.40))
 #: stretch of cable that lies in an epipolar plane (through both cameras): with the baseline in the y-z plane
 #: (a camera straight above) that is the cable hanging vertically from the lifted TCP, just where the middle
 #: is then, and the middle's estimate was off by up to 0.14 m. A baseline up and along +x leaves vertical and
-#: x-running cable well posed. Measured on randomised cables (`benchmarks/stereo_views.py`, docs/RESULTS.md,
-#: session 18), median RMSE of the middle: 46 mm from straight above (6 cables), 4.7 mm from (1.4, -1.2, 1.4)
-#: (where the box hides the cable's lower part as it is lifted), 4.6 mm from here (10 cables each; these with
-#: `StereoParams(smooth=5)`, 1.5 mm unsmoothed).
+#: x-running cable well posed. Measured on randomised cables (`benchmarks/stereo_views.py`), median RMSE of
+#: the middle: 46 mm from straight above (6 cables), 4.7 mm from (1.4, -1.2, 1.4) (where the box hides the
+#: cable's lower part as it is lifted), 4.6 mm from here (10 cables each; these with `StereoParams(smooth=5)`,
+#: 1.5 mm unsmoothed).
 SECOND_TRACKING_CAMERA = CameraPose.looking_at((1.3, -0.9, 1.8), (0.70, 0.0, 0.35))
 #: The cable passes the box's side at least this far from its mid-plane (half its 8 cm width plus 2 cm).
 MIN_SIDE_OFFSET_M = 0.06
@@ -163,8 +163,7 @@ def beyond_cable_reach(tcp_positions: NDArray[np.float64], length_m: float) -> b
     The cable's held end is the TCP and its far end is fixed at the support, so no TCP position farther from
     the support than the cable is long can be reached without tearing the cable or its support. In the
     simulation the support is a soft equality constraint, and a kinematic TCP simply drags the cable's end off
-    it (by up to 0.56 m in random single-step plans, 2.1 m in multi-step ones, where the chain then blows up;
-    docs/RESULTS.md).
+    it (by up to 0.56 m in random single-step plans, 2.1 m in multi-step ones, where the chain then blows up).
     """
     d = np.linalg.norm(np.asarray(tcp_positions, dtype=float) - np.asarray(SUPPORT_M), axis=-1)
     return bool(np.any(d > length_m))

@@ -11,9 +11,8 @@ reset every few episodes.
 
 :class:`PDloHistory` appends P_DLO's finite-difference velocities over the last few decisions to an
 observation (a pure function of the observations so far), for a student that must tell the cable from how it
-moves; :class:`DecisionClock` appends the time since the episode began, for a student whose expert's action
-depends on where in its plan the episode is. :class:`StudentFeatures` appends both, as a student's metadata
-asks; :class:`StudentFeaturesWrapper` (and :class:`PDloHistoryWrapper`) put them on an environment.
+moves. :class:`StudentFeatures` appends what a student's metadata asks for; :class:`StudentFeaturesWrapper`
+(and :class:`PDloHistoryWrapper`) put it on an environment.
 """
 
 from __future__ import annotations
@@ -33,7 +32,6 @@ from dyndlo_vision.tasks.noise import NoiseProcess, ObservationNoiseModel
 
 __all__ = [
     "CableRandomization",
-    "DecisionClock",
     "NoisyObservation",
     "PDloHistory",
     "PDloHistoryWrapper",
@@ -140,9 +138,9 @@ DEFAULT_CABLE_RANGES: dict[str, tuple[float, float]] = {
     "damping_s": (0.5, 2.0),
 }
 
-#: Issue 16's evaluation ranges, beyond the training ones: length 0.8-1.2x, mass 0.5-2x, Young's modulus
-#: 0.25-4x (0.5-8 MPa for the paper's 2 MPa cable) and damping 0.25-4x. For testing whether a policy copes
-#: with a cable it was not trained on; training uses :data:`DEFAULT_CABLE_RANGES`.
+#: The evaluation ranges beyond the training ones (``--cable-ranges beyond``): length 0.8-1.2x, mass 0.5-2x,
+#: Young's modulus 0.25-4x (0.5-8 MPa for the paper's 2 MPa cable) and damping 0.25-4x. For testing whether
+#: a policy copes with a cable it was not trained on; training uses :data:`DEFAULT_CABLE_RANGES`.
 BEYOND_TRAINING_CABLE_RANGES: dict[str, tuple[float, float]] = {
     "length_m": (0.8, 1.2),
     "mass_kg": (0.5, 2.0),
@@ -153,7 +151,7 @@ BEYOND_TRAINING_CABLE_RANGES: dict[str, tuple[float, float]] = {
 CABLE_RANGES = {"training": DEFAULT_CABLE_RANGES, "beyond": BEYOND_TRAINING_CABLE_RANGES}
 #: Where a task's scene cannot take a named range whole: vaulting's cable must pass the box's side on the
 #: floor on its way to the support, which takes at least 0.807 m (0.897x the paper's 0.9 m), so its "beyond"
-#: lengths start at 0.9x, the training ranges' low end; the other parameters are issue 16's.
+#: lengths start at 0.9x, the training ranges' low end; the other parameters are the beyond ranges'.
 TASK_CABLE_RANGES: dict[tuple[str, str], dict[str, tuple[float, float]]] = {
     ("vaulting", "beyond"): {**BEYOND_TRAINING_CABLE_RANGES, "length_m": (0.9, 1.2)},
 }
@@ -350,56 +348,19 @@ class PDloHistory(_EpisodeFeature):
         return np.concatenate([obs, self.features(obs[self.p_dlo]).astype(np.float32)])
 
 
-class DecisionClock(_EpisodeFeature):
-    """Appends the time since the episode began to an observation: ``k T`` at decision ``k`` (0 first).
-
-    The table-II observation says where the gripper and the cable are, not when: two decisions at different
-    phases of a throw can look alike and still need different re-plans, since a multi-step action re-plans the
-    whole rest of the trajectory and its timing. An expert that plans in time (a single-step plan followed, or
-    re-planned from the current state) labels such look-alike states differently, which a student without the
-    clock can only average. The clock counts the decisions since :meth:`reset`, one per call, so the control
-    loop and a simulator give the same value; it is not the cable's parameter. A loop cycle that does not call
-    the policy (its estimate lost) leaves the clock a period behind, as it leaves the P_DLO history.
-    Measured on tip control's DAgger labels (docs/RESULTS.md, session 21), their conflicts did not come from
-    time, and a student with the clock did no better.
-
-    Args:
-        control_period_s: T, the time between two decisions.
-    """
-
-    size = 1
-
-    def __init__(self, control_period_s: float = CONTROL_PERIOD_S) -> None:
-        if not control_period_s > 0:
-            raise ValueError(f"control period {control_period_s!r} s; expected a positive number")
-        self.period_s = float(control_period_s)
-        self._decisions = 0
-
-    def reset(self) -> None:
-        """The next observation is the episode's first (time 0)."""
-        self._decisions = 0
-
-    def __call__(self, observation: NDArray[np.floating[Any]]) -> NDArray[np.float32]:
-        """``observation`` with the time of this decision appended (one value more, in s)."""
-        t = self._decisions * self.period_s
-        self._decisions += 1
-        return np.concatenate([np.asarray(observation, dtype=np.float32), np.float32([t])])
-
-
 class StudentFeatures(_EpisodeFeature):
-    """What a student reads besides table II: :class:`PDloHistory`, then :class:`DecisionClock`.
+    """What a student reads besides table II: :class:`PDloHistory`.
 
     Args:
         observation_size: Values in the table-II observation (``6 n_g + 6``).
-        p_dlo_history: H of :class:`PDloHistory` (0: none).
-        clock: Append :class:`DecisionClock`.
+        p_dlo_history: H of :class:`PDloHistory` (at least 1).
         control_period_s: T, the time between two decisions.
 
     Raises:
-        ValueError: Neither feature asked for, or a bad H, period or observation size.
+        ValueError: No feature asked for, or a bad H, period or observation size.
     """
 
-    def __init__(self, observation_size: int, p_dlo_history: int = 0, clock: bool = False,
+    def __init__(self, observation_size: int, p_dlo_history: int = 0,
                  control_period_s: float = CONTROL_PERIOD_S) -> None:
         if isinstance(p_dlo_history, bool) or int(p_dlo_history) != p_dlo_history or p_dlo_history < 0:
             raise ValueError(f"P_DLO history length {p_dlo_history!r}; expected an integer >= 0 (0: none)")
@@ -407,19 +368,17 @@ class StudentFeatures(_EpisodeFeature):
         if p_dlo_history:
             self.parts.append(PDloHistory.for_observation_size(int(p_dlo_history), observation_size,
                                                                control_period_s))
-        if clock:
-            self.parts.append(DecisionClock(control_period_s))
         if not self.parts:
-            raise ValueError("no student feature asked for: give p_dlo_history >= 1 and/or clock=True")
+            raise ValueError("no student feature asked for: give p_dlo_history >= 1")
         self.observation_size = int(observation_size)
         self.size = sum(part.size for part in self.parts)
 
     @classmethod
-    def for_input_size(cls, input_size: int, p_dlo_history: int = 0, clock: bool = False,
+    def for_input_size(cls, input_size: int, p_dlo_history: int = 0,
                        control_period_s: float = CONTROL_PERIOD_S) -> StudentFeatures:
         """The features of a student whose input (table II, then the features) has ``input_size`` values."""
-        added = cls(12, p_dlo_history, clock, control_period_s).size  # the same for any table-II size
-        return cls(int(input_size) - added, p_dlo_history, clock, control_period_s)
+        added = cls(12, p_dlo_history, control_period_s).size  # the same for any table-II size
+        return cls(int(input_size) - added, p_dlo_history, control_period_s)
 
     def reset(self) -> None:
         """Every feature starts a new episode."""
@@ -448,15 +407,15 @@ class StudentFeaturesWrapper(
     """
 
     def __init__(self, env: gym.Env[NDArray[np.float32], NDArray[np.float32]], p_dlo_history: int = 0,
-                 clock: bool = False, control_period_s: float = CONTROL_PERIOD_S) -> None:
+                 control_period_s: float = CONTROL_PERIOD_S) -> None:
         gym.utils.RecordConstructorArgs.__init__(
-            self, p_dlo_history=p_dlo_history, clock=clock, control_period_s=control_period_s
+            self, p_dlo_history=p_dlo_history, control_period_s=control_period_s
         )
         gym.ObservationWrapper.__init__(self, env)
         shape = env.observation_space.shape
         if shape is None or len(shape) != 1:
             raise ValueError(f"expected a DynDLO observation vector, got observation shape {shape}")
-        self.features = StudentFeatures(shape[0], p_dlo_history, clock, control_period_s)
+        self.features = StudentFeatures(shape[0], p_dlo_history, control_period_s)
         base = env.observation_space
         assert isinstance(base, gym.spaces.Box)
         extra = np.full(self.features.size, np.inf, dtype=np.float32)

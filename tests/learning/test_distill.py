@@ -13,7 +13,8 @@ import pytest
 import dyndlo_vision  # noqa: F401
 from dyndlo_vision import policies
 from dyndlo_vision.cli import main
-from dyndlo_vision.learning import distill as distill_module
+from dyndlo_vision.learning.distill import collection as collection_module
+from dyndlo_vision.learning.distill import run as distill_module
 from dyndlo_vision.learning.distill import (
     CableSearchTeacher,
     DistillConfig,
@@ -23,7 +24,7 @@ from dyndlo_vision.learning.distill import (
     ReplanSearch,
     collect,
     distill,
-    run_mixed_episode,
+    run_episode,
 )
 from dyndlo_vision.trajectory import ActionSpec, BSplineTrajectory
 
@@ -55,7 +56,7 @@ def test_expert_replan_follows_the_reference_over_the_next_period() -> None:
     for t in (0.04, 0.2, 0.48):
         for _ in range(5):
             plan = rng.uniform(-1, 1, SPEC.size)
-            expert = PlanFollowingExpert(SPEC, speed_limit_m_s=None)
+            expert = PlanFollowingExpert(SPEC)
             expert.start(plan, HOME)
             ref = expert.reference
             p0, v0 = ref.position(t), ref.velocity(t)
@@ -75,29 +76,6 @@ def test_expert_replan_follows_the_reference_over_the_next_period() -> None:
     assert np.median(fitted) < np.median(unchanged) / 3, (fitted, unchanged)
 
 
-def test_expert_speed_limit_keeps_replans_below_vmax() -> None:
-    """With the speed penalty, re-plans of plans far above v_max are much slower (without: they copy them)."""
-    rng = np.random.default_rng(1)
-    peaks = {None: [], 1.7: []}
-    for _ in range(6):
-        # Long increments in the shortest intervals: up to 0.25 m in 0.1 s.
-        plan = np.concatenate([rng.choice([-1.0, 1.0], 6), rng.uniform(-1.0, -0.6, 3)])
-        for limit in peaks:
-            expert = PlanFollowingExpert(SPEC, speed_limit_m_s=limit)
-            expert.start(plan, HOME)
-            ref = expert.reference
-            t = 0.04
-            action = expert.act(t, ref.position(t), ref.velocity(t))
-            points, times = SPEC.decode(action, ref.position(t), t)
-            replan = BSplineTrajectory(points, times, start_velocity=ref.velocity(t))
-            ts = np.linspace(t + 0.04, times[-1], 200)
-            peaks[limit].append(float(np.linalg.norm(replan.velocity(ts), axis=1).max()))
-    fast = [i for i, p in enumerate(peaks[None]) if p > 2.0]
-    assert fast, peaks  # random plans do break the limit
-    for i in fast:  # a soft penalty: it trades speed against staying on the plan
-        assert peaks[1.7][i] < 0.75 * peaks[None][i], peaks
-
-
 def test_expert_needs_a_plan_and_a_plain_spec() -> None:
     with pytest.raises(RuntimeError, match="start"):
         PlanFollowingExpert(SPEC).act(0.04, HOME, np.zeros(3))
@@ -110,7 +88,7 @@ def test_expert_episode_hits_like_the_teacher() -> None:
     """The expert (re-planning every 40 ms) hits the target in an episode the teacher hits in single-step."""
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
     teacher = PolicyTeacher(policies.load("tip-control-single-step"))
-    ep = run_mixed_episode(env, teacher, PlanFollowingExpert(env.unwrapped.spec_actions), seed=100001)
+    ep = run_episode(env, teacher, PlanFollowingExpert(env.unwrapped.spec_actions), seed=100001)
     assert ep["success"] and not ep["avoid"]
     assert ep["observations"].shape == ep["true_observations"].shape == (len(ep["actions"]), 12)
     assert np.array_equal(ep["observations"], ep["true_observations"])  # no noise model
@@ -181,8 +159,8 @@ def test_expert_smoothing_gives_labels_a_student_can_fit_and_keeps_the_plan() ->
 
 
 def test_collect_gives_the_expert_its_smoothing() -> None:
-    plain = collect([7], "tip-control-single-step", None, 1.0)
-    smooth = collect([7], "tip-control-single-step", None, 1.0, expert_smoothing=0.1)
+    plain = collect([7], "tip-control-single-step")
+    smooth = collect([7], "tip-control-single-step", expert_smoothing=0.1)
     assert np.allclose(plain.actions[0], smooth.actions[0])  # the first label is the plan itself
     assert not np.allclose(plain.actions[1:3], smooth.actions[1:3], atol=1e-3)
 
@@ -194,35 +172,14 @@ def test_config_rejects_bad_values() -> None:
         DistillConfig(seed=0)
     with pytest.raises(ValueError, match="net_arch"):
         DistillConfig(net_arch=(0,))
-    with pytest.raises(ValueError, match="expert_speed_limit_m_s"):
-        DistillConfig(expert_speed_limit_m_s=0.0)
     assert DistillConfig(seed=2).round_seeds(1)[:2] == [2_010_000, 2_010_001]
     with pytest.raises(ValueError, match="'wide'"):
         DistillConfig(cable_ranges="wide")
-    with pytest.raises(ValueError, match="student_noise"):
-        DistillConfig(student_noise=-0.1)
-    for beta in (-0.1, 1.0, True):
-        with pytest.raises(ValueError, match="dagger_beta"):
-            DistillConfig(dagger_beta=beta)
-
-
-def test_dagger_rounds_execute_the_experts_action_with_probability_beta(tmp_path, monkeypatch) -> None:
-    """--dagger-beta reaches the DAgger round's episodes (the expert round always executes the expert's)."""
-    import dyndlo_vision.learning.distill as distill_module
-
-    betas: list[float] = []
-    real_collect = distill_module.collect
-
-    def recording(seeds: Any, teacher: Any, student: Any, beta: float, *args: Any, **kwargs: Any) -> Any:
-        betas.append(beta)
-        return real_collect(seeds, teacher, student, beta, *args, **kwargs)
-
-    monkeypatch.setattr(distill_module, "collect", recording)
-    config = DistillConfig(rounds=2, episodes=1, first_round_episodes=1, workers=1, epochs=1, seed=7,
-                           dagger_beta=0.5)
-    distill(config, tmp_path / "run", log=lambda *_: None)
-    assert betas == [1.0, 0.5]
-    assert json.loads((tmp_path / "run" / "model.json").read_text())["dagger_beta"] == 0.5
+    for smoothing in (-0.1, True, float("inf")):
+        with pytest.raises(ValueError, match="expert_smoothing"):
+            DistillConfig(expert_smoothing=smoothing)
+    with pytest.raises(TypeError, match="dagger_beta"):  # removed options are not accepted
+        DistillConfig(dagger_beta=0.5)
 
 
 def _beyond_episode(seed: int) -> tuple[Any, Any, np.ndarray]:
@@ -351,23 +308,26 @@ def test_distill_on_random_cables_with_the_privileged_teacher(tmp_path) -> None:
     stored = json.loads((old / "config.json").read_text())
     assert stored["noise_model"] == "packaged"
     stored["noise_model"] = "/tmp/another-copy/dyndlo_vision/data/noise_model_tracking.json"
-    for key in ("cable_ranges", "teacher_search", "student_noise", "expert_rounds"):
+    for key in ("cable_ranges", "teacher_search", "expert_rounds"):
         del stored[key]
+    stored["dagger_beta"] = 0.0  # a removed option, at the value that meant "off"
     (old / "config.json").write_text(json.dumps(stored))
     history = distill(DistillConfig(**{**plain.__dict__, "rounds": 2}), old, resume=True,
                       log=lambda *_: None)
     assert len(history) == 2
+    # a run that used a removed option is refused with its name, and left as it was
+    stored = json.loads((old / "config.json").read_text())
+    (old / "config.json").write_text(json.dumps({**stored, "expert_replan_mm": 2.0}))
+    with pytest.raises(ValueError, match="expert_replan_mm"):
+        distill(DistillConfig(**{**plain.__dict__, "rounds": 3}), old, resume=True, log=lambda *_: None)
+    assert len(json.loads((old / "history.json").read_text())) == 2
 
 
 @pytest.mark.slow
 def test_distill_adds_expert_rounds_to_a_finished_run(tmp_path) -> None:
-    """Resuming with more --expert-rounds adds behaviour-cloning data on new seeds; the student never acts.
-    --expert-noise perturbs the expert's executed actions in those rounds only (round 0 stays clean), and its
-    labels stay the expert's own."""
+    """Resuming with more --expert-rounds adds behaviour-cloning data on new seeds; the student never acts."""
     out = tmp_path / "run"
-    config = DistillConfig(
-        rounds=1, episodes=5, first_round_episodes=2, workers=1, epochs=2, seed=7, expert_noise=0.3
-    )
+    config = DistillConfig(rounds=1, episodes=5, first_round_episodes=2, workers=1, epochs=2, seed=7)
     distill(config, out, log=lambda *_: None)
     more = DistillConfig(**{**config.__dict__, "rounds": 2, "expert_rounds": 2})
     history = distill(more, out, resume=True, log=lambda *_: None)
@@ -384,17 +344,11 @@ def test_distill_adds_expert_rounds_to_a_finished_run(tmp_path) -> None:
 
     round0, round1 = Episodes.load(out / "round0.npz"), Episodes.load(out / "round1.npz")
     assert set(np.unique(round1.seeds)) == {7_010_000, 7_010_001}
-    clean0 = collect([7_000_000, 7_000_001], config.teacher, None, 1.0, round_index=0)
-    assert np.array_equal(round0.true_observations, clean0.true_observations)  # round 0: no noise
-    # Round 1: the expert executed every decision, with the noise: its own noisy roll-out gives the same data.
-    noisy1 = collect([7_010_000, 7_010_001], config.teacher, None, 1.0, round_index=1, expert_noise=0.3)
-    assert np.array_equal(round1.true_observations, noisy1.true_observations)
-    assert np.allclose(round1.actions, noisy1.actions)
-    clean1 = collect([7_010_000, 7_010_001], config.teacher, None, 1.0, round_index=1)
-    first = np.r_[0, np.flatnonzero(np.diff(clean1.seeds)) + 1]
-    assert np.allclose(round1.actions[0], clean1.actions[0])  # the label is the expert's, never noisy
-    later = np.setdiff1d(np.arange(min(len(clean1.actions), len(round1.actions))), first)
-    assert not np.allclose(round1.true_observations[later[:3]], clean1.true_observations[later[:3]])
+    # Both rounds are the expert's own roll-outs: collecting their seeds again gives the same data.
+    for data, seeds in ((round0, [7_000_000, 7_000_001]), (round1, [7_010_000, 7_010_001])):
+        again = collect(seeds, config.teacher)
+        assert np.array_equal(data.true_observations, again.true_observations)
+        assert np.allclose(data.actions, again.actions)
 
 
 def _distill_with_student_features(out: Any, **features: Any) -> Any:
@@ -410,7 +364,7 @@ def _distill_with_student_features(out: Any, **features: Any) -> Any:
     round1 = Episodes.load(out / "round1.npz")
     assert round1.observations.shape[1] == 12  # stored without the features
     second = int(round1.seeds[-1])
-    alone = collect([second], config.teacher, str(out / "model_round0.zip"), 0.0, round_index=1)
+    alone = collect([second], config.teacher, str(out / "model_round0.zip"))
     assert np.array_equal(round1.true_observations[round1.seeds == second], alone.true_observations)
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
     model = policies.load(out / "model.zip", env=env)
@@ -420,23 +374,23 @@ def _distill_with_student_features(out: Any, **features: Any) -> Any:
 
 
 @pytest.mark.slow
-def test_distill_with_a_p_dlo_history_and_the_decision_clock(tmp_path) -> None:
-    """--p-dlo-history and --decision-clock: the round files keep table-II observations, the student is fitted
-    on them with the history and the clock appended, and the loaded policy, fed table-II observations one by
-    one, computes the same history and clock (so what it was fitted on is what it sees when it acts, in the
-    DAgger round too)."""
+def test_distill_with_a_p_dlo_history(tmp_path) -> None:
+    """--p-dlo-history: the round files keep table-II observations, the student is fitted on them with the
+    history appended, and the loaded policy, fed table-II observations one by one, computes the same history
+    (so what it was fitted on is what it sees when it acts, in the DAgger round too)."""
     from dyndlo_vision.learning.distill import with_history
     from dyndlo_vision.learning.evaluate import evaluate
 
     out = tmp_path / "run"
-    model = _distill_with_student_features(out, p_dlo_history=2, decision_clock=True)
-    assert json.loads((out / "config.json").read_text())["decision_clock"] is True
+    model = _distill_with_student_features(out, p_dlo_history=2)
+    assert json.loads((out / "config.json").read_text())["p_dlo_history"] == 2
     data = Episodes.concatenate([Episodes.load(out / f"round{r}.npz") for r in range(2)])
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
-    assert model.sb3_model.observation_space.shape == (12 + 6 + 1,)
-    fitted = with_history(data, 2, clock=True)
+    assert model.sb3_model.observation_space.shape == (12 + 6,)
+    fitted = with_history(data, 2)
     first = data.seeds == data.seeds[0]
-    assert np.allclose(fitted.observations[first][:, 18], 0.04 * np.arange(first.sum()))
+    p_dlo = data.observations[first][:, 6:9]
+    assert np.allclose(fitted.observations[first][1:, 12:15], (p_dlo[1:] - p_dlo[:-1]) / 0.04, atol=1e-4)
     network = model.sb3_model
     offline = np.array([network.predict(o, deterministic=True)[0] for o in fitted.observations[first]])
     model.reset()
@@ -473,9 +427,8 @@ def test_cli_distill_bad_input(tmp_path, capsys) -> None:
     assert err.value.code == 2
     assert "missing.json" in capsys.readouterr().err
     for bad in (
-        ["--rounds", "0"], ["--expert-speed-limit", "-1"], ["--student-noise", "-1"],
-        ["--expert-noise", "-1"], ["--expert-rounds", "0"], ["--p-dlo-history", "-1"],
-        ["--expert-smoothing", "-0.1"], ["--decision-clock", "yes"],
+        ["--rounds", "0"], ["--expert-rounds", "0"], ["--p-dlo-history", "-1"],
+        ["--expert-smoothing", "-0.1"], ["--search-candidates", "line:31"], ["--dagger-beta", "0.5"],
     ):
         with pytest.raises(SystemExit) as err:
             main(["distill", *bad, "--out", str(tmp_path / "y")])
@@ -649,7 +602,7 @@ def test_cli_distill_env_options_default_to_the_teachers(tmp_path, monkeypatch) 
     assert stored["task_options"] == {"cable": "chain"}
 
 
-# ------------------------------------------------------------------------- the re-planning expert (DAgger)
+# ------------------------------------------------------------------------- the search from the true state
 def _off_plan_tip_control(seed: int = 1, push: float = 0.3, decisions: int = 3) -> tuple[Any, Any, Any]:
     """A tip-control episode driven off the teacher's plan: the plan-following expert's actions with noise
     ``push`` for ``decisions`` decisions. Returns the environment, the expert and its label now."""
@@ -712,39 +665,6 @@ class _FakeSearch:
         return self.marker.copy()
 
 
-@pytest.mark.parametrize("better", [True, False])
-def test_dagger_labels_come_from_the_search_only_where_it_does_better(better: bool) -> None:
-    """With a re-planning search, a decision whose plan-following residual is over the threshold is labelled
-    with the search's action when that scores better than the label, and the expert adopts it; otherwise the
-    label stays. The first decision (the plan itself) is never searched."""
-    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
-    teacher = PolicyTeacher(policies.load("tip-control-single-step"))
-    marker = np.full(env.unwrapped.spec_actions.size, 0.123)
-    fake = _FakeSearch(marker, start_score=1.0, score=0.5 if better else 1.0)
-    ep = run_mixed_episode(env, teacher, PlanFollowingExpert(env.unwrapped.spec_actions), seed=100001,
-                           replan=fake, replan_residual_m=-1.0)  # every decision is "out of reach"
-    labelled_marker = np.all(np.isclose(ep["actions"], 0.123), axis=1)
-    assert fake.calls == len(ep["actions"]) - 1 or ep["avoid"]
-    assert not labelled_marker[0]
-    if better:
-        assert labelled_marker[1:].all() and ep["replans"] == len(ep["actions"]) - 1
-    else:
-        assert not labelled_marker.any() and ep["replans"] == 0
-    env.close()
-
-
-def test_no_search_once_a_limit_is_broken(monkeypatch) -> None:
-    """A broken limit stays broken (every continuation scores over 1): the search is not run from there."""
-    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
-    teacher = PolicyTeacher(policies.load("tip-control-single-step"))
-    fake = _FakeSearch(np.zeros(env.unwrapped.spec_actions.size), 1.0, 0.5)
-    violent = type("Violent", (), {"predict": lambda self, obs, deterministic=True: (np.ones(9), None)})()
-    ep = run_mixed_episode(env, teacher, PlanFollowingExpert(env.unwrapped.spec_actions), seed=100001,
-                           student=violent, beta=0.0, replan=fake, replan_residual_m=-1.0)
-    assert ep["avoid"] and fake.calls < len(ep["actions"]) - 1
-    env.close()
-
-
 class _RecordingSearch(_FakeSearch):
     """A :class:`_FakeSearch` that also records where each search started."""
 
@@ -757,86 +677,6 @@ class _RecordingSearch(_FakeSearch):
         return start.copy() if self.last_start_score <= self.last_score else super().search(env, start, seed)
 
 
-@pytest.mark.parametrize("student_good", [True, False])
-def test_student_anchored_labels_are_the_students_action_or_its_correction(student_good: bool) -> None:
-    """replan_anchor="student": at every decision the student takes (the first included), the search starts
-    from the student's own action, not the plan-following label. Where that action succeeds when coasted on,
-    it is the label; where not, the correction is, and only then is it counted as a re-plan. The student's
-    action is what is executed either way."""
-    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
-    teacher = PolicyTeacher(policies.load("tip-control-single-step"))
-    own = np.full(env.unwrapped.spec_actions.size, -0.05)
-    student = type("Calm", (), {"predict": lambda self, obs, deterministic=True: (own.copy(), None)})()
-    marker = np.full(own.size, 0.123)
-    start_score, score = (0.0, 0.0) if student_good else (1.0, 0.5)
-    fake = _RecordingSearch(marker, start_score=start_score, score=score)
-    ep = run_mixed_episode(env, teacher, PlanFollowingExpert(env.unwrapped.spec_actions), seed=100001,
-                           student=student, beta=0.0, replan=fake, replan_residual_m=1e9,  # MM is not used
-                           replan_anchor="student")
-    n = len(ep["actions"])
-    assert len(fake.starts) == n or ep["avoid"]
-    assert all(np.allclose(start, own) for start in fake.starts)
-    searched = ep["actions"][: len(fake.starts)]
-    if student_good:
-        assert np.allclose(searched, own) and ep["replans"] == 0
-    else:
-        assert np.allclose(searched, marker) and ep["replans"] == len(fake.starts)
-    env.close()
-
-
-class _CountingFollower:
-    """A follower with per-episode state (like a HistoryPolicy's features): a fixed action and a call log."""
-
-    def __init__(self, action: np.ndarray) -> None:
-        self.action, self.features = action, []
-
-    def predict(self, obs: Any, deterministic: bool = True) -> tuple[np.ndarray, None]:
-        self.features.append(len(self.features))
-        return self.action.copy(), None
-
-
-@pytest.mark.slow
-def test_a_followed_score_lets_the_follower_re_plan_after_the_candidate() -> None:
-    """With a follower, a candidate is scored by playing it, then the follower's action at every later
-    decision (not by coasting); the follower's own state and the episode are as they were afterwards."""
-    env, _, label = _off_plan_tip_control(decisions=2)
-    u = env.unwrapped
-    before = u.observation()
-    follower = _CountingFollower(np.full(label.shape, -0.3))
-    search = ReplanSearch(population=2, sigmas=(0.1,), follower=follower)
-    snapshot = u.snapshot()
-    followed = search.followed_score(u, snapshot, label)
-    u.restore(snapshot)
-    _, _, done, _, info = u.step(label.astype(np.float32))
-    steps = 0
-    while not done:
-        _, _, done, _, info = u.step(np.full(label.shape, -0.3, dtype=np.float32))
-        steps += 1
-    assert followed == pytest.approx(CableSearchTeacher.score(info))
-    assert steps > 0 and followed != pytest.approx(ReplanSearch.coasted_score(u, snapshot, label))
-    u.restore(snapshot)
-    search.search(u, label, seed=1)
-    assert follower.features == []  # every roll-out used its own copy
-    assert np.array_equal(u.observation(), before)
-    env.close()
-
-
-def test_replan_score_option_needs_the_replanning_expert() -> None:
-    with pytest.raises(ValueError, match="expert_replan_mm"):
-        DistillConfig(expert_replan_score="student")
-    with pytest.raises(ValueError, match="'coast' or 'student'"):
-        DistillConfig(expert_replan_mm=2.0, expert_replan_score="rollout")
-
-
-def test_student_anchor_needs_the_replanning_expert() -> None:
-    with pytest.raises(ValueError, match="expert_replan_mm"):
-        DistillConfig(expert_replan_anchor="student")
-    with pytest.raises(ValueError, match="'plan' or 'student'"):
-        DistillConfig(expert_replan_mm=2.0, expert_replan_anchor="learner")
-    assert DistillConfig(expert_replan_mm=2.0, expert_replan_anchor="student").to_json()[
-        "expert_replan_anchor"] == "student"
-
-
 def _record_collect_option(monkeypatch, option: str) -> list[Any]:
     """Replace :func:`collect` with :func:`_fake_collect`; the returned list gets each call's ``option``."""
     seen: list[Any] = []
@@ -847,18 +687,6 @@ def _record_collect_option(monkeypatch, option: str) -> list[Any]:
 
     monkeypatch.setattr(distill_module, "collect", recording)
     return seen
-
-
-def test_expert_replan_option_reaches_dagger_rounds_only(tmp_path, monkeypatch, capsys) -> None:
-    seen = _record_collect_option(monkeypatch, "replan_residual_mm")
-    fast = ["--workers", "1", "--first-round-episodes", "2", "--episodes", "2", "--epochs", "1", "--quiet"]
-    out = str(tmp_path / "r")
-    assert main(["distill", *fast, "--rounds", "2", "--expert-replan", "2.5", "--out", out]) == 0
-    assert seen == [None, 2.5]
-    assert json.loads((tmp_path / "r" / "config.json").read_text())["expert_replan_mm"] == 2.5
-    for bad in (-1.0, True, "2"):
-        with pytest.raises(ValueError, match="expert_replan_mm"):
-            DistillConfig(expert_replan_mm=bad)
 
 
 def test_replan_search_answers_with_the_nearest_good_action(monkeypatch) -> None:
@@ -898,7 +726,7 @@ def test_a_late_commitment_searches_once_from_the_plan_label_and_the_expert_foll
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
     spec = env.unwrapped.spec_actions
     teacher = PolicyTeacher(policies.load("tip-control-single-step"))
-    plain = run_mixed_episode(env, teacher, PlanFollowingExpert(spec), seed=100001)
+    plain = run_episode(env, teacher, PlanFollowingExpert(spec), seed=100001)
     k = 3
     marker = np.full(spec.size, 0.123)
     fake = _RecordingSearch(marker, start_score=1.0, score=0.5 if better else 1.0)
@@ -909,7 +737,7 @@ def test_a_late_commitment_searches_once_from_the_plan_label_and_the_expert_foll
             adopted.append(np.asarray(action).copy())
             super().adopt(action, *args)
 
-    ep = run_mixed_episode(env, teacher, Recording(spec), seed=100001, commit=fake, commit_decision=k)
+    ep = run_episode(env, teacher, Recording(spec), seed=100001, commit=fake, commit_decision=k)
     assert len(fake.starts) == 1 and len(adopted) == int(better)
     if better:
         np.testing.assert_allclose(adopted[0], marker, atol=1e-6)
@@ -930,11 +758,11 @@ def test_a_late_commitment_is_not_searched_once_a_limit_is_broken() -> None:
     teacher = PolicyTeacher(policies.load("tip-control-single-step"))
     fake = _RecordingSearch(np.zeros(env.unwrapped.spec_actions.size), 1.0, 0.5)
     violent = type("Violent", (), {"predict": lambda self, obs, deterministic=True: (np.ones(9), None)})()
-    ep = run_mixed_episode(env, teacher, PlanFollowingExpert(env.unwrapped.spec_actions), seed=100001,
-                           student=violent, beta=0.0, commit=fake, commit_decision=20)  # broken at 15
+    ep = run_episode(env, teacher, PlanFollowingExpert(env.unwrapped.spec_actions), seed=100001,
+                           student=violent, commit=fake, commit_decision=20)  # broken at 15
     assert ep["avoid"] and fake.starts == []
     with pytest.raises(ValueError, match="commit_decision"):
-        run_mixed_episode(env, teacher, PlanFollowingExpert(env.unwrapped.spec_actions), seed=100001,
+        run_episode(env, teacher, PlanFollowingExpert(env.unwrapped.spec_actions), seed=100001,
                           commit=fake, commit_decision=0)
     env.close()
 
@@ -999,44 +827,9 @@ def test_shared_candidates_are_the_same_offsets_in_every_search(monkeypatch, can
     if candidates == "episode":
         with pytest.raises(ValueError, match="key"):
             ReplanSearch(candidates=candidates).offsets(9)
-    with pytest.raises(ValueError, match="candidates"):
-        ReplanSearch(candidates="fixed")
-
-
-def test_line_candidates_go_along_one_direction_and_answer_with_the_shortest_good(monkeypatch) -> None:
-    """``candidates="line:N"``: every candidate is start + length x the unit direction of shared offset N, on
-    either side, rings in order of length (0.05 ... 0.6); the answer is the shortest good one. Every
-    correction is then a multiple of one vector (what a student can regress as one number)."""
-    drawn: list[np.ndarray] = []
-    direction = ReplanSearch(candidates="shared").offsets(9)[31]
-    direction = direction / np.linalg.norm(direction)
-
-    def score(env: Any, snapshot: Any, action: np.ndarray) -> float:
-        drawn.append(np.asarray(action).copy())
-        along = float(np.dot(np.asarray(action) - start, direction))
-        return 0.0 if along < -0.27 else 1.0 + abs(along)  # good beyond 0.27 on the minus side
-
-    monkeypatch.setattr(ReplanSearch, "coasted_score", staticmethod(score))
-    env = type("Env", (), {"snapshot": lambda self: None, "restore": lambda self, s: None,
-                           "scene": type("Scene", (), {"time": 0.32})()})()
-    search = ReplanSearch(candidates="line:31")
-    start = np.full(9, 0.1)
-    found = search.search(env, start, seed=4)
-    offsets = np.array(drawn[1:]) - start  # drawn[0] is the start itself
-    lengths = np.linalg.norm(offsets, axis=1)
-    np.testing.assert_allclose(np.abs(offsets @ direction), lengths, rtol=1e-9)  # all on the line
-    np.testing.assert_allclose(lengths, [0.05, 0.05, 0.1, 0.1, 0.15, 0.15, 0.2, 0.2, 0.3, 0.3])
-    np.testing.assert_allclose(found, start - 0.3 * direction)
-    assert search.last_score == 0.0 and search.last_rollouts == 11
-    listed = search.offsets(9)  # what benchmarks map corrections onto: the same for every search
-    assert listed.shape == (16, 9) and np.allclose(listed[:10], offsets)
-    assert len(search.rings(9)) == len(ReplanSearch.LINE_LENGTHS)
-    for bad in ("line:48", "line:-1", "line:", "line:x", "lines:3", "line"):
-        with pytest.raises(ValueError, match="line:N"):
+    for bad in ("fixed", "line:31"):
+        with pytest.raises(ValueError, match="candidates"):
             ReplanSearch(candidates=bad)
-        with pytest.raises(ValueError, match="search_candidates"):
-            DistillConfig(teacher_commit_decision=6, search_candidates=bad)
-    assert DistillConfig(teacher_commit_decision=6, search_candidates="line:0").search_candidates == "line:0"
 
 
 def test_search_candidates_option_reaches_the_collected_rounds(tmp_path, monkeypatch, capsys) -> None:
@@ -1051,14 +844,11 @@ def test_search_candidates_option_reaches_the_collected_rounds(tmp_path, monkeyp
         DistillConfig(teacher_commit_decision=6, search_candidates="fixed")
     with pytest.raises(ValueError, match="needs a search"):
         DistillConfig(search_candidates="shared")
-    line = ["--teacher-commit", "6", "--search-candidates", "line:31"]
-    assert main(["distill", *fast, *line, "--out", str(tmp_path / "l")]) == 0
-    assert seen[-1] == "line:31"
     with pytest.raises(SystemExit) as refused:  # refused by the parser, before any run folder is made
-        main(["distill", *fast, "--teacher-commit", "6", "--search-candidates", "line:99", "--out",
+        main(["distill", *fast, "--teacher-commit", "6", "--search-candidates", "lines", "--out",
               str(tmp_path / "bad")])
     assert refused.value.code == 2 and not (tmp_path / "bad").exists()
-    assert "line:99" in capsys.readouterr().err
+    assert "lines" in capsys.readouterr().err
     # a run stored before the option existed resumes as a run without it
     stored = json.loads((tmp_path / "r" / "config.json").read_text())
     del stored["search_candidates"]
@@ -1069,7 +859,7 @@ def test_search_candidates_option_reaches_the_collected_rounds(tmp_path, monkeyp
 
 
 def test_collect_jobs_build_their_searches_with_the_candidates_asked_for(monkeypatch) -> None:
-    """The worker's searches (late commitment and re-planning expert) get the run's ``search_candidates``."""
+    """The worker's late-commitment search gets the run's ``search_candidates``."""
     built: list[str] = []
     original = ReplanSearch.__init__
 
@@ -1084,13 +874,13 @@ def test_collect_jobs_build_their_searches_with_the_candidates_asked_for(monkeyp
         raise Stop  # before any episode runs
 
     monkeypatch.setattr(ReplanSearch, "__init__", recording)
-    monkeypatch.setattr(distill_module, "run_mixed_episode", stop)
-    job = {"seeds": [5], "teacher": "tip-control-single-step", "student": None, "beta": 1.0,
-           "noise_model": None, "task_options": {}, "round": 0, "speed_limit": None, "commit_decision": 3,
-           "replan_mm": 2.0, "search_candidates": "shared"}
+    monkeypatch.setattr(collection_module, "run_episode", stop)
+    job = {"seeds": [5], "teacher": "tip-control-single-step", "student": None, "noise_model": None,
+           "task_options": {}, "task": "tip-control", "cable_ranges": None, "teacher_search": False,
+           "smoothing": 0.0, "commit_decision": 3, "search_candidates": "shared"}
     with pytest.raises(Stop):
-        distill_module._collect_chunk(job)
-    assert built == ["shared", "shared"]
+        collection_module._collect_chunk(job)
+    assert built == ["shared"]
 
 
 def test_with_noise_draws_again_what_the_noisy_wrapper_gave_and_nothing_else(tmp_path) -> None:
@@ -1209,3 +999,17 @@ def test_refit_fits_the_finished_rounds_again_as_the_run_did(tmp_path) -> None:
     assert [e["obs_noise"] for e in other] == [str(quiet)] * 2
     assert not all(torch.equal(a, b) for a, b in zip(run_weights, weights(), strict=True))
     assert json.loads((out / "history.json").read_text()) == other
+
+
+@pytest.mark.parametrize("removed", ["decision_clock", "correction_gate"])
+def test_a_policy_asking_for_a_removed_feature_is_refused_by_name(tmp_path, removed: str) -> None:
+    """A student of an older version that read the decision clock or carried a correction gate is refused,
+    naming the feature, not run without it."""
+    path, meta = policies.resolve("tip-control-single-step")
+    copy = tmp_path / "old.zip"
+    shutil.copyfile(path, copy)
+    copy.with_suffix(".json").write_text(json.dumps({**meta, removed: True}))
+    with pytest.raises(ValueError, match=removed):
+        policies.load(copy)
+    copy.with_suffix(".json").write_text(json.dumps({**meta, removed: False}))
+    assert policies.load(copy) is not None

@@ -531,7 +531,7 @@ def test_on_the_demo_video_the_tip_is_never_confidently_wrong(tmp_path: Path) ->
     import gymnasium as gym
 
     from dyndlo_vision import policies
-    from dyndlo_vision._atomic import write_video_atomic
+    from dyndlo_vision._video import write_video_atomic
     from dyndlo_vision.commands.demo import film_episode
     from dyndlo_vision.control.sim_perception import MOTION_PLANE
 
