@@ -148,8 +148,6 @@ class HeldEnd:
         self.P = np.eye(4)
         self.t: float = -math.inf
         self.known = False
-        #: Identifications since the track (re)started: with one, its velocity is not known yet.
-        self.updates = 0
 
     @property
     def uv(self) -> NDArray[np.float64] | None:
@@ -199,7 +197,6 @@ class HeldEnd:
             self.x = np.array([z[0], z[1], 0.0, 0.0])
             speed = self.params.max_speed_m_s * self.px_per_m / 3.0
             self.P = np.diag([noise_px**2, noise_px**2, speed**2, speed**2])
-            self.updates = 0
         else:
             x, P = self._predicted(t)
             S = P[:2, :2] + np.eye(2) * noise_px**2
@@ -208,7 +205,6 @@ class HeldEnd:
             self.P = (np.eye(4) - K[:, :2] @ np.eye(2, 4)) @ P
         self.t = float(t)
         self.known = True
-        self.updates += 1
 
 
 @dataclass(frozen=True)

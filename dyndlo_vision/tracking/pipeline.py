@@ -259,6 +259,10 @@ class _View:
     #: length on the image, in each of the last two frames (a swinging cable moves farther; at the top of a
     #: swing it is still for less).
     STILL_SHARE = 0.02
+    #: The cable is slow when those points moved less than this many of its lengths per second since the last
+    #: frame. A cable upside down (held end well below its tip) falls, or is whipped: it is slow only at the
+    #: top of a throw, so a slow one upside down is not measured (its ends may be swapped).
+    SLOW_LENGTHS_PER_S = 1.5
 
     def __init__(self, camera: Any, segmenter: ViewSegmenter, anchor_uv: Any, config: PipelineConfig,
                  px_per_m: float) -> None:
@@ -267,6 +271,8 @@ class _View:
         self.anchor = None if anchor_uv is None else np.asarray(anchor_uv, dtype=np.float64).reshape(2)
         self.config = config
         self.held = HeldEnd(config.identity, px_per_m)
+        #: The held end's pixel, time and noise waiting for :meth:`settle`.
+        self.pending: tuple[NDArray[np.float64], float, float] | None = None
         self.px_per_m = px_per_m
         self.reset()
 
@@ -278,24 +284,30 @@ class _View:
         self.prev_t = -math.inf
         self.prev_ends: NDArray[np.float64] | None = None
         self.still_frames = 0
+        self.slow_frames = 0
+        self.still_t = -math.inf
         self.first_rule = ""
         reset = getattr(self.segmenter.reach, "reset", None)
         if reset is not None:
             reset()
 
-    def _stillness(self, cl: Any) -> None:
+    def _stillness(self, cl: Any, t: float) -> None:
         """Counts the frames in a row in which the cable stayed where it was: its ends and its middle (the
         points at a quarter, half and three quarters of it, from either end: a flickering tip moves its ends
         and little else)."""
         s = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(cl.path_uv, axis=0).T))))
         marks = np.array([np.interp(f * s[-1], s, cl.path_uv[:, k]) for f in (0.25, 0.5, 0.75) for k in (0, 1)])
         marks = marks.reshape(3, 2)
-        if self.prev_ends is None or len(self.prev_ends) != 3:
-            self.still_frames = 0
+        dt = t - self.still_t
+        if self.prev_ends is None or len(self.prev_ends) != 3 or not 0 < dt <= 0.1:
+            self.still_frames = self.slow_frames = 0
         else:
             moved = min(np.max(np.hypot(*(marks - self.prev_ends).T)),
                         np.max(np.hypot(*(marks[::-1] - self.prev_ends).T)))
             self.still_frames = self.still_frames + 1 if moved <= self.STILL_SHARE * cl.length_px else 0
+            slow = moved <= self.SLOW_LENGTHS_PER_S * dt * cl.length_px
+            self.slow_frames = self.slow_frames + 1 if slow else 0
+        self.still_t = t
         self.prev_ends = marks
 
     def _upper_end(self, cl: Any) -> tuple[int, float] | None:
@@ -311,9 +323,10 @@ class _View:
             return None
         return (0 if ends[0, 2] >= ends[1, 2] else 1), float(abs(ends[0, 2] - ends[1, 2]))
 
-    def _at_rest_upper(self, cl: Any) -> int | None:
-        """At rest (still for two frames), the clearly upper end (0 or 1): a hanging cable's held end."""
-        if self.still_frames < 2:
+    def _at_rest_upper(self, cl: Any, slow: bool = False) -> int | None:
+        """At rest (still for two frames; ``slow``: slow since the last frame), the clearly upper end (0 or 1):
+        a hanging cable's held end."""
+        if (self.slow_frames < 1) if slow else (self.still_frames < 2):
             return None
         upper = self._upper_end(cl)
         length_m = cl.length_px / max(self.px_per_m, 1e-9)
@@ -328,6 +341,7 @@ class _View:
 
         cfg = self.config
         ident = cfg.identity
+        self.pending = None
         known_uv = None
         radius_px = None
         if held_world is not None and self.camera is not None:
@@ -371,7 +385,7 @@ class _View:
         if not cl.any_visible:
             self.prev_ends = None
             return ViewResult(None, None, hint, float("nan"), "no cable found")
-        self._stillness(cl)
+        self._stillness(cl, t)
         width = float(cl.width_px) if np.isfinite(cl.width_px) else 2.0
         recent = self.prev_nodes is not None and t - self.prev_t <= 0.1
         prev = self.prev_nodes if recent else None
@@ -407,24 +421,33 @@ class _View:
         decision = orient(cl.path_uv, hint, gate, prev, register, ident, shift)
         if decision.held_at_start is None:
             return ViewResult(None, decision, hint, gate, decision.reason)
-        upper = self._at_rest_upper(cl)
+        upper = self._at_rest_upper(cl, slow=True)
         if upper is not None and known_uv is None and (upper == 0) != decision.held_at_start:
-            why = "the held end is below the tip while the cable hangs still"
+            why = "the held end is below the tip while the cable is slow"
             return ViewResult(None, Orientation(None, why), hint, gate, why)
-        # The held end's track moves to this frame's cable start only where that start is pinned down: at the
-        # robot's reported gripper, at the gripper's template, or within a few cable widths of the prediction
-        # (within half the gate while the track's velocity is not known yet: after its first identification).
-        # A cable cut below the gripper starts lower down; followed, the track would creep along the cable to
-        # its tip.
+        # The held end's track moves to this frame's cable start at once where that start is pinned down: at
+        # the robot's reported gripper, at the gripper's template, or within a few cable widths of the
+        # prediction. Within half the gate, only once the frame's length explains it (see settle). A cable cut
+        # below the gripper starts lower down; followed, the track would creep along the cable to its tip.
         start = cl.path_uv[0] if decision.held_at_start else cl.path_uv[-1]
+        dist = float(np.hypot(*(start - hint)))
         pinned = (known_uv is not None or gripper_uv is not None or decision.reason == "registration"
-                  or float(np.hypot(*(start - hint))) <= max(ident.min_gate_px, 3.0 * width,
-                                                              0.5 * gate if self.held.updates < 2 else 0.0))
-        return replace(self._oriented(cl, decision.held_at_start, decision, mask.shape, t, hint, gate, pinned),
+                  or dist <= max(ident.min_gate_px, 3.0 * width))
+        anchored: bool | None = True if pinned else (None if dist <= 0.5 * gate else False)
+        return replace(self._oriented(cl, decision.held_at_start, decision, mask.shape, t, hint, gate, anchored),
                        gripper_uv=centre)
 
+    def settle(self, explained: bool) -> None:
+        """Moves the held end's track to this frame's cable start, when it waited for the frame's outcome:
+        ``explained``, the cable's length from that start agrees with the cable's (or its shortfall is the
+        tip's, cut off), so the start is the held end and not a cut below it."""
+        if self.pending is not None and explained:
+            uv, t, noise = self.pending
+            self.held.update(uv, t, noise_px=noise)
+        self.pending = None
+
     def _oriented(self, cl: Any, held_at_start: bool, decision: Orientation, shape: tuple[int, ...], t: float,
-                  hint: Any, gate: float, anchored: bool = True) -> ViewResult:
+                  hint: Any, gate: float, anchored: bool | None = True) -> ViewResult:
         if not held_at_start:
             cl = cl.reversed(None, shape)
         self._identified(cl, t, anchored)
@@ -455,14 +478,24 @@ class _View:
         """The gripper template's side: 8 % of the image's shorter side, 25-71 px."""
         return int(np.clip(round(0.08 * min(rgb.shape[:2])), 25, 71))
 
-    def _identified(self, cl: Any, t: float, anchored: bool = True) -> None:
+    def _identified(self, cl: Any, t: float, anchored: bool | None = True) -> None:
+        """The frame's cable, held end first: its start moves the held end's track (``anchored`` True), or
+        waits for :meth:`settle` (None), or not (False)."""
+        noise = max(2.0, float(cl.width_px))
+        if not cl.start_at_border and anchored is None:
+            self.pending = (cl.path_uv[0].copy(), t, noise)
         if not cl.start_at_border and anchored:
-            self.held.update(cl.path_uv[0], t, noise_px=max(2.0, float(cl.width_px)))
+            self.held.update(cl.path_uv[0], t, noise_px=noise)
             if self.gripper is not None and abs(self.gripper.t - t) < 1e-9 or (
                     self.gripper is not None and not self.offsets):
                 self.offsets.append(cl.path_uv[0] - self.gripper.uv)
         self.prev_nodes = np.where(cl.visible[:, None], cl.nodes_uv, np.nan)
         self.prev_t = t
+
+
+#: Outcomes of a frame in which the cable's length from its start is explained: the start is the held end.
+#: (Not a cut tip: a cable oriented the wrong way round has its "tip" in the gripper's blob, cut.)
+_LENGTH_EXPLAINED = frozenset({"", "the cable's length is not known yet"})
 
 
 class CablePipeline:
@@ -594,6 +627,9 @@ class CablePipeline:
         point, point_uv, length, continued = None, None, float("nan"), False
         if not reason:
             point, point_uv, length, continued, reason = self._point(measurement, results, held_xyz)
+        explained = reason in _LENGTH_EXPLAINED
+        for view in self.views:
+            view.settle(explained)
         return self._filtered(t, point, point_uv, continued, reason, measurement, tuple(results), length, t0)
 
     def skip(self, t_capture: float, reason: str) -> FrameResult:
