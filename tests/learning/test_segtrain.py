@@ -12,6 +12,7 @@ from dyndlo_vision.cli import main
 from dyndlo_vision.learning.segdata import SegDataConfig, write_dataset
 from dyndlo_vision.learning.segtrain import (
     ARCHITECTURES,
+    BLOCK_ARCHITECTURES,
     TrainConfig,
     build_net,
     export_onnx,
@@ -68,7 +69,8 @@ def test_onnx_matches_torch(arch: str) -> None:
             m.running_var.uniform_(0.5, 2.0)
     net.eval()
     seg = LearnedSegmenter(export_onnx(net), short_side=None)
-    assert seg.blocks == (arch == "cablenet-s2d4")
+    assert seg.blocks == (arch in BLOCK_ARCHITECTURES)
+    assert seg.multiple == (32 if arch == "cableunet-s2d4" else 16)
     rgb = np.random.default_rng(0).integers(0, 255, (64, 96, 3), dtype=np.uint8)
     x = torch.from_numpy(rgb.astype(np.float32).transpose(2, 0, 1)[None] / 255.0 - 0.5)
     with torch.inference_mode():
@@ -89,8 +91,9 @@ def test_blocks_are_pixel_unshuffle() -> None:
         torch.from_numpy(ref[:, :16]), 4)[0, 0].numpy())
 
 
-def test_frames_of_any_size_keep_their_size() -> None:
-    seg = LearnedSegmenter(export_onnx(build_net("cablenet-s2d4").eval()))
+@pytest.mark.parametrize("arch", BLOCK_ARCHITECTURES)
+def test_frames_of_any_size_keep_their_size(arch: str) -> None:
+    seg = LearnedSegmenter(export_onnx(build_net(arch).eval()))
     for shape in ((50, 70, 3), (480, 640, 3), (17, 33, 3)):
         assert seg(np.zeros(shape, np.uint8)).shape == shape[:2]
     assert LearnedSegmenter(export_onnx(build_net("cablenet-s2d4").eval()), short_side=96).input_size(
