@@ -530,7 +530,7 @@ def _coverage(paths: list[NDArray[np.float64]], width: float, shape: tuple[int, 
     """Coverage of polylines ``width`` wide (paths in 1x pixels) on a canvas of ``shape`` at ``scale`` times
     the output size whose top-left pixel is ``origin`` (in canvas pixels)."""
     layer = np.zeros(shape, np.uint8)
-    th = max(1, int(round(scale * width)))
+    th = max(1, int(round(scale * width)) - 2)  # OpenCV's anti-aliased thick line is about 2 px wider
     for p in paths:
         pts = np.round((p * scale - origin) * 16).astype(np.int32).reshape(-1, 1, 2)
         cv2.polylines(layer, [pts], False, 255, th, cv2.LINE_AA, 4)
