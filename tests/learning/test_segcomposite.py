@@ -1,4 +1,4 @@
-"""The composited 2-D scene kinds of ``seg-data``: exact labels, every kind's look, reproducibility, options."""
+"""The composited 2-D scene kinds of ``seg-data``: exact labels, every kind's look, reproducibility."""
 
 from __future__ import annotations
 
@@ -98,8 +98,8 @@ def test_every_surface_is_drawn() -> None:
         surface(rng, "marble", 8, 8)
 
 
-def test_a_composited_dataset_resumes_and_the_command_sets_its_widths(tmp_path: Path,
-                                                                      capsys: pytest.CaptureFixture[str]) -> None:
+def test_a_composited_dataset_resumes_and_the_command_sets_its_widths(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     cfg = SegDataConfig(width=96, height=64, samples_per_scene=2, style="bundles", min_width_px=1.0,
                         max_width_px=40.0)
     out = tmp_path / "ds"

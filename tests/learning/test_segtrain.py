@@ -261,3 +261,54 @@ def test_fine_tuning_an_onnx_network_keeps_its_batch_norms_frozen(dataset: Path,
               "--arch", "cablenet-s2d4", "--init", "cable-segmenter"])
     assert exc.value.code == 2 and "--arch cablenet" in capsys.readouterr().err
     assert not (tmp_path / "s").exists()
+
+
+def test_a_network_with_a_32_pixel_grid_pads_and_cuts_regions_on_it() -> None:
+    """``cableunet-s2d4`` halves the frame five times (blocks, then four levels... down to 1/32): frames are
+    padded to 32 px, and a region is computed on the 32-pixel grid, where the network sees what it sees
+    in the whole frame."""
+    from dyndlo_vision.tracking.learned import OUTSIDE_LOGIT
+
+    seg = LearnedSegmenter(export_onnx(build_net("cableunet-s2d4", 4, 8, 16).eval()), short_side=None)
+    assert seg.multiple == 32
+    rgb = np.random.default_rng(3).integers(0, 255, (240, 320, 3), dtype=np.uint8)
+    box = seg.grid_box((37, 21, 203, 150), 240, 320)
+    assert box == (32, 0, 224, 160)
+    logits = seg.logits(rgb, region=(37, 21, 203, 150))
+    u0, v0, u1, v1 = box
+    alone = seg.logits(np.ascontiguousarray(rgb[v0:v1, u0:u1]))
+    np.testing.assert_allclose(logits[v0:v1, u0:u1], alone, atol=1e-5)
+    assert (logits[:, :u0] == OUTSIDE_LOGIT).all() and (logits[v1:] == OUTSIDE_LOGIT).all()
+    assert seg(np.zeros((50, 70, 3), np.uint8)).shape == (50, 70)
+
+
+def test_external_sources_choose_which_photos_are_trained_on(dataset: Path, tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """``--external-sources mbest`` trains on mBEST's train half only, so cables_dataset stays an unseen
+    source; the photos are resized to ``--external-short-side``; an unknown source is refused up front."""
+    import cv2
+
+    root = tmp_path / "external"
+    for folder, names, label in ((root / "mbest" / "S1", ["img0", "img1"], "_labels.png"),
+                                 (root / "cables_dataset", ["00000", "00001"], "_mask_all.png")):
+        folder.mkdir(parents=True)
+        for name in names:
+            img = np.full((120, 160, 3), 90, np.uint8)
+            cv2.line(img, (10, 60), (150, 60), (20, 200, 20), 5)
+            cv2.imwrite(str(folder / f"{name}.jpg"), img)
+            cv2.imwrite(str(folder / f"{name}{label}"), (img[..., 1] > 150).astype(np.uint8) * 255)
+    for sources, count in (("mbest", 1), ("mbest,cables_dataset", 2)):
+        out = tmp_path / sources.replace(",", "-")
+        assert main(["seg-train", "--data", str(dataset), "--out", str(out), "--quiet", "--steps", "1",
+                     "--batch", "2", "--crop", "64,64", "--external", str(root), "--external-share", "1",
+                     "--external-sources", sources, "--external-short-side", "96"]) == 0
+        meta = json.loads((out / "cable_segmenter.json").read_text())
+        assert meta["external_train_images"] == count
+        assert meta["train_config"]["external_sources"] == sources.split(",")
+        assert meta["train_config"]["external_short_side"] == 96
+    for option, bad in (("--external-sources", "mbest,photos"), ("--crop", "64")):
+        with pytest.raises(SystemExit) as exc:
+            main(["seg-train", "--data", str(dataset), "--out", str(tmp_path / "bad"), "--quiet",
+                  "--external", str(root), "--external-share", "0.5", option, bad])
+        assert exc.value.code == 2 and option in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
