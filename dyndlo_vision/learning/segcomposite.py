@@ -551,7 +551,7 @@ def _draw_wire(canvas: NDArray[np.float32], label: NDArray[np.float32], wire: _W
     """Draws a shaded tube on the 2x ``canvas`` and its coverage into the 2x ``label`` (max)."""
     h2, w2 = label.shape
     box = _box([wire.path], 2 * wire.width + 4, h2, w2)
-    ambient = float(rng.uniform(0.25, 0.55))
+    ambient = float(rng.uniform(0.25, 0.95))  # from strongly shaded to flatly lit insulation
     shininess = float(rng.uniform(8, 60))
     if box is None:
         return
@@ -783,6 +783,8 @@ class CompositeSampler:
         weights = np.array([table[n] for n in names], float)
         name = str(rng.choice(names, p=weights / weights.sum()))
         img = surface(rng, name, h, w)
+        if self.kind != "own-colour" and rng.random() < 0.2:  # a dark surface (black cloth, a dim bench)
+            img = img * float(rng.uniform(0.04, 0.35))
         if self.kind == "own-colour":  # the surface in the cable's colour: its texture kept, its hue changed
             lum = img.mean(axis=2, keepdims=True) / max(float(img.mean()), 1.0)
             target = cable_colour * float(rng.uniform(0.7, 1.3))
