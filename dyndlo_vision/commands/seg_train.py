@@ -42,6 +42,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="which external sources the external share draws from (comma-separated: mbest, "
         "cables_dataset); leave one out to keep it unseen",
     )
+    p.add_argument("--external-balanced", action="store_true",
+                   help="draw each external source equally often, then an image within it (default: every "
+                   "image equally often)")
     p.add_argument("--external-short-side", type=int, default=240, metavar="PX",
                    help="the external photos' short side before augmentation: the scale the network will "
                    "run them at (default 240)")
@@ -60,9 +63,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="training crop in pixels (multiples of 16; of 32 for cableunet-s2d4)")
     p.add_argument("--init", metavar="CHECKPOINT.pt|NET.onnx|NAME",
                    help="start from these weights (fine-tuning): a seg-train checkpoint, an exported ONNX "
-                   "network or a shipped one by name (cable-segmenter, cable-segmenter-fine, "
-                   "cable-segmenter-loop); an ONNX network, or a checkpoint of a run from one, is "
-                   "fine-tuned with its batch norms frozen (the export folded their statistics away)")
+                   "network or a shipped one by name (cable-segmenter-photo, cable-segmenter, "
+                   "cable-segmenter-fine, cable-segmenter-loop); an ONNX network, or a checkpoint of a run "
+                   "from one, is fine-tuned with its batch norms frozen (the export folded their statistics "
+                   "away)")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     p.add_argument("--resume", action="store_true", help="continue OUT/checkpoint.pt")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -111,6 +115,7 @@ def run(args: argparse.Namespace) -> int:
         crop_w=crop[1],
         external_sources=sources,
         external_short_side=args.external_short_side,
+        external_balanced=args.external_balanced,
         frozen_batch_norm=bool(args.init) and needs_frozen_batch_norm(args.init),
     )
     try:
@@ -127,6 +132,7 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         ext = (f" --external {args.external} --external-share {args.external_share} --external-sources "
                f"{args.external_sources} --external-short-side {args.external_short_side}"
+               + (" --external-balanced" if args.external_balanced else "")
                if args.external else "")
         ext += f" --init {args.init}" if args.init else ""
         print(

@@ -397,6 +397,9 @@ class TrainConfig:
     #: The external photos are resized to this short side before augmentation (the scale the network will
     #: see them at; 240: the first shipped networks').
     external_short_side: int = 240
+    #: Each external source equally likely, then an image within it (False: every image equally likely, so
+    #: a source with few photos, such as cables_dataset's 5 beside mBEST's 20, is seldom drawn).
+    external_balanced: bool = False
     checkpoint_every: int = 250
     #: Batch norms in eval mode while training (their statistics fixed, scale and shift still trained): how a
     #: network read back from ONNX (:func:`net_from_onnx`) is fine-tuned.
@@ -405,7 +408,7 @@ class TrainConfig:
 
 def _with_widths(config: dict[str, Any]) -> dict[str, Any]:
     """A stored training config with ``widths`` as a tuple; options it predates at their defaults."""
-    return {"frozen_batch_norm": False, "external_short_side": 240, **config,
+    return {"frozen_batch_norm": False, "external_short_side": 240, "external_balanced": False, **config,
             "widths": tuple(config.get("widths", DEFAULT_WIDTHS)),
             "external_sources": tuple(config.get("external_sources", EXTERNAL_SOURCES))}
 
@@ -425,6 +428,15 @@ def needs_frozen_batch_norm(init: str | Path) -> bool:
         return True
     state = _torch().load(Path(init), weights_only=False)
     return bool(state.get("config", {}).get("frozen_batch_norm", False))
+
+
+def _draw_external(rng: np.random.Generator, by_source: list[list[int]], balanced: bool) -> int:
+    """An index into the external photos: every photo equally likely, or (``balanced``) a source first, each
+    equally likely, then one of its photos."""
+    if balanced:
+        members = by_source[int(rng.integers(len(by_source)))]
+        return members[int(rng.integers(len(members)))]
+    return int(rng.integers(sum(len(m) for m in by_source)))
 
 
 def _atomic_save(obj: Any, path: Path) -> None:
@@ -508,12 +520,16 @@ def train(
         masks += folder_masks
     ext_images: list[Any] = []
     ext_masks: list[Any] = []
+    by_source: list[list[int]] = []  # indices of ext_images per external source
     if external is not None and config.external_share > 0:
         pairs = [pair for pair in external_split(Path(external))["train"]
                  if external_source(pair[0]) in config.external_sources]
         ext_images, ext_masks = load_external(pairs, config.external_short_side)
         if not ext_images:
             raise ValueError(f"no labelled images found under {external}")
+        ext_sources = [external_source(pair[0]) for pair in pairs]
+        by_source = [[k for k, name in enumerate(ext_sources) if name == source]
+                     for source in sorted(set(ext_sources))]
     out.mkdir(parents=True, exist_ok=True)
     net = build_net(config.arch, *config.widths)
     opt = torch.optim.Adam(net.parameters(), lr=config.lr)
@@ -564,7 +580,7 @@ def train(
             xs, ys = [], []
             for _ in range(config.batch):
                 if ext_images and rng.random() < config.external_share:
-                    k = int(rng.integers(len(ext_images)))
+                    k = _draw_external(rng, by_source, config.external_balanced)
                     x, y = _augment(rng, ext_images[k], ext_masks[k], (config.crop_h, config.crop_w))
                 else:
                     k = int(rng.integers(len(images)))

@@ -312,3 +312,16 @@ def test_external_sources_choose_which_photos_are_trained_on(dataset: Path, tmp_
                   "--external", str(root), "--external-share", "0.5", option, bad])
         assert exc.value.code == 2 and option in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()
+
+
+def test_balanced_external_sampling_draws_each_source_equally_often() -> None:
+    """Unbalanced, a photo of the source with 5 photos is drawn a fifth of the time beside one with 20;
+    balanced, each source half of the time, its photos evenly."""
+    from dyndlo_vision.learning.segtrain import _draw_external
+
+    by_source = [list(range(20)), list(range(20, 25))]
+    for balanced, share in ((False, 0.2), (True, 0.5)):
+        rng = np.random.default_rng(0)
+        draws = np.array([_draw_external(rng, by_source, balanced) for _ in range(4000)])
+        assert abs(float(np.mean(draws >= 20)) - share) < 0.03, balanced
+        assert set(draws.tolist()) == set(range(25))
