@@ -9,8 +9,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from dyndlo_vision.learning.segtrain import ARCHITECTURES
-
 HELP = "train the learned cable segmenter on a seg-data dataset (resumable), export ONNX"
 
 
@@ -35,32 +33,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=0.0,
         help="share of each batch from the external train split (its held-out half is never used)",
     )
-    p.add_argument(
-        "--external-sources",
-        default="mbest,cables_dataset",
-        metavar="NAMES",
-        help="which external sources the external share draws from (comma-separated: mbest, "
-        "cables_dataset); leave one out to keep it unseen",
-    )
-    p.add_argument("--external-balanced", action="store_true",
-                   help="draw each external source equally often, then an image within it (default: every "
-                   "image equally often)")
     p.add_argument("--external-short-side", type=int, default=240, metavar="PX",
                    help="the external photos' short side before augmentation: the scale the network will "
-                   "run them at (default 240)")
+                   "run them at (default 240; 480 for the block networks)")
+    p.add_argument("--external-balanced", action="store_true",
+                   help="draw each external source equally often, then a photo within it (default: every "
+                   "photo equally often)")
     p.add_argument(
         "--arch",
-        choices=ARCHITECTURES,
+        choices=("cablenet-s2d4", "cablenet"),
         default="cablenet-s2d4",
-        help="network: cablenet-s2d4 (full-resolution mask, as cable-segmenter-fine and -loop), "
-        "cableunet-s2d4 (deeper and wider, full resolution, as cable-segmenter) or cablenet (half "
-        "resolution)",
+        help="network: cablenet-s2d4 (full-resolution mask, as cable-segmenter-fine) or cablenet (half "
+        "resolution, as cable-segmenter)",
     )
     p.add_argument("--widths", default="8,16,32", metavar="C1,C2,C3",
-                   help="channels of the network's three levels (default 8,16,32; cableunet-s2d4 adds a "
-                   "fourth of 2 x C3); narrower runs faster")
-    p.add_argument("--crop", default="160,224", metavar="H,W",
-                   help="training crop in pixels (multiples of 16; of 32 for cableunet-s2d4)")
+                   help="channels of the network's three levels (default 8,16,32, the shipped networks'); "
+                   "narrower runs faster")
     p.add_argument("--init", metavar="CHECKPOINT.pt|NET.onnx|NAME",
                    help="start from these weights (fine-tuning): a seg-train checkpoint, an exported ONNX "
                    "network or a shipped one by name (cable-segmenter-photo, cable-segmenter, "
@@ -76,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     """Trains; 0 on success, 130 on Ctrl-C (checkpoint saved)."""
     import sys
 
-    from dyndlo_vision.learning.segtrain import EXTERNAL_SOURCES, TrainConfig, needs_frozen_batch_norm, train
+    from dyndlo_vision.learning.segtrain import TrainConfig, needs_frozen_batch_norm, train
 
     if args.steps < 1 or args.batch < 1:
         raise ValueError(f"--steps and --batch must be >= 1, got {args.steps}, {args.batch}")
@@ -92,16 +80,6 @@ def run(args: argparse.Namespace) -> int:
         widths = ()
     if len(widths) != 3 or min(widths) < 1:
         raise ValueError(f"--widths must be three positive integers C1,C2,C3, got {args.widths!r}")
-    try:
-        crop = tuple(int(c) for c in str(args.crop).split(","))
-    except ValueError:
-        crop = ()
-    if len(crop) != 2 or min(crop) < 16:
-        raise ValueError(f"--crop must be two integers H,W of at least 16, got {args.crop!r}")
-    sources = tuple(name.strip() for name in str(args.external_sources).split(",") if name.strip())
-    if not sources or any(name not in EXTERNAL_SOURCES for name in sources):
-        raise ValueError(f"--external-sources must name some of {', '.join(EXTERNAL_SOURCES)}, got "
-                         f"{args.external_sources!r}")
     cfg = TrainConfig(
         widths=widths,  # type: ignore[arg-type]
         steps=args.steps,
@@ -111,9 +89,6 @@ def run(args: argparse.Namespace) -> int:
         pos_weight=args.pos_weight,
         external_share=args.external_share,
         arch=args.arch,
-        crop_h=crop[0],
-        crop_w=crop[1],
-        external_sources=sources,
         external_short_side=args.external_short_side,
         external_balanced=args.external_balanced,
         frozen_batch_norm=bool(args.init) and needs_frozen_batch_norm(args.init),
@@ -130,16 +105,15 @@ def run(args: argparse.Namespace) -> int:
             threads=args.threads,
         )
     except KeyboardInterrupt:
-        ext = (f" --external {args.external} --external-share {args.external_share} --external-sources "
-               f"{args.external_sources} --external-short-side {args.external_short_side}"
-               + (" --external-balanced" if args.external_balanced else "")
+        ext = (f" --external {args.external} --external-share {args.external_share} --external-short-side "
+               f"{args.external_short_side}" + (" --external-balanced" if args.external_balanced else "")
                if args.external else "")
         ext += f" --init {args.init}" if args.init else ""
         print(
             f"interrupted; resume with: dyndlo-vision seg-train --resume --data {' '.join(args.data)} "
             f"--out {args.out} --steps {args.steps} --batch {args.batch} --lr {args.lr} --seed {args.seed} "
             f"--pos-weight {args.pos_weight} --arch {args.arch}"
-            f" --widths {args.widths} --crop {args.crop}{ext}",
+            f" --widths {args.widths}{ext}",
             file=sys.stderr,
         )
         return 130

@@ -34,8 +34,6 @@ from dyndlo_vision._atomic import interrupts_held, write_atomic
 
 __all__ = [
     "ARCHITECTURES",
-    "BLOCK_ARCHITECTURES",
-    "EXTERNAL_SOURCES",
     "CableNet",
     "TrainConfig",
     "build_net",
@@ -61,10 +59,7 @@ def _torch() -> Any:
 #: input). ``cablenet-s2d4``: the frame enters as 4x4 space-to-depth blocks (48 channels at 1/4 of the frame,
 #: every pixel kept) and leaves as 16 sub-pixel logits per block, so the mask has the frame's own resolution
 #: and a cable 1-2 px wide is not lost to downsampling.
-ARCHITECTURES = ("cablenet", "cablenet-s2d4", "cableunet-s2d4")
-
-#: Architectures whose input is the frame in 4x4 blocks (48 channels) and whose output is 16 logits per block.
-BLOCK_ARCHITECTURES = ("cablenet-s2d4", "cableunet-s2d4")
+ARCHITECTURES = ("cablenet", "cablenet-s2d4")
 
 #: Block size of the ``cablenet-s2d4`` layout (the run-time side reads it from the network's channel counts).
 S2D_BLOCK = 4
@@ -98,8 +93,6 @@ def build_net(arch: str = "cablenet", c1: int = 8, c2: int = 16, c3: int = 32) -
     def up(x: Any) -> Any:
         return functional.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
 
-    if arch == "cableunet-s2d4":
-        return _cable_unet(c1, c2, c3)
     blocks = arch == "cablenet-s2d4"
     w1 = 2 * c1 if blocks else c1  # width of the finest level
 
@@ -126,55 +119,12 @@ def build_net(arch: str = "cablenet", c1: int = 8, c2: int = 16, c3: int = 32) -
     return CableNet()
 
 
-def _cable_unet(c1: int, c2: int, c3: int) -> Any:
-    """``cableunet-s2d4``: a deeper, wider encoder-decoder on 4x4 blocks. Two convolutions per level at 1/4,
-    1/8 and 1/16 of the frame (``c1``, ``c2``, ``c3`` channels), a fourth level at 1/32 (``2 * c3``) with two
-    dilated convolutions (dilation 2 and 4: context over most of a 480 x 640 frame), and a decoder with skips
-    back to 1/4, where 16 logits per block are produced. Frames are padded to a multiple of 32 px."""
-    torch = _torch()
-    nn = torch.nn
-    functional = torch.nn.functional
-
-    def cbr(i: int, o: int, k: int = 3, s: int = 1, d: int = 1) -> Any:
-        return nn.Sequential(
-            nn.Conv2d(i, o, k, s, padding=d * (k // 2), dilation=d, bias=False), nn.BatchNorm2d(o), nn.ReLU()
-        )
-
-    def up(x: Any) -> Any:
-        return functional.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
-
-    c4 = 2 * c3
-
-    class CableUNet(nn.Module):  # type: ignore[misc,name-defined]
-        def __init__(self) -> None:
-            super().__init__()
-            self.e1 = nn.Sequential(cbr(3 * S2D_BLOCK * S2D_BLOCK, c1, k=1), cbr(c1, c1))
-            self.e2 = nn.Sequential(cbr(c1, c2, s=2), cbr(c2, c2))
-            self.e3 = nn.Sequential(cbr(c2, c3, s=2), cbr(c3, c3))
-            self.e4 = nn.Sequential(cbr(c3, c4, s=2), cbr(c4, c4, d=2), cbr(c4, c4, d=4))
-            self.d3 = nn.Sequential(cbr(c4 + c3, c3, k=1), cbr(c3, c3))
-            self.d2 = nn.Sequential(cbr(c3 + c2, c2, k=1), cbr(c2, c2))
-            self.d1 = nn.Sequential(cbr(c2 + c1, c1, k=1), cbr(c1, c1))
-            self.out = nn.Conv2d(c1, S2D_BLOCK * S2D_BLOCK, 1)
-
-        def forward(self, x: Any) -> Any:
-            e1 = self.e1(x)
-            e2 = self.e2(e1)
-            e3 = self.e3(e2)
-            e4 = self.e4(e3)
-            d = self.d3(torch.cat([up(e4), e3], 1))
-            d = self.d2(torch.cat([up(d), e2], 1))
-            return self.out(self.d1(torch.cat([up(d), e1], 1)))
-
-    return CableUNet()
-
-
 def full_res_logits(net: Any, x: Any, arch: str) -> Any:
     """Logits of a batch of RGB inputs ``x`` (N x 3 x H x W, ``RGB / 255 - 0.5``) at the input's size: the
     ``cablenet-s2d4`` blocks go in and out with ``pixel_unshuffle``/``pixel_shuffle`` (H, W multiples of 16);
     ``cablenet``'s half-size logits are upsampled bilinearly, as at run time."""
     functional = _torch().nn.functional
-    if arch in BLOCK_ARCHITECTURES:
+    if arch == "cablenet-s2d4":
         return functional.pixel_shuffle(net(functional.pixel_unshuffle(x, S2D_BLOCK)), S2D_BLOCK)
     return functional.interpolate(net(x), size=x.shape[2:], mode="bilinear", align_corners=False)
 
@@ -230,20 +180,13 @@ def net_from_onnx(data: bytes) -> tuple[Any, str, tuple[int, int, int]]:
     except Exception as e:  # protobuf's DecodeError and kin
         raise ValueError(f"not an ONNX file ({type(e).__name__}: {e})") from e
     weights = {t.name: np.array(numpy_helper.to_array(t)) for t in model.graph.initializer}
-    for node in model.graph.node:  # equal tensors the exporter stored once and passed on by Identity
-        if node.op_type == "Identity" and node.input[0] in weights:
-            weights[node.output[0]] = weights[node.input[0]]
     convs = [n for n in model.graph.node if n.op_type == "Conv"]
-    if len(convs) not in (9, 16) or not all(len(n.input) == 3 and n.input[1] in weights
-                                            and n.input[2] in weights for n in convs):
-        raise ValueError(f"not a cablenet ONNX file: {len(convs)} convolutions, expected 9 (cablenet, "
-                         "cablenet-s2d4) or 16 (cableunet-s2d4) with weights and bias")
+    if len(convs) != 9 or not all(len(n.input) == 3 and n.input[1] in weights for n in convs):
+        raise ValueError(f"not a cablenet ONNX file: {len(convs)} convolutions, expected 9 with weights and "
+                         "bias")
     shapes = [weights[n.input[1]].shape for n in convs]
-    if len(convs) == 16:
-        arch, widths = "cableunet-s2d4", (shapes[0][0], shapes[2][0], shapes[4][0])
-    else:
-        arch = "cablenet-s2d4" if shapes[0][1] == 3 * S2D_BLOCK * S2D_BLOCK else "cablenet"
-        widths = (shapes[0][0] // 2 if arch == "cablenet-s2d4" else shapes[0][0], shapes[1][0], shapes[2][0])
+    arch = "cablenet-s2d4" if shapes[0][1] == 3 * S2D_BLOCK * S2D_BLOCK else "cablenet"
+    widths = (shapes[0][0] // 2 if arch == "cablenet-s2d4" else shapes[0][0], shapes[1][0], shapes[2][0])
     net = build_net(arch, *widths)
     modules = [m for m in net.modules() if isinstance(m, torch.nn.Conv2d)]
     norms = [m for m in net.modules() if isinstance(m, torch.nn.BatchNorm2d)]
@@ -266,9 +209,7 @@ def net_from_onnx(data: bytes) -> tuple[Any, str, tuple[int, int, int]]:
 
 def net_in_channels(net: Any) -> int:
     """Input channels of a :func:`build_net` network (3: RGB; 48: 4x4 blocks)."""
-    torch = _torch()
-    first = next(m for m in net.modules() if isinstance(m, torch.nn.Conv2d))
-    return int(first.in_channels)
+    return int(net.e1[0].in_channels)
 
 
 # ----------------------------------------------------------------------------- data
@@ -296,12 +237,8 @@ def load_dataset(folder: Path) -> tuple[list[NDArray[np.uint8]], list[NDArray[np
     return images, masks
 
 
-#: The labelled real-photo sources under the shared external data (:func:`external_split`).
-EXTERNAL_SOURCES = ("mbest", "cables_dataset")
-
-
 def external_source(image: Path) -> str:
-    """Which of :data:`EXTERNAL_SOURCES` an image of :func:`external_split` comes from."""
+    """Which source an image of :func:`external_split` comes from: ``mbest`` or ``cables_dataset``."""
     return "mbest" if "mbest" in Path(image).parts else "cables_dataset"
 
 
@@ -369,8 +306,6 @@ _LAYOUTS = {
     "cablenet": "RGB float32 NCHW, value/255 - 0.5; logits at 1/2 of the input; upsampled, > 0 = cable",
     "cablenet-s2d4": "RGB value/255 - 0.5 as 4x4 blocks (pixel_unshuffle, 48 channels at 1/4); 16 logits per "
     "block (pixel_shuffle order) give the input's resolution; > 0 = cable",
-    "cableunet-s2d4": "RGB value/255 - 0.5 as 4x4 blocks (pixel_unshuffle, 48 channels at 1/4), frame sides "
-    "multiples of 32; 16 logits per block (pixel_shuffle order) give the input's resolution; > 0 = cable",
 }
 
 
@@ -391,9 +326,6 @@ class TrainConfig:
     widths: tuple[int, int, int] = DEFAULT_WIDTHS
     #: Share of each batch drawn from the external train split (0: synthetic only).
     external_share: float = 0.0
-    #: Which external sources (:data:`EXTERNAL_SOURCES`) the external share draws from: leaving one out
-    #: keeps it an unseen source for evaluation.
-    external_sources: tuple[str, ...] = ("mbest", "cables_dataset")
     #: The external photos are resized to this short side before augmentation (the scale the network will
     #: see them at; 240: the first shipped networks').
     external_short_side: int = 240
@@ -409,8 +341,7 @@ class TrainConfig:
 def _with_widths(config: dict[str, Any]) -> dict[str, Any]:
     """A stored training config with ``widths`` as a tuple; options it predates at their defaults."""
     return {"frozen_batch_norm": False, "external_short_side": 240, "external_balanced": False, **config,
-            "widths": tuple(config.get("widths", DEFAULT_WIDTHS)),
-            "external_sources": tuple(config.get("external_sources", EXTERNAL_SOURCES))}
+            "widths": tuple(config.get("widths", DEFAULT_WIDTHS))}
 
 
 def is_onnx_init(init: str | Path) -> bool:
@@ -473,10 +404,6 @@ def train(
         raise FileExistsError(f"--out {out} already holds files; use --resume to continue, or another folder")
     if config.external_share > 0 and external is None:
         raise ValueError("external_share > 0 needs --external DIR")
-    unknown = [name for name in config.external_sources if name not in EXTERNAL_SOURCES]
-    if unknown or not config.external_sources:
-        raise ValueError(f"external_sources must be a non-empty selection of {EXTERNAL_SOURCES}, got "
-                         f"{config.external_sources!r}")
     if isinstance(config.external_short_side, bool) or not isinstance(config.external_short_side, int) or (
             config.external_short_side < 64):
         raise ValueError(f"external_short_side must be an int >= 64, got {config.external_short_side!r}")
@@ -484,10 +411,9 @@ def train(
         raise ValueError(f"arch must be one of {ARCHITECTURES}, got {config.arch!r}")
     if len(config.widths) != 3 or not all(isinstance(c, int) and c >= 1 for c in config.widths):
         raise ValueError(f"widths must be three positive ints (c1, c2, c3), got {config.widths!r}")
-    multiple = 32 if config.arch == "cableunet-s2d4" else 16
-    if config.arch in BLOCK_ARCHITECTURES and (config.crop_h % multiple or config.crop_w % multiple):
+    if config.arch == "cablenet-s2d4" and (config.crop_h % 16 or config.crop_w % 16):
         raise ValueError(
-            f"{config.arch} needs crops in multiples of {multiple} px, got {config.crop_h}x{config.crop_w}"
+            f"cablenet-s2d4 needs crops in multiples of 16 px, got {config.crop_h}x{config.crop_w}"
         )
     init_weights = None
     if init is not None and not resume:
@@ -522,14 +448,13 @@ def train(
     ext_masks: list[Any] = []
     by_source: list[list[int]] = []  # indices of ext_images per external source
     if external is not None and config.external_share > 0:
-        pairs = [pair for pair in external_split(Path(external))["train"]
-                 if external_source(pair[0]) in config.external_sources]
+        pairs = external_split(Path(external))["train"]
         ext_images, ext_masks = load_external(pairs, config.external_short_side)
         if not ext_images:
             raise ValueError(f"no labelled images found under {external}")
-        ext_sources = [external_source(pair[0]) for pair in pairs]
-        by_source = [[k for k, name in enumerate(ext_sources) if name == source]
-                     for source in sorted(set(ext_sources))]
+        sources = [external_source(pair[0]) for pair in pairs]
+        by_source = [[k for k, name in enumerate(sources) if name == source]
+                     for source in sorted(set(sources))]
     out.mkdir(parents=True, exist_ok=True)
     net = build_net(config.arch, *config.widths)
     opt = torch.optim.Adam(net.parameters(), lr=config.lr)

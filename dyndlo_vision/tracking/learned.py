@@ -28,9 +28,8 @@ __all__ = ["OUTSIDE_LOGIT", "LearnedSegmenter", "from_blocks", "to_blocks"]
 
 #: Block size of the 48-channel layout (``segtrain.S2D_BLOCK``).
 BLOCK = 4
-#: Frame sides of the block layout are padded to a multiple of this (the block and two stride-2 levels), or
-#: of twice it for a network with a third stride-2 level (``cableunet-s2d4``); a region is computed on this
-#: grid, where the network sees what it sees in the whole frame.
+#: Frame sides of the block layout are padded to a multiple of this (the block and two stride-2 levels); a
+#: region is computed on this grid, where the network sees what it sees in the whole frame.
 _MULTIPLE = 16
 #: The logit given outside a computed region (no cable; far below any threshold, finite for resizing).
 OUTSIDE_LOGIT = -1.0e4
@@ -102,9 +101,6 @@ class LearnedSegmenter:
         except cv2.error as exc:
             raise ValueError(f"OpenCV cannot read the segmenter's ONNX bytes: {exc}") from exc
         self.blocks = self._probe_layout()
-        #: Frame sides (of the network's input) are padded to a multiple of this: 16, or 32 for a block
-        #: network with a level at 1/32 of the frame.
-        self.multiple = self._probe_multiple() if self.blocks else _MULTIPLE
         if short_side == "auto":
             short_side = 480 if self.blocks else 240
         self.short_side: int | None = short_side  # type: ignore[assignment]
@@ -128,18 +124,6 @@ class LearnedSegmenter:
             "out)"
         )
 
-    def _probe_multiple(self) -> int:
-        """16 where the block network takes a 16-pixel frame (4 x 4 blocks... one per stride-2 level and
-        the block), else 32."""
-        try:
-            self._net.setInput(np.zeros((1, 3 * BLOCK * BLOCK, _MULTIPLE // BLOCK, _MULTIPLE // BLOCK),
-                                        np.float32))
-            if self._net.forward().shape[2:] == (_MULTIPLE // BLOCK, _MULTIPLE // BLOCK):
-                return _MULTIPLE
-        except cv2.error:
-            pass
-        return 2 * _MULTIPLE
-
     def input_size(self, height: int, width: int) -> tuple[int, int]:
         """(w, h) the frame is resized to before the network (a block network pads it further to 16)."""
         s = 1.0 if self.short_side is None else self.short_side / min(height, width)
@@ -159,7 +143,7 @@ class LearnedSegmenter:
     def _block_logits(self, small: NDArray[np.uint8]) -> NDArray[np.float32]:
         """(16, h, w) logits of a block network for the (resized) frame, edge-padded to a multiple of 16."""
         h, w = small.shape[:2]
-        ph, pw = -h % self.multiple, -w % self.multiple
+        ph, pw = -h % _MULTIPLE, -w % _MULTIPLE
         padded = cv2.copyMakeBorder(small, 0, ph, 0, pw, cv2.BORDER_REPLICATE) if ph or pw else small
         self._net.setInput(to_blocks(padded))
         return np.asarray(self._net.forward()[0], dtype=np.float32)
@@ -181,9 +165,8 @@ class LearnedSegmenter:
         v0, v1 = max(0, int(np.floor(v0 * sy))), min(h_in, int(np.ceil(v1 * sy)))
         if u0 >= u1 or v0 >= v1:
             return (0, 0, 0, 0)
-        m = self.multiple
-        u0, v0 = u0 - u0 % m, v0 - v0 % m
-        u1, v1 = min(w_in, u1 + -u1 % m), min(h_in, v1 + -v1 % m)
+        u0, v0 = u0 - u0 % _MULTIPLE, v0 - v0 % _MULTIPLE
+        u1, v1 = min(w_in, u1 + -u1 % _MULTIPLE), min(h_in, v1 + -v1 % _MULTIPLE)
         if (u0, v0, u1, v1) == (0, 0, w_in, h_in):
             return None
         return u0, v0, u1, v1

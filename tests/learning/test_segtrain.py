@@ -12,7 +12,6 @@ from dyndlo_vision.cli import main
 from dyndlo_vision.learning.segdata import SegDataConfig, write_dataset
 from dyndlo_vision.learning.segtrain import (
     ARCHITECTURES,
-    BLOCK_ARCHITECTURES,
     TrainConfig,
     build_net,
     export_onnx,
@@ -69,8 +68,7 @@ def test_onnx_matches_torch(arch: str) -> None:
             m.running_var.uniform_(0.5, 2.0)
     net.eval()
     seg = LearnedSegmenter(export_onnx(net), short_side=None)
-    assert seg.blocks == (arch in BLOCK_ARCHITECTURES)
-    assert seg.multiple == (32 if arch == "cableunet-s2d4" else 16)
+    assert seg.blocks == (arch == "cablenet-s2d4")
     rgb = np.random.default_rng(0).integers(0, 255, (64, 96, 3), dtype=np.uint8)
     x = torch.from_numpy(rgb.astype(np.float32).transpose(2, 0, 1)[None] / 255.0 - 0.5)
     with torch.inference_mode():
@@ -91,9 +89,8 @@ def test_blocks_are_pixel_unshuffle() -> None:
         torch.from_numpy(ref[:, :16]), 4)[0, 0].numpy())
 
 
-@pytest.mark.parametrize("arch", BLOCK_ARCHITECTURES)
-def test_frames_of_any_size_keep_their_size(arch: str) -> None:
-    seg = LearnedSegmenter(export_onnx(build_net(arch).eval()))
+def test_frames_of_any_size_keep_their_size() -> None:
+    seg = LearnedSegmenter(export_onnx(build_net("cablenet-s2d4").eval()))
     for shape in ((50, 70, 3), (480, 640, 3), (17, 33, 3)):
         assert seg(np.zeros(shape, np.uint8)).shape == shape[:2]
     assert LearnedSegmenter(export_onnx(build_net("cablenet-s2d4").eval()), short_side=96).input_size(
@@ -263,33 +260,14 @@ def test_fine_tuning_an_onnx_network_keeps_its_batch_norms_frozen(dataset: Path,
     assert not (tmp_path / "s").exists()
 
 
-def test_a_network_with_a_32_pixel_grid_pads_and_cuts_regions_on_it() -> None:
-    """``cableunet-s2d4`` halves the frame five times (blocks, then four levels... down to 1/32): frames are
-    padded to 32 px, and a region is computed on the 32-pixel grid, where the network sees what it sees
-    in the whole frame."""
-    from dyndlo_vision.tracking.learned import OUTSIDE_LOGIT
-
-    seg = LearnedSegmenter(export_onnx(build_net("cableunet-s2d4", 4, 8, 16).eval()), short_side=None)
-    assert seg.multiple == 32
-    rgb = np.random.default_rng(3).integers(0, 255, (240, 320, 3), dtype=np.uint8)
-    box = seg.grid_box((37, 21, 203, 150), 240, 320)
-    assert box == (32, 0, 224, 160)
-    logits = seg.logits(rgb, region=(37, 21, 203, 150))
-    u0, v0, u1, v1 = box
-    alone = seg.logits(np.ascontiguousarray(rgb[v0:v1, u0:u1]))
-    np.testing.assert_allclose(logits[v0:v1, u0:u1], alone, atol=1e-5)
-    assert (logits[:, :u0] == OUTSIDE_LOGIT).all() and (logits[v1:] == OUTSIDE_LOGIT).all()
-    assert seg(np.zeros((50, 70, 3), np.uint8)).shape == (50, 70)
-
-
-def test_external_sources_choose_which_photos_are_trained_on(dataset: Path, tmp_path: Path,
+def test_external_photos_at_their_scale_and_sources_balanced(dataset: Path, tmp_path: Path,
                                                              capsys: pytest.CaptureFixture[str]) -> None:
-    """``--external-sources mbest`` trains on mBEST's train half only, so cables_dataset stays an unseen
-    source; the photos are resized to ``--external-short-side``; an unknown source is refused up front."""
+    """``--external-short-side`` and ``--external-balanced`` reach the run and its JSON; a short side under
+    64 px is refused before anything is written."""
     import cv2
 
     root = tmp_path / "external"
-    for folder, names, label in ((root / "mbest" / "S1", ["img0", "img1"], "_labels.png"),
+    for folder, names, label in ((root / "mbest" / "S1", ["img0", "img1", "img2"], "_labels.png"),
                                  (root / "cables_dataset", ["00000", "00001"], "_mask_all.png")):
         folder.mkdir(parents=True)
         for name in names:
@@ -297,20 +275,18 @@ def test_external_sources_choose_which_photos_are_trained_on(dataset: Path, tmp_
             cv2.line(img, (10, 60), (150, 60), (20, 200, 20), 5)
             cv2.imwrite(str(folder / f"{name}.jpg"), img)
             cv2.imwrite(str(folder / f"{name}{label}"), (img[..., 1] > 150).astype(np.uint8) * 255)
-    for sources, count in (("mbest", 1), ("mbest,cables_dataset", 2)):
-        out = tmp_path / sources.replace(",", "-")
-        assert main(["seg-train", "--data", str(dataset), "--out", str(out), "--quiet", "--steps", "1",
-                     "--batch", "2", "--crop", "64,64", "--external", str(root), "--external-share", "1",
-                     "--external-sources", sources, "--external-short-side", "96"]) == 0
-        meta = json.loads((out / "cable_segmenter.json").read_text())
-        assert meta["external_train_images"] == count
-        assert meta["train_config"]["external_sources"] == sources.split(",")
-        assert meta["train_config"]["external_short_side"] == 96
-    for option, bad in (("--external-sources", "mbest,photos"), ("--crop", "64")):
-        with pytest.raises(SystemExit) as exc:
-            main(["seg-train", "--data", str(dataset), "--out", str(tmp_path / "bad"), "--quiet",
-                  "--external", str(root), "--external-share", "0.5", option, bad])
-        assert exc.value.code == 2 and option in capsys.readouterr().err
+    out = tmp_path / "run"
+    assert main(["seg-train", "--data", str(dataset), "--out", str(out), "--quiet", "--steps", "1",
+                 "--batch", "2", "--external", str(root), "--external-share", "1", "--external-balanced",
+                 "--external-short-side", "96"]) == 0
+    meta = json.loads((out / "cable_segmenter.json").read_text())
+    assert meta["external_train_images"] == 3  # mBEST's img0, img2 and cables_dataset's 00000
+    assert meta["train_config"]["external_short_side"] == 96
+    assert meta["train_config"]["external_balanced"] is True
+    with pytest.raises(SystemExit) as exc:
+        main(["seg-train", "--data", str(dataset), "--out", str(tmp_path / "bad"), "--quiet",
+              "--external", str(root), "--external-share", "0.5", "--external-short-side", "32"])
+    assert exc.value.code == 2 and "external_short_side" in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()
 
 
