@@ -1,41 +1,33 @@
-"""How well cable segmentation generalises: the learned segmenter against the classical one (issue 14).
+"""How cable segmentation generalises to scenes it was not trained on, per kind of scene.
 
-Three parts, all on data the learned segmenter was not trained on:
+Every figure is per *kind*, never only pooled: a network that does well on average can fail a whole kind.
 
-* ``external``: the labelled real photos in ``../shared/data/external`` (mBEST S1-S3, cables_dataset):
-  mask DICE per image, mean per data set, and on the held-out half (``learning.segtrain.external_split``,
-  odd positions) separately, because a fine-tuned model saw the even half.
+* ``external``: the labelled real photos of ``../shared/data/external``, per source (mBEST, cables_dataset)
+  and per half of :func:`dyndlo_vision.learning.segtrain.external_split` (``heldout``: odd positions, never
+  trained on; ``train``: what a fine-tuned network saw). Mean mask DICE and the share of images whose mask
+  is empty or near-empty (fewer cable pixels than a tenth of the truth's).
+* ``styles``: generated scenes of every ``seg-data`` style (:data:`dyndlo_vision.learning.segdata.STYLES`),
+  drawn on the fly with a seed of their own (``--style-seed``: 1000 for development, 2000 for the sealed test
+  range), or read from ``seg-data`` folders (``--sets``). Same figures per style; samples whose truth holds
+  fewer than 20 cable pixels (a cable out of view) are counted apart.
 * ``flat``: flat-coloured synthetic cables 1-11 px wide on plain walls (640x480): median DICE per width.
-* ``phase``: a straight, nearly vertical 1.6 px line (anti-aliased) on plain grey walls, drawn at each of the
-  four horizontal offsets within the 4x4 pixel blocks ``cable-segmenter-fine`` reads: the median cable
-  probability on the line per offset, and the share of lines found (median > 0.5) at the worst and the best
-  offset. A network that depends on where a thin line falls in its blocks shows a gap between them.
-* ``renders``: the seg-data generator with seeds the training never used (``--render-seed``, default 1000):
-  mask DICE.
-* ``loopcam``: the control loop's own camera view (tip control, 640x480, a 1.6 px red cable): mask DICE
-  and time of the learned segmenter at network short sides 240, 360 and 480, and of the classical one.
-* ``speed``: one-core timings (see ``part_speed``).
-* ``loopspeed``: the loop's configuration (issue 14's 5 ms rule): tip control's camera, frames from episodes
-  of the shipped multi-step policy, and the loop's own tracker (``control.sim_perception.tracked_state``:
-  gripper masked, centreline from the gripper, lifted to the motion plane). Median ms per frame of the
-  segmenter alone and of ``CableTracker.process`` (segment + centreline + lift), learned (the loop's
-  ``cable-segmenter-loop``, or ``--model``) and classical (the rendered background image), interleaved
-  frame by frame.
-* ``whip``: rendered whip videos (640x480, 25 fps) of a dark cable 2-3 px wide held by a dark spherical
-  gripper, in styles the generator never produced: ``plain`` (a plain light wall), ``textured-blur`` (a
-  wood-grain wall, orange cable, motion blur: the mean of 8 renders over the 40 ms frame), ``occluded`` (a
-  grey pole in front of the swing). The tip is the last node of the ordered centreline from the gripper's
-  projected pixel, with the known cable length (nodes past the observed length are not measured), lifted to
-  the plane y = 0. Reported: mask DICE, tip RMSE on frames where the tip is measured, the share of frames
-  with a measured tip,
-  and the share of frames whose measured tip is wrong (> 50 mm from the truth) or on the gripper (< 40 mm
-  from the TCP).
+* ``phase``: a straight 1.6 px line at each of the four horizontal offsets within the 4x4 pixel blocks a block
+  network reads: the share of lines found (median probability > 0.5) at the worst and the best offset.
+* ``speed``: one-core milliseconds per 640x480 frame of the segmenter (cv2.dnn) and of the centreline.
+* ``loopspeed``: the loop's configuration: tip control's camera, frames from episodes of the shipped
+  multi-step policy, and the loop's own tracker (``control.sim_perception.tracked_state``: gripper masked,
+  centreline from the gripper, lifted to the motion plane), learned (the loop's network, or ``--model``) and
+  classical (the rendered background image), interleaved frame by frame. Median ms per frame.
+* ``whip``: rendered whip videos of a dark 2.5 px cable in three styles no generator draws (plain wall,
+  wood grain with motion blur, a pole in front): mask DICE and tip figures.
+* ``loopcam``: the control loop's own camera (tip control, 640x480, a 1.6 px red cable): DICE and time at
+  three network scales.
 
-Classical = ``BackgroundSegmenter(open_radius=0)`` with its self-estimated background (``track``'s segmenter
-for a single image); on the whip videos also with the per-pixel median background of the video, as
-``track --background median`` does.
+``--worst DIR`` writes, per kind, the worst images as PNG panels (photo, truth, mask) to look at.
+``--quick`` runs a few images of every kind and no videos (what the test runs)::
 
-    python benchmarks/segmentation_generalisation.py --out /tmp/seg_generalisation.json [--model FILE.onnx]
+    python benchmarks/segmentation_generalisation.py --out seg.json [--model NAME|FILE.onnx]
+        [--short-side N] [--parts external,styles] [--style-seed 2000 --per-style 100] [--worst DIR]
 """
 
 from __future__ import annotations
@@ -52,18 +44,23 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from dyndlo_vision.learning.segdata import SceneSampler, SegDataConfig  # noqa: E402
-from dyndlo_vision.learning.segtrain import external_split  # noqa: E402
-from dyndlo_vision.sim.cable_look import CableLook  # noqa: E402
-from dyndlo_vision.tracking import BackgroundSegmenter, dice  # noqa: E402
-from dyndlo_vision.tracking.centerline import extract_centerline  # noqa: E402
-from dyndlo_vision.tracking.learned import LearnedSegmenter  # noqa: E402
-from dyndlo_vision.tracking.networks import onnx_bytes  # noqa: E402
-from dyndlo_vision.tracking.tracker import Measurement, Plane, lift_with_plane, tip_from_polyline  # noqa: E402
+from dyndlo_vision.learning.segdata import STYLES, SegDataConfig, make_sampler
+from dyndlo_vision.learning.segtrain import external_source, external_split
+from dyndlo_vision.sim.cable_look import CableLook
+from dyndlo_vision.tracking import BackgroundSegmenter, dice
+from dyndlo_vision.tracking.centerline import extract_centerline
+from dyndlo_vision.tracking.learned import LearnedSegmenter
+from dyndlo_vision.tracking.networks import onnx_bytes
+from dyndlo_vision.tracking.tracker import Measurement, Plane, lift_with_plane, tip_from_polyline
 
 EXTERNAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "external"
+
+#: A mask with fewer cable pixels than this share of the truth's counts as empty or near-empty.
+NEAR_EMPTY = 0.1
+
+#: Image size of the generated scenes per style (what ``seg-data`` was run with for training).
+STYLE_SIZES = {"random-scenes": (320, 240), "task-scenes": (640, 480)}
+COMPOSITE_SIZE = (384, 288)
 
 
 def _read(path: Path) -> np.ndarray:
@@ -73,46 +70,129 @@ def _read(path: Path) -> np.ndarray:
     return np.ascontiguousarray(bgr[..., ::-1])
 
 
-def part_external(seg, root: Path) -> dict:
-    split = external_split(root)
-    rows = []
-    classical = BackgroundSegmenter(open_radius=0)
-    for part, pairs in split.items():
+def _score(mask: np.ndarray, truth: np.ndarray) -> dict:
+    return {"dice": dice(mask, truth),
+            "near_empty": bool(mask.sum() < NEAR_EMPTY * truth.sum()),
+            "mask_share": float(mask.sum() / max(1, truth.sum()))}
+
+
+def _summary(rows: list[dict]) -> dict:
+    d = [r["dice"] for r in rows]
+    return {"n": len(rows), "dice_mean": float(np.mean(d)), "dice_median": float(np.median(d)),
+            "dice_min": float(np.min(d)), "near_empty_share": float(np.mean([r["near_empty"] for r in rows]))}
+
+
+def _panel(rgb: np.ndarray, truth: np.ndarray, mask: np.ndarray, title: str) -> np.ndarray:
+    """Photo | truth | mask (green: right, red: extra, blue: missed), scaled to 320 px high."""
+    s = 320 / rgb.shape[0]
+    size = (int(round(rgb.shape[1] * s)), 320)
+    over = (rgb * 0.45).astype(np.uint8)
+    over[mask & truth] = (40, 220, 40)
+    over[mask & ~truth] = (240, 40, 40)
+    over[~mask & truth] = (60, 90, 255)
+    tr = np.where(truth[..., None], 255, 0).astype(np.uint8).repeat(3, axis=2)
+    out = np.hstack([cv2.resize(x, size, interpolation=cv2.INTER_AREA) for x in (rgb, tr, over)])
+    cv2.putText(out, title, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 0), 1, cv2.LINE_AA)
+    return out
+
+
+def _write_worst(folder: Path, kind: str, items: list[tuple[float, np.ndarray, np.ndarray, np.ndarray, str]],
+                 k: int) -> list[str]:
+    folder.mkdir(parents=True, exist_ok=True)
+    worst = sorted(items, key=lambda t: t[0])[:k]
+    rows = [_panel(rgb, truth, mask, f"{kind} {name} DICE {d:.2f}") for d, rgb, truth, mask, name in worst]
+    if not rows:
+        return []
+    width = max(r.shape[1] for r in rows)
+    img = np.vstack([np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0))) for r in rows])
+    path = folder / f"worst_{kind}.png"
+    cv2.imwrite(str(path), img[..., ::-1])
+    return [name for _, _, _, _, name in worst]
+
+
+def part_external(seg, root: Path, per_source: int | None = None, worst: Path | None = None,
+                  k_worst: int = 4) -> dict:
+    """Mean DICE and near-empty share per source and half of the external photos."""
+    rows, keep = [], {}
+    for part, pairs in external_split(root).items():
+        counts: dict = {}
         for img_path, lab_path in pairs:
+            source = external_source(img_path)
+            counts[source] = counts.get(source, 0) + 1
+            if per_source is not None and counts[source] > per_source:
+                continue
             rgb = _read(img_path)
             truth = cv2.imread(str(lab_path), cv2.IMREAD_GRAYSCALE) > 0
-            t = time.perf_counter()
-            m_l = seg(rgb)
-            ms = (time.perf_counter() - t) * 1e3
-            m_c = classical(rgb)
-            dataset = "mbest" if "mbest" in str(img_path) else "cables_dataset"
-            rows.append(
-                {
-                    "image": str(img_path.relative_to(root)),
-                    "dataset": dataset,
-                    "split": part,
-                    "dice_learned": dice(m_l, truth),
-                    "dice_classical": dice(m_c, truth),
-                    "classical_empty": bool(not m_c.any()),
-                    "learned_ms": ms,
-                }
-            )
+            mask = np.asarray(seg(rgb), bool)
+            row = {"image": str(img_path.relative_to(root)), "source": source, "split": part,
+                   **_score(mask, truth)}
+            rows.append(row)
+            if worst is not None:
+                keep.setdefault(f"{source}-{part}", []).append((row["dice"], rgb, truth, mask, row["image"]))
     summary = {}
-    for dataset in ("mbest", "cables_dataset", "all"):
+    for source in sorted({r["source"] for r in rows}):
         for part in ("heldout", "train", "all"):
-            sel = [
-                r
-                for r in rows
-                if (dataset == "all" or r["dataset"] == dataset) and (part == "all" or r["split"] == part)
-            ]
+            sel = [r for r in rows if r["source"] == source and part in ("all", r["split"])]
             if sel:
-                summary[f"{dataset}/{part}"] = {
-                    "n": len(sel),
-                    "dice_learned": float(np.mean([r["dice_learned"] for r in sel])),
-                    "dice_classical": float(np.mean([r["dice_classical"] for r in sel])),
-                    "classical_empty_share": float(np.mean([r["classical_empty"] for r in sel])),
-                }
-    return {"summary": summary, "rows": rows}
+                summary[f"{source}/{part}"] = _summary(sel)
+    worst_names = ({kind: _write_worst(worst, kind, items, k_worst) for kind, items in keep.items()}
+                   if worst else {})
+    return {"summary": summary, "rows": rows, "worst": worst_names}
+
+
+def _style_samples(style: str, seed: int, n: int):
+    """``n`` samples of ``style`` with ``seed``: what ``seg-data --style STYLE --seed SEED`` writes first."""
+    w, h = STYLE_SIZES.get(style, COMPOSITE_SIZE)
+    lo, hi = (0.7, 12.0) if style in STYLE_SIZES else (1.0, 40.0)
+    cfg = SegDataConfig(width=w, height=h, style=style, min_width_px=lo, max_width_px=hi)
+    group, made = 0, 0
+    while made < n:
+        sampler = make_sampler(cfg, seed, group)
+        try:
+            for _ in range(cfg.samples_per_scene):
+                if made >= n:
+                    break
+                rgb, mask, _ = sampler.sample()
+                made += 1
+                yield f"{seed}/{made - 1:06d}", rgb, mask > 0
+        finally:
+            sampler.close()
+        group += 1
+
+
+def _folder_samples(folder: Path):
+    for mp in sorted(folder.glob("[0-9]*_mask.png")):
+        yield mp.name.replace("_mask.png", ""), _read(mp.with_name(mp.name.replace("_mask", ""))), (
+            cv2.imread(str(mp), cv2.IMREAD_GRAYSCALE) > 127)
+
+
+def part_styles(seg, styles: list[str], seed: int, per_style: int, sets: list[Path] | None = None,
+                worst: Path | None = None, k_worst: int = 4) -> dict:
+    """Mean DICE and near-empty share per generated style (on the fly, or from ``seg-data`` folders)."""
+    sources = []
+    if sets:
+        for folder in sets:
+            style = json.loads((folder / "dataset.json").read_text())["config"]["style"]
+            sources.append((style, folder.name, _folder_samples(folder)))
+    else:
+        sources = [(style, style, _style_samples(style, seed, per_style)) for style in styles]
+    out = {}
+    for style, label, samples in sources:
+        rows, keep, no_cable = [], [], 0
+        for name, rgb, truth in samples:
+            if truth.sum() < 20:
+                no_cable += 1
+                continue
+            mask = np.asarray(seg(rgb), bool)
+            row = {"image": name, **_score(mask, truth)}
+            rows.append(row)
+            if worst is not None:
+                keep.append((row["dice"], rgb, truth, mask, name))
+        entry = {"style": style, "no_cable_samples": no_cable, **_summary(rows), "rows": rows}
+        if worst is not None:
+            entry["worst"] = _write_worst(worst, label, keep, k_worst)
+        out[label] = entry
+    return out
 
 
 def part_flat(seg) -> dict:
@@ -158,38 +238,14 @@ def part_phase(seg) -> dict:
             "median_probability": median_p}
 
 
-def part_renders(seg, seed: int, n: int) -> dict:
-    cfg = SegDataConfig()
-    d_l, d_c = [], []
-    classical = BackgroundSegmenter(open_radius=0)
-    group = 0
-    while len(d_l) < n:
-        sampler = SceneSampler(cfg, seed, group)
-        try:
-            for _ in range(cfg.samples_per_scene):
-                rgb, mask, _ = sampler.sample()
-                truth = mask > 0
-                d_l.append(dice(seg(rgb), truth))
-                d_c.append(dice(classical(rgb), truth))
-        finally:
-            sampler.close()
-        group += 1
-    return {
-        "seed": seed,
-        "n": len(d_l),
-        "dice_learned": float(np.mean(d_l)),
-        "dice_classical": float(np.mean(d_c)),
-    }
-
-
-#: ``_whip_video(..., views=2)``: the second camera, right of the first and higher, aimed at the hanging
+#: ``whip_video(..., views=2)``: the second camera, right of the first and higher, aimed at the hanging
 #: cable. Its baseline with the first camera is not in the plane of the whip, so the cable seldom lies in an
 #: epipolar plane (docs/RESULTS.md, session 18). Adding it to the model changes neither the physics nor the
 #: first camera's frames.
 WHIP_SECOND_CAMERA = ((1.55, -1.2, 1.1), (0.65, 0.0, 0.3))
 
 
-def _whip_video(style: str, seed: int, seconds: float = 3.0, views: int = 1):
+def whip_video(style: str, seed: int, seconds: float = 3.0, views: int = 1):
     """Frames, true masks, true tips and TCPs (world), and the calibration of a whip video in ``style``; with
     ``views=2`` also the second camera's frames and calibration (same styles, same instants)."""
     import mujoco
@@ -272,7 +328,7 @@ def part_whip(seg, seed: int) -> dict:
     plane = Plane(np.array([0.0, 1.0, 0.0]), 0.0)
     out = {}
     for style in ("plain", "textured-blur", "occluded"):
-        frames, truths, tips, tcps, calib, length_m = _whip_video(style, seed)
+        frames, truths, tips, tcps, calib, length_m = whip_video(style, seed)
         median_bg = np.median(np.stack(frames[:: max(1, len(frames) // 25)]), axis=0).astype(np.uint8)
         methods = {
             "learned": seg,
@@ -322,10 +378,10 @@ def part_whip(seg, seed: int) -> dict:
     return out
 
 
-def part_speed(seg, checkpoint: str | None, seed: int, repeats: int = 200) -> dict:
-    """Median ms per 640x480 frame on one core: learned segmenter (cv2.dnn), the same network in torch
-    (with ``--checkpoint``), the classical segmenter, and the centreline on the learned mask."""
-    frames, _, _, tcps, calib, length_m = _whip_video("plain", seed, seconds=1.0)
+def part_speed(seg, seed: int, repeats: int = 200, seconds: float = 1.0) -> dict:
+    """Median ms per 640x480 frame on one core: the learned segmenter (cv2.dnn), the classical segmenter, and
+    the centreline on the learned mask, on the last frames of the plain whip video."""
+    frames, _, _, tcps, calib, length_m = whip_video("plain", seed, seconds=seconds)
     frames = frames[-10:]
     tcps = tcps[-10:]
     classical = BackgroundSegmenter(open_radius=0)
@@ -339,67 +395,18 @@ def part_speed(seg, checkpoint: str | None, seed: int, repeats: int = 200) -> di
             ts.append(time.perf_counter() - t)
         return float(np.median(ts) * 1e3)
 
+    def centre(mask: np.ndarray, k: int) -> None:
+        depth = float(calib.world_to_camera(tcps[k])[0, 2])
+        extract_centerline(mask, n_nodes=20, anchor_uv=calib.project(tcps[k])[0],
+                           expected_length_px=length_m * calib.K[0, 0] / depth)
+
     masks = [seg(f) for f in frames]
-
-    def centre(k: int) -> None:
-        depth = float(calib.world_to_camera(tcps[k])[0, 2])
-        extract_centerline(
-            masks[k],
-            n_nodes=20,
-            anchor_uv=calib.project(tcps[k])[0],
-            expected_length_px=length_m * calib.K[0, 0] / depth,
-        )
-
-    def both(k: int) -> None:
-        m = seg(frames[k])
-        depth = float(calib.world_to_camera(tcps[k])[0, 2])
-        extract_centerline(
-            m,
-            n_nodes=20,
-            anchor_uv=calib.project(tcps[k])[0],
-            expected_length_px=length_m * calib.K[0, 0] / depth,
-        )
-
-    res = {
+    return {
         "learned_cv2dnn_ms": med(lambda k: seg(frames[k])),
         "classical_ms": med(lambda k: classical(frames[k])),
-        "centerline_ms": med(centre),
-        "learned_plus_centerline_ms": med(both),
+        "centerline_ms": med(lambda k: centre(masks[k], k)),
+        "learned_plus_centerline_ms": med(lambda k: centre(seg(frames[k]), k)),
     }
-    if checkpoint:
-        import torch
-
-        from dyndlo_vision.learning.segtrain import build_net, full_res_logits
-
-        torch.set_num_threads(1)
-        ck = torch.load(checkpoint, weights_only=False)
-        arch = ck["config"].get("arch", "cablenet")
-        net = build_net(arch, *ck["config"].get("widths", (8, 16, 32)))
-        net.load_state_dict(ck["net"])
-        net.eval()
-        w, h = seg.input_size(480, 640)
-
-        def torch_seg(k: int) -> None:
-            small = frames[k] if (w, h) == (640, 480) else cv2.resize(frames[k], (w, h), cv2.INTER_AREA)
-            x = torch.from_numpy(small.astype(np.float32).transpose(2, 0, 1)[None] / 255.0 - 0.5)
-            with torch.inference_mode():
-                lg = full_res_logits(net, x, arch)[0, 0].numpy()
-            if lg.shape != (480, 640):
-                lg = cv2.resize(lg, (640, 480), interpolation=cv2.INTER_LINEAR)
-            _ = lg > 0
-
-        # Interleaved with the cv2.dnn segmenter, so both see the same machine load.
-        a, b = [], []
-        for k in range(repeats):
-            t = time.perf_counter()
-            seg(frames[k % len(frames)])
-            a.append(time.perf_counter() - t)
-            t = time.perf_counter()
-            torch_seg(k % len(frames))
-            b.append(time.perf_counter() - t)
-        res["interleaved_learned_cv2dnn_ms"] = float(np.median(a) * 1e3)
-        res["interleaved_learned_torch_ms"] = float(np.median(b) * 1e3)
-    return res
 
 
 def part_loopcam(model: str | None, episodes: int = 3) -> dict:
@@ -498,18 +505,20 @@ def part_loopspeed(model: str | None = None, episodes: int = 3, repeats: int = 5
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--model", help="ONNX file (default: the shipped segmenter)")
-    ap.add_argument(
-        "--short-side",
-        default="auto",
-        help="network input's short side: an int, 'none' (the frame's own size) or 'auto' (the network's)",
-    )
+    ap.add_argument("--model", help="ONNX file or shipped name (default: the shipped default segmenter)")
+    ap.add_argument("--short-side", default="auto",
+                    help="network input's short side: an int, 'none' (the frame's own size) or 'auto'")
     ap.add_argument("--external", default=str(EXTERNAL))
-    ap.add_argument("--render-seed", type=int, default=1000)
-    ap.add_argument("--renders", type=int, default=100)
+    ap.add_argument("--styles", default=",".join(STYLES), help="styles of the styles part (comma-separated)")
+    ap.add_argument("--style-seed", type=int, default=1000,
+                    help="seed of the generated scenes (1000: development; 2000: the sealed test range)")
+    ap.add_argument("--per-style", type=int, default=50, help="generated scenes per style")
+    ap.add_argument("--sets", nargs="*", help="seg-data folders to score instead of generating scenes")
     ap.add_argument("--whip-seed", type=int, default=0)
-    ap.add_argument("--parts", default="external,flat,renders,whip,loopcam,speed")
-    ap.add_argument("--checkpoint", help="seg-train checkpoint.pt: also time the network in torch")
+    ap.add_argument("--parts", default="external,styles,flat,phase,speed")
+    ap.add_argument("--worst", metavar="DIR", help="write the worst images per kind as PNG panels here")
+    ap.add_argument("--quick", action="store_true",
+                    help="a few images of every kind, no videos: checks that the benchmark runs")
     ap.add_argument("--out", required=True)
     args = ap.parse_args()
     cv2.setNumThreads(1)
@@ -517,38 +526,50 @@ def main() -> int:
     short = "auto" if ss == "auto" else None if ss == "none" else int(ss)
     seg = LearnedSegmenter(onnx_bytes(args.model), short_side=short)
     report: dict = {
-        "model": args.model or "shipped",
+        "model": args.model or "shipped default",
         "short_side": seg.short_side,
         "machine": f"{platform.machine()} {os.cpu_count()} cpus, {platform.python_version()}",
+        "quick": args.quick,
     }
     parts = args.parts.split(",")
+    worst = Path(args.worst) if args.worst else None
+    t0 = time.perf_counter()
     if "external" in parts:
         if Path(args.external).is_dir():
-            report["external"] = part_external(seg, Path(args.external))
+            report["external"] = part_external(seg, Path(args.external), 2 if args.quick else None, worst)
             print(json.dumps(report["external"]["summary"], indent=1))
         else:
             print(f"skipping external: {args.external} not found")
+    if "styles" in parts:
+        styles = [s for s in args.styles.split(",") if s]
+        unknown = [s for s in styles if s not in STYLES]
+        if unknown:
+            raise SystemExit(f"--styles: unknown {unknown}; styles: {list(STYLES)}")
+        report["styles"] = part_styles(seg, styles, args.style_seed, 2 if args.quick else args.per_style,
+                                       [Path(p) for p in args.sets] if args.sets else None, worst)
+        print(json.dumps({k: {x: v[x] for x in ("n", "dice_mean", "near_empty_share", "no_cable_samples")}
+                          for k, v in report["styles"].items()}, indent=1))
     if "flat" in parts:
         report["flat"] = part_flat(seg)
         print(json.dumps(report["flat"], indent=1))
     if "phase" in parts:
         report["phase"] = part_phase(seg)
         print(json.dumps({k: v for k, v in report["phase"].items() if k != "median_probability"}, indent=1))
-    if "renders" in parts:
-        report["renders"] = part_renders(seg, args.render_seed, args.renders)
-        print(json.dumps(report["renders"], indent=1))
-    if "whip" in parts:
+    if "speed" in parts:
+        report["speed"] = part_speed(seg, args.whip_seed, repeats=5 if args.quick else 200,
+                                     seconds=0.4 if args.quick else 1.0)
+        print(json.dumps(report["speed"], indent=1))
+    if "whip" in parts and not args.quick:
         report["whip"] = part_whip(seg, args.whip_seed)
         print(json.dumps(report["whip"], indent=1))
-    if "loopcam" in parts:
+    if "loopcam" in parts and not args.quick:
         report["loopcam"] = part_loopcam(args.model)
         print(json.dumps(report["loopcam"], indent=1))
     if "loopspeed" in parts:
-        report["loopspeed"] = part_loopspeed(args.model)
+        report["loopspeed"] = part_loopspeed(args.model, episodes=1 if args.quick else 3,
+                                             repeats=1 if args.quick else 5)
         print(json.dumps(report["loopspeed"], indent=1))
-    if "speed" in parts:
-        report["speed"] = part_speed(seg, args.checkpoint, args.whip_seed)
-        print(json.dumps(report["speed"], indent=1))
+    report["wall_s"] = time.perf_counter() - t0
     Path(args.out).write_text(json.dumps(report, indent=1))
     return 0
 

@@ -33,6 +33,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=0.0,
         help="share of each batch from the external train split (its held-out half is never used)",
     )
+    p.add_argument("--external-short-side", type=int, default=240, metavar="PX",
+                   help="the external photos' short side before augmentation: the scale the network will "
+                   "run them at (default 240; 480 for the block networks)")
+    p.add_argument("--external-balanced", action="store_true",
+                   help="draw each external source equally often, then a photo within it (default: every "
+                   "photo equally often)")
     p.add_argument(
         "--arch",
         choices=("cablenet-s2d4", "cablenet"),
@@ -45,9 +51,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "narrower runs faster")
     p.add_argument("--init", metavar="CHECKPOINT.pt|NET.onnx|NAME",
                    help="start from these weights (fine-tuning): a seg-train checkpoint, an exported ONNX "
-                   "network or a shipped one by name (cable-segmenter, cable-segmenter-fine, "
-                   "cable-segmenter-loop); an ONNX network, or a checkpoint of a run from one, is "
-                   "fine-tuned with its batch norms frozen (the export folded their statistics away)")
+                   "network or a shipped one by name (cable-segmenter-photo, cable-segmenter, "
+                   "cable-segmenter-fine, cable-segmenter-loop); an ONNX network, or a checkpoint of a run "
+                   "from one, is fine-tuned with its batch norms frozen (the export folded their statistics "
+                   "away)")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     p.add_argument("--resume", action="store_true", help="continue OUT/checkpoint.pt")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -82,6 +89,8 @@ def run(args: argparse.Namespace) -> int:
         pos_weight=args.pos_weight,
         external_share=args.external_share,
         arch=args.arch,
+        external_short_side=args.external_short_side,
+        external_balanced=args.external_balanced,
         frozen_batch_norm=bool(args.init) and needs_frozen_batch_norm(args.init),
     )
     try:
@@ -96,7 +105,9 @@ def run(args: argparse.Namespace) -> int:
             threads=args.threads,
         )
     except KeyboardInterrupt:
-        ext = f" --external {args.external} --external-share {args.external_share}" if args.external else ""
+        ext = (f" --external {args.external} --external-share {args.external_share} --external-short-side "
+               f"{args.external_short_side}" + (" --external-balanced" if args.external_balanced else "")
+               if args.external else "")
         ext += f" --init {args.init}" if args.init else ""
         print(
             f"interrupted; resume with: dyndlo-vision seg-train --resume --data {' '.join(args.data)} "

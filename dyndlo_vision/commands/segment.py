@@ -34,16 +34,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--model",
         metavar="FILE.onnx",
-        help="learned: an ONNX file from seg-train, or a shipped network by name: cable-segmenter "
-        "(default) or cable-segmenter-fine (full resolution, for cables 1-3 px wide; cable-segmenter-loop: "
-        "the same fine-tuned on the simulated loop's scenes)",
+        help="learned: an ONNX file from seg-train, or a shipped network by name: cable-segmenter-photo "
+        "(default; full resolution, the best on real photos), cable-segmenter (half resolution, faster) or "
+        "cable-segmenter-fine (full resolution, for cables 1-3 px wide; cable-segmenter-loop: the same "
+        "fine-tuned on the simulated loop's scenes)",
     )
     p.add_argument(
         "--short-side",
         type=int,
         default=None,
         help="learned: the image's shorter side is resized to this before the network (default: the "
-        "network's own: 240 for cable-segmenter, 480 for the other two)",
+        "network's own: 240 for cable-segmenter, 480 for the others)",
     )
     p.add_argument("--hsv-lower", default="0,80,60", help="hsv: lower H,S,V bound (OpenCV ranges)")
     p.add_argument("--hsv-upper", default="179,255,255", help="hsv: upper H,S,V bound")
@@ -65,12 +66,12 @@ def _hsv(text: str, name: str) -> tuple[int, int, int]:
 def _segmenter(args: argparse.Namespace) -> Any:
     if args.segmenter == "learned":
         from dyndlo_vision.tracking.learned import LearnedSegmenter
-        from dyndlo_vision.tracking.networks import onnx_bytes
+        from dyndlo_vision.tracking.networks import PHOTO_NAME, onnx_bytes
 
         if args.short_side is not None and args.short_side < 16:
             raise ValueError(f"--short-side must be >= 16, got {args.short_side}")
         short = "auto" if args.short_side is None else args.short_side
-        return LearnedSegmenter(onnx_bytes(args.model), short_side=short)
+        return LearnedSegmenter(onnx_bytes(args.model or PHOTO_NAME), short_side=short)
     if args.model:
         raise ValueError("--model is for --segmenter learned")
     if args.segmenter == "background":

@@ -37,12 +37,21 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["STYLES", "SegDataConfig", "SceneSampler", "enlarged", "TaskSceneSampler", "procedural_background",
+from dyndlo_vision.learning.segcomposite import COMPOSITE_STYLES, CompositeSampler
+
+__all__ = ["DEFAULT_WIDTHS_PX", "MUJOCO_STYLES", "STYLES", "SceneSampler", "SegDataConfig",
+           "TaskSceneSampler", "camera_effects", "enlarged", "make_sampler", "procedural_background",
            "sample_path", "write_dataset"]
 
 
-#: Dataset styles: what :class:`SegDataConfig` renders.
-STYLES = ("random-scenes", "task-scenes")
+#: Dataset styles: what :class:`SegDataConfig` renders. The MuJoCo styles (:class:`SceneSampler`,
+#: :class:`TaskSceneSampler`) and the 2-D composited scene kinds of
+#: :mod:`dyndlo_vision.learning.segcomposite`.
+MUJOCO_STYLES = ("random-scenes", "task-scenes")
+STYLES = MUJOCO_STYLES + COMPOSITE_STYLES
+
+#: Least and most cable width in output pixels, per kind of style, where ``seg-data`` is not told.
+DEFAULT_WIDTHS_PX = {"mujoco": (0.7, 12.0), "composite": (1.0, 40.0)}
 
 
 @dataclass(frozen=True)
@@ -64,8 +73,9 @@ class SegDataConfig:
     #: before this option are reproduced sample for sample).
     grey_floor_share: float = 0.0
     #: What is rendered (:data:`STYLES`): ``random-scenes``, random cables among random props seen from
-    #: random cameras (:class:`SceneSampler`, the shipped networks' data); ``task-scenes``, the control loop's
-    #: own scenes through their loop cameras (:class:`TaskSceneSampler`).
+    #: random cameras (:class:`SceneSampler`); ``task-scenes``, the control loop's own scenes through their
+    #: loop cameras (:class:`TaskSceneSampler`); or one of the composited scene kinds of
+    #: :mod:`~dyndlo_vision.learning.segcomposite` (many cables on real-looking surfaces, drawn in 2-D).
     style: str = "random-scenes"
     #: Every image and its label are enlarged this many times (bilinear) after rendering at ``width`` x
     #: ``height`` and the camera effects, as the loop enlarges its frames before its network
@@ -271,7 +281,7 @@ def _motion_kernel(rng: np.random.Generator) -> NDArray[np.float32] | None:
     return k / s if s > 0 else None
 
 
-def _camera_effects(
+def camera_effects(
     rng: np.random.Generator, img: NDArray[np.float32], cover_u8: NDArray[np.uint8]
 ) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
     """A rendered image (float RGB) after random camera effects (motion blur, defocus, colour gains and
@@ -532,7 +542,7 @@ class SceneSampler:
                 y0 = int(rng.integers(0, h))
                 cv2.rectangle(img, (0, y0), (w, y0 + bw), col, -1)
                 cover_u8[y0 : y0 + bw + 1, :] = 0
-        rgb, mask = _camera_effects(rng, img, cover_u8)
+        rgb, mask = camera_effects(rng, img, cover_u8)
         meta = {
             "width_px": round(width_px, 2),
             "textured": textured,
@@ -555,7 +565,7 @@ class TaskSceneSampler:
     Each sample draws its own camera pose (about 5 cm and 3 degrees off the loop camera's), field of view,
     cable colour (the scene's red or any of :func:`_cable_colour`'s) and drawn width (0.6-2.5x), floor shade
     (the scene's, a grey or a colour), lights, sometimes a procedural texture where the scene shows the black
-    void, and the camera effects of :func:`_camera_effects`. The gripper, the target and the obstacle stay
+    void, and the camera effects of :func:`camera_effects`. The gripper, the target and the obstacle stay
     in view, unlabelled: the distractors the loop's segmenter meets. A group is one environment (task drawn
     from the group's generator), reset from a seed drawn from it.
     """
@@ -660,7 +670,7 @@ class TaskSceneSampler:
             rgb2 = rgb2 * (1 - void) + bg * void
         img = cv2.resize(rgb2, (w, h), interpolation=cv2.INTER_AREA)
         cov = cv2.resize(self.cable_look.mask(seg).astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
-        rgb, mask = _camera_effects(rng, img, np.clip(cov * 255 + 0.5, 0, 255).astype(np.uint8))
+        rgb, mask = camera_effects(rng, img, np.clip(cov * 255 + 0.5, 0, 255).astype(np.uint8))
         meta = {
             "task": self.task,
             "camera": camera,
@@ -671,6 +681,19 @@ class TaskSceneSampler:
             "own_colour": bool(own_colour),
         }
         return rgb, mask, meta
+
+
+def make_sampler(config: SegDataConfig, seed: int,
+                 group: int) -> SceneSampler | TaskSceneSampler | CompositeSampler:
+    """The sampler of ``config.style`` for one scene group (``sample()`` gives the group's samples in turn;
+    ``close()`` frees it)."""
+    if config.style == "task-scenes":
+        return TaskSceneSampler(config, seed, group)
+    if config.style == "random-scenes":
+        return SceneSampler(config, seed, group)
+    config.check()
+    return CompositeSampler(config.style, config.width, config.height, config.min_width_px,
+                            config.max_width_px, seed, group)
 
 
 def enlarged(rgb: NDArray[np.uint8], mask: NDArray[np.uint8],
@@ -736,9 +759,7 @@ def write_dataset(out: Path, count: int, seed: int, config: SegDataConfig, progr
             if all(i in done for i in idx):
                 group += 1
                 continue
-            sampler: SceneSampler | TaskSceneSampler = (
-                TaskSceneSampler(config, seed, group) if config.style == "task-scenes"
-                else SceneSampler(config, seed, group))
+            sampler = make_sampler(config, seed, group)
             try:
                 for i in idx:
                     rgb, mask, meta = sampler.sample()

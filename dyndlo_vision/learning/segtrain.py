@@ -41,6 +41,7 @@ __all__ = [
     "is_onnx_init",
     "needs_frozen_batch_norm",
     "net_from_onnx",
+    "external_source",
     "external_split",
     "full_res_logits",
     "load_external",
@@ -236,6 +237,11 @@ def load_dataset(folder: Path) -> tuple[list[NDArray[np.uint8]], list[NDArray[np
     return images, masks
 
 
+def external_source(image: Path) -> str:
+    """Which source an image of :func:`external_split` comes from: ``mbest`` or ``cables_dataset``."""
+    return "mbest" if "mbest" in Path(image).parts else "cables_dataset"
+
+
 def external_split(root: Path) -> dict[str, list[tuple[Path, Path]]]:
     """(image, mask) pairs of ``root`` (the shared external data) split in two halves, by sorted order.
 
@@ -320,6 +326,12 @@ class TrainConfig:
     widths: tuple[int, int, int] = DEFAULT_WIDTHS
     #: Share of each batch drawn from the external train split (0: synthetic only).
     external_share: float = 0.0
+    #: The external photos are resized to this short side before augmentation (the scale the network will
+    #: see them at; 240: the first shipped networks').
+    external_short_side: int = 240
+    #: Each external source equally likely, then an image within it (False: every image equally likely, so
+    #: a source with few photos, such as cables_dataset's 5 beside mBEST's 20, is seldom drawn).
+    external_balanced: bool = False
     checkpoint_every: int = 250
     #: Batch norms in eval mode while training (their statistics fixed, scale and shift still trained): how a
     #: network read back from ONNX (:func:`net_from_onnx`) is fine-tuned.
@@ -328,7 +340,8 @@ class TrainConfig:
 
 def _with_widths(config: dict[str, Any]) -> dict[str, Any]:
     """A stored training config with ``widths`` as a tuple; options it predates at their defaults."""
-    return {"frozen_batch_norm": False, **config, "widths": tuple(config.get("widths", DEFAULT_WIDTHS))}
+    return {"frozen_batch_norm": False, "external_short_side": 240, "external_balanced": False, **config,
+            "widths": tuple(config.get("widths", DEFAULT_WIDTHS))}
 
 
 def is_onnx_init(init: str | Path) -> bool:
@@ -346,6 +359,15 @@ def needs_frozen_batch_norm(init: str | Path) -> bool:
         return True
     state = _torch().load(Path(init), weights_only=False)
     return bool(state.get("config", {}).get("frozen_batch_norm", False))
+
+
+def _draw_external(rng: np.random.Generator, by_source: list[list[int]], balanced: bool) -> int:
+    """An index into the external photos: every photo equally likely, or (``balanced``) a source first, each
+    equally likely, then one of its photos."""
+    if balanced:
+        members = by_source[int(rng.integers(len(by_source)))]
+        return members[int(rng.integers(len(members)))]
+    return int(rng.integers(sum(len(m) for m in by_source)))
 
 
 def _atomic_save(obj: Any, path: Path) -> None:
@@ -382,6 +404,9 @@ def train(
         raise FileExistsError(f"--out {out} already holds files; use --resume to continue, or another folder")
     if config.external_share > 0 and external is None:
         raise ValueError("external_share > 0 needs --external DIR")
+    if isinstance(config.external_short_side, bool) or not isinstance(config.external_short_side, int) or (
+            config.external_short_side < 64):
+        raise ValueError(f"external_short_side must be an int >= 64, got {config.external_short_side!r}")
     if config.arch not in ARCHITECTURES:
         raise ValueError(f"arch must be one of {ARCHITECTURES}, got {config.arch!r}")
     if len(config.widths) != 3 or not all(isinstance(c, int) and c >= 1 for c in config.widths):
@@ -421,10 +446,15 @@ def train(
         masks += folder_masks
     ext_images: list[Any] = []
     ext_masks: list[Any] = []
+    by_source: list[list[int]] = []  # indices of ext_images per external source
     if external is not None and config.external_share > 0:
-        ext_images, ext_masks = load_external(external_split(Path(external))["train"])
+        pairs = external_split(Path(external))["train"]
+        ext_images, ext_masks = load_external(pairs, config.external_short_side)
         if not ext_images:
             raise ValueError(f"no labelled images found under {external}")
+        sources = [external_source(pair[0]) for pair in pairs]
+        by_source = [[k for k, name in enumerate(sources) if name == source]
+                     for source in sorted(set(sources))]
     out.mkdir(parents=True, exist_ok=True)
     net = build_net(config.arch, *config.widths)
     opt = torch.optim.Adam(net.parameters(), lr=config.lr)
@@ -475,7 +505,7 @@ def train(
             xs, ys = [], []
             for _ in range(config.batch):
                 if ext_images and rng.random() < config.external_share:
-                    k = int(rng.integers(len(ext_images)))
+                    k = _draw_external(rng, by_source, config.external_balanced)
                     x, y = _augment(rng, ext_images[k], ext_masks[k], (config.crop_h, config.crop_w))
                 else:
                     k = int(rng.integers(len(images)))

@@ -258,3 +258,46 @@ def test_fine_tuning_an_onnx_network_keeps_its_batch_norms_frozen(dataset: Path,
               "--arch", "cablenet-s2d4", "--init", "cable-segmenter"])
     assert exc.value.code == 2 and "--arch cablenet" in capsys.readouterr().err
     assert not (tmp_path / "s").exists()
+
+
+def test_external_photos_at_their_scale_and_sources_balanced(dataset: Path, tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """``--external-short-side`` and ``--external-balanced`` reach the run and its JSON; a short side under
+    64 px is refused before anything is written."""
+    import cv2
+
+    root = tmp_path / "external"
+    for folder, names, label in ((root / "mbest" / "S1", ["img0", "img1", "img2"], "_labels.png"),
+                                 (root / "cables_dataset", ["00000", "00001"], "_mask_all.png")):
+        folder.mkdir(parents=True)
+        for name in names:
+            img = np.full((120, 160, 3), 90, np.uint8)
+            cv2.line(img, (10, 60), (150, 60), (20, 200, 20), 5)
+            cv2.imwrite(str(folder / f"{name}.jpg"), img)
+            cv2.imwrite(str(folder / f"{name}{label}"), (img[..., 1] > 150).astype(np.uint8) * 255)
+    out = tmp_path / "run"
+    assert main(["seg-train", "--data", str(dataset), "--out", str(out), "--quiet", "--steps", "1",
+                 "--batch", "2", "--external", str(root), "--external-share", "1", "--external-balanced",
+                 "--external-short-side", "96"]) == 0
+    meta = json.loads((out / "cable_segmenter.json").read_text())
+    assert meta["external_train_images"] == 3  # mBEST's img0, img2 and cables_dataset's 00000
+    assert meta["train_config"]["external_short_side"] == 96
+    assert meta["train_config"]["external_balanced"] is True
+    with pytest.raises(SystemExit) as exc:
+        main(["seg-train", "--data", str(dataset), "--out", str(tmp_path / "bad"), "--quiet",
+              "--external", str(root), "--external-share", "0.5", "--external-short-side", "32"])
+    assert exc.value.code == 2 and "external_short_side" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+
+
+def test_balanced_external_sampling_draws_each_source_equally_often() -> None:
+    """Unbalanced, a photo of the source with 5 photos is drawn a fifth of the time beside one with 20;
+    balanced, each source half of the time, its photos evenly."""
+    from dyndlo_vision.learning.segtrain import _draw_external
+
+    by_source = [list(range(20)), list(range(20, 25))]
+    for balanced, share in ((False, 0.2), (True, 0.5)):
+        rng = np.random.default_rng(0)
+        draws = np.array([_draw_external(rng, by_source, balanced) for _ in range(4000)])
+        assert abs(float(np.mean(draws >= 20)) - share) < 0.03, balanced
+        assert set(draws.tolist()) == set(range(25))

@@ -10,7 +10,14 @@ import pytest
 
 from dyndlo_vision.tracking import dice
 from dyndlo_vision.tracking.learned import LearnedSegmenter
-from dyndlo_vision.tracking.networks import FINE_NAME, SHIPPED_NAMES, onnx_bytes, segmenter_metadata
+from dyndlo_vision.tracking.networks import (
+    FINE_NAME,
+    PHOTO_NAME,
+    SHIPPED_NAME,
+    SHIPPED_NAMES,
+    onnx_bytes,
+    segmenter_metadata,
+)
 from dyndlo_vision.tracking.polylines import extract_polylines
 from dyndlo_vision.tracking.synthetic import render_cable, s_curve
 
@@ -23,6 +30,11 @@ def seg() -> LearnedSegmenter:
 @pytest.fixture(scope="module")
 def fine() -> LearnedSegmenter:
     return LearnedSegmenter(onnx_bytes(FINE_NAME))
+
+
+@pytest.fixture(scope="module")
+def photo() -> LearnedSegmenter:
+    return LearnedSegmenter(onnx_bytes(PHOTO_NAME))
 
 
 def _textured(h: int, w: int, seed: int) -> np.ndarray:
@@ -52,6 +64,46 @@ def test_shipped_models_are_small_and_documented(name: str) -> None:
 def test_the_fine_network_keeps_the_frame_resolution(fine: LearnedSegmenter, seg: LearnedSegmenter) -> None:
     assert fine.blocks and fine.short_side == 480 and fine.input_size(480, 640) == (640, 480)
     assert not seg.blocks and seg.short_side == 240
+
+
+def test_the_default_stays_the_fast_network(photo: LearnedSegmenter) -> None:
+    # The real robot's camera and ``track`` run onnx_bytes(): the network with the loop's time budget; the
+    # photo network (1.3x slower at 640x480, docs/segmentation.md) is ``segment``'s default only.
+    assert SHIPPED_NAME == "cable-segmenter" and onnx_bytes() == onnx_bytes("cable-segmenter")
+    assert photo.blocks and photo.short_side == 480 and photo.input_size(480, 640) == (640, 480)
+    assert segmenter_metadata(PHOTO_NAME)["init"] == FINE_NAME
+
+
+@pytest.mark.parametrize("background", [(150, 150, 150), (200, 190, 170), (40, 40, 40)])
+def test_the_photo_network_finds_flat_cables_on_plain_walls(
+    photo: LearnedSegmenter, background: tuple[int, int, int]
+) -> None:
+    # Measured 0.38-0.93 (median 0.81): weaker than the first network (min 0.78, median 0.90) on these
+    # flat-coloured drawings, which no photo looks like; a floor against regressions.
+    scores = []
+    for colour in COLOURS:
+        for thickness in (3, 7, 11):
+            curve = s_curve(80, 560, 240, amp=90)
+            rgb, truth = render_cable(curve, (480, 640), thickness, colour, background)
+            scores.append(dice(photo(rgb), truth))
+    assert min(scores) > 0.3 and np.median(scores) > 0.7, np.round(scores, 2)
+    assert photo(np.full((480, 640, 3), background, np.uint8)).mean() < 0.002
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="known weakness of cable-segmenter-photo (docs/segmentation.md): a flat dark or white 7 px cable "
+    "on a blotchy grey texture is missed (DICE 0.05-0.07; cable-segmenter 0.41-0.53)",
+)
+def test_the_photo_network_finds_dark_and_white_cables_on_texture(photo: LearnedSegmenter) -> None:
+    scores = []
+    for colour in ((20, 20, 20), (240, 240, 240)):
+        for seed in range(3):
+            rgb, truth = render_cable(
+                s_curve(80, 560, 240, amp=90), (480, 640), 7, colour, _textured(480, 640, seed)
+            )
+            scores.append(dice(photo(rgb), truth))
+    assert min(scores) > 0.35, np.round(scores, 2)
 
 
 @pytest.mark.parametrize("background", [(150, 150, 150), (200, 190, 170), (40, 40, 40)])

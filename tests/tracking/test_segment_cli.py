@@ -120,3 +120,16 @@ def test_shipped_networks_by_name(tmp_path: Path, capsys: pytest.CaptureFixture[
     assert _run(str(tmp_path / "a.png"), "--out", str(tmp_path / "o2"), "--model", "cable-segmenter-xl") == 2
     assert "cable-segmenter-fine" in capsys.readouterr().err  # the message lists the shipped names
     assert not (tmp_path / "o2").exists()
+
+
+def test_the_default_network_is_the_photo_network(tmp_path: Path) -> None:
+    """Without ``--model``, ``segment`` runs ``cable-segmenter-photo`` (the best on held-out photos), not the
+    loop's faster default ``cable-segmenter``."""
+    _photo(tmp_path / "a.png", (300, 400), 3)
+    masks = {}
+    for name, extra in (("default", []), ("photo", ["--model", "cable-segmenter-photo"]),
+                        ("first", ["--model", "cable-segmenter"])):
+        assert _run(str(tmp_path / "a.png"), "--out", str(tmp_path / name), "--quiet", *extra) == 0
+        masks[name] = cv2.imread(str(tmp_path / name / "a_mask.png"), cv2.IMREAD_UNCHANGED)
+    assert masks["default"].any() and np.array_equal(masks["default"], masks["photo"])
+    assert not np.array_equal(masks["default"], masks["first"])

@@ -1,13 +1,16 @@
 """The shipped learned cable segmenters: ONNX networks and the JSON beside each (how it was made).
 
-Three networks, for three kinds of picture (docs/RESULTS.md, "Learned cable segmenter"):
+Four networks, for different pictures (docs/segmentation.md, docs/RESULTS.md "Learned cable segmenter"):
 
-* ``cable-segmenter`` (the default of ``segment``, ``track --segmenter learned`` and the real robot): RGB at a
-  short side of 240 px, mask at half that. The better of the two on renders and on cables several pixels
-  wide.
-* ``cable-segmenter-fine`` (the simulated loop's ``--segmenter learned``): the frame in 4x4 blocks at 480 px,
-  mask at the frame's full resolution. Made for cables 1-3 px wide, such as the loop camera's 1.6 px
-  cable, which the first network cuts into fragments; weaker on wide, flat-coloured cables.
+* ``cable-segmenter`` (the default of ``track --segmenter learned`` and the real robot's camera): RGB at a
+  short side of 240 px, mask at half that. The fastest of the four on a 640x480 frame.
+* ``cable-segmenter-photo`` (the default of ``segment``): ``cable-segmenter-fine`` fine-tuned on composited
+  scenes of many cables on real-looking surfaces, MuJoCo renders, and the train half of both sources of the
+  shared labelled photos drawn equally often. The best of the four on held-out real photos; weaker than
+  ``cable-segmenter`` on MuJoCo renders, and about 1.3x slower.
+* ``cable-segmenter-fine``: the frame in 4x4 blocks at 480 px, mask at the frame's full resolution. Made for
+  cables 1-3 px wide, such as the loop camera's 1.6 px cable, which the first network cuts into fragments;
+  weaker on wide, flat-coloured cables.
 * ``cable-segmenter-loop`` (the simulated loop's ``--segmenter learned``): ``cable-segmenter-fine``
   fine-tuned on renders of the loop's own scenes (``seg-data --style task-scenes``). In the loop its tip
   estimate is closer to the truth than the fine network's; on other scenes and real photos it is weaker.
@@ -27,13 +30,16 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-__all__ = ["FINE_NAME", "LOOP_NAME", "SHIPPED_NAME", "SHIPPED_NAMES", "check_network", "onnx_bytes",
-           "segmenter_metadata"]
+__all__ = ["FINE_NAME", "LOOP_NAME", "PHOTO_NAME", "SHIPPED_NAME", "SHIPPED_NAMES", "check_network",
+           "onnx_bytes", "segmenter_metadata"]
 
+#: The default network (``onnx_bytes()``): ``track --segmenter learned`` and the real robot's camera.
 SHIPPED_NAME = "cable-segmenter"
+#: The default of ``segment`` (photos, no time budget).
+PHOTO_NAME = "cable-segmenter-photo"
 FINE_NAME = "cable-segmenter-fine"
 LOOP_NAME = "cable-segmenter-loop"
-SHIPPED_NAMES = (SHIPPED_NAME, FINE_NAME, LOOP_NAME)
+SHIPPED_NAMES = (SHIPPED_NAME, PHOTO_NAME, FINE_NAME, LOOP_NAME)
 
 
 def _shipped(name: str, suffix: str) -> Any:

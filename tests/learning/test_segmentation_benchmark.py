@@ -1,0 +1,38 @@
+"""``benchmarks/segmentation_generalisation.py --quick`` runs, and reports every kind of scene on its own."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from dyndlo_vision.learning.segdata import STYLES
+
+ROOT = Path(__file__).resolve().parents[2]
+EXTERNAL = ROOT.parent / "shared" / "data" / "external"
+
+
+@pytest.mark.slow
+def test_the_quick_benchmark_reports_every_kind(tmp_path: Path) -> None:
+    out = tmp_path / "seg.json"
+    worst = tmp_path / "worst"
+    subprocess.run([sys.executable, str(ROOT / "benchmarks" / "segmentation_generalisation.py"), "--quick",
+                    "--parts", "external,styles,flat,speed", "--external", str(EXTERNAL),
+                    "--worst", str(worst), "--out", str(out)], check=True, cwd=ROOT, timeout=600)
+    report = json.loads(out.read_text())
+    assert report["quick"] is True
+    assert set(report["styles"]) == set(STYLES)
+    for style, entry in report["styles"].items():
+        assert entry["n"] + entry["no_cable_samples"] == 2, style
+        assert 0.0 <= entry["dice_mean"] <= 1.0 and 0.0 <= entry["near_empty_share"] <= 1.0
+        assert (worst / f"worst_{style}.png").is_file()
+    assert report["speed"]["learned_cv2dnn_ms"] > 0
+    if EXTERNAL.is_dir():  # both sources, both halves, each on its own
+        summary = report["external"]["summary"]
+        for source in ("mbest", "cables_dataset"):
+            for half in ("heldout", "train"):
+                assert summary[f"{source}/{half}"]["n"] == 2
+                assert 0.0 <= summary[f"{source}/{half}"]["near_empty_share"] <= 1.0
