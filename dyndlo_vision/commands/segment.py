@@ -64,25 +64,23 @@ def _hsv(text: str, name: str) -> tuple[int, int, int]:
 
 
 def _segmenter(args: argparse.Namespace) -> Any:
-    if args.segmenter == "learned":
-        from dyndlo_vision.tracking.learned import LearnedSegmenter
-        from dyndlo_vision.tracking.networks import PHOTO_NAME, onnx_bytes
+    """The segmenter the options name, built where every segmenter is
+    (:func:`~dyndlo_vision.tracking.segmenters.build_segmenter`); each image on its own."""
+    from dyndlo_vision.tracking.networks import PHOTO_NAME
+    from dyndlo_vision.tracking.segmenters import SegmenterConfig, build_segmenter
 
+    if args.segmenter == "learned":
         if args.short_side is not None and args.short_side < 16:
             raise ValueError(f"--short-side must be >= 16, got {args.short_side}")
-        short = "auto" if args.short_side is None else args.short_side
-        return LearnedSegmenter(onnx_bytes(args.model or PHOTO_NAME), short_side=short)
-    if args.model:
+        config = SegmenterConfig("learned", model=args.model or PHOTO_NAME, short_side=args.short_side)
+    elif args.model:
         raise ValueError("--model is for --segmenter learned")
-    if args.segmenter == "background":
-        from dyndlo_vision.tracking.segmentation import BackgroundSegmenter
-
-        return BackgroundSegmenter(open_radius=0)
-    from dyndlo_vision.tracking.segmentation import segment_hsv
-
-    lo, hi = _hsv(args.hsv_lower, "--hsv-lower"), _hsv(args.hsv_upper, "--hsv-upper")
-    segment_hsv(__import__("numpy").zeros((2, 2, 3), "uint8"), lo, hi)  # checks the bounds now
-    return lambda rgb: segment_hsv(rgb, lo, hi, clean=True)
+    elif args.segmenter == "background":
+        config = SegmenterConfig("background", background="frame")  # one image: no video to learn it from
+    else:
+        config = SegmenterConfig("hsv", hsv_lower=_hsv(args.hsv_lower, "--hsv-lower"),
+                                 hsv_upper=_hsv(args.hsv_upper, "--hsv-upper"))
+    return build_segmenter(config)[0]
 
 
 def run(args: argparse.Namespace) -> int:
