@@ -672,8 +672,8 @@ def _track_errors(csv_path: Path, truth_path: Path) -> tuple[np.ndarray, np.ndar
 @pytest.mark.slow
 def test_raw_videos_are_what_track_reads_and_match_the_truth(tmp_path: Path) -> None:
     """``demo --raw-videos`` writes the loop camera's frames, its calibration, the TCP and the true P_DLO per
-    frame. ``track`` on them, as a user would run it, finds the truth: tip control's tip on the plane; the
-    vault's middle with two cameras and the cable's length. Measured: tip 2.8 mm median over 17 frames
+    frame. ``track`` on them, as a user would run it with the cable's length, finds the truth: tip control's
+    tip on the plane; the vault's middle with two cameras. Measured: tip 2.8 mm median over 17 frames
     (60.8 mm at most, one frame); the vault's middle 2.0 mm median, 3.6 at most. The frames must be the ones
     rendered where the truth was read: the present, a period later, put a vault's middle 17 mm off."""
     out = tmp_path / "tip"
@@ -682,9 +682,10 @@ def test_raw_videos_are_what_track_reads_and_match_the_truth(tmp_path: Path) -> 
     n = metrics["video"]["frames"]
     assert metrics["raw_videos"]["frames"] == n
     assert len(list((out / "raw").iterdir())) == n and not (out / "raw2").exists()
+    tip_length = metrics["episodes"][0]["cable"]["length_m"]
     assert main(["track", str(out / "raw"), "--fps", "25", "--calib", str(out / "camera.json"), "--plane",
-                 "0,1,0,0", "--tcp-log", str(out / "tcp.csv"), "--out", str(tmp_path / "tip.csv"),
-                 "--quiet"]) == 0
+                 "0,1,0,0", "--tcp-log", str(out / "tcp.csv"), "--cable-length", str(tip_length),
+                 "--out", str(tmp_path / "tip.csv"), "--quiet"]) == 0
     err, seen = _track_errors(tmp_path / "tip.csv", out / "truth.csv")
     assert seen.mean() > 0.8 and np.median(err) < 0.005, (seen.mean(), err)
 
