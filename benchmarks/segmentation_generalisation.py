@@ -15,12 +15,6 @@ Three parts, all on data the learned segmenter was not trained on:
 * ``loopcam``: the control loop's own camera view (tip control, 640x480, a 1.6 px red cable): mask DICE
   and time of the learned segmenter at network short sides 240, 360 and 480, and of the classical one.
 * ``speed``: one-core timings (see ``part_speed``).
-* ``loopspeed``: the loop's configuration (issue 14's 5 ms rule): tip control's camera, frames from episodes
-  of the shipped multi-step policy, and the loop's own tracker (``control.sim_perception.tracked_state``:
-  gripper masked, centreline from the gripper, lifted to the motion plane). Median ms per frame of the
-  segmenter alone and of ``CableTracker.process`` (segment + centreline + lift), learned (the loop's
-  ``cable-segmenter-loop``, or ``--model``) and classical (the rendered background image), interleaved
-  frame by frame.
 * ``whip``: rendered whip videos (640x480, 25 fps) of a dark cable 2-3 px wide held by a dark spherical
   gripper, in styles the generator never produced: ``plain`` (a plain light wall), ``textured-blur`` (a
   wood-grain wall, orange cable, motion blur: the mean of 8 renders over the 40 ms frame), ``occluded`` (a
@@ -36,6 +30,9 @@ for a single image); on the whip videos also with the per-pixel median backgroun
 ``track --background median`` does.
 
     python benchmarks/segmentation_generalisation.py --out /tmp/seg_generalisation.json [--model FILE.onnx]
+    python benchmarks/segmentation_generalisation.py --quick --out /tmp/q.json   # a smoke test
+
+The loop's per-frame time per segmenter is ``benchmarks/tracking_speed.py``.
 """
 
 from __future__ import annotations
@@ -51,8 +48,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dyndlo_vision.learning.segdata import SceneSampler, SegDataConfig  # noqa: E402
 from dyndlo_vision.learning.segtrain import external_split  # noqa: E402
@@ -447,55 +442,6 @@ def part_loopcam(model: str | None, episodes: int = 3) -> dict:
     return out
 
 
-def part_loopspeed(model: str | None = None, episodes: int = 3, repeats: int = 5) -> dict:
-    """Median ms per 640x480 loop frame: segmenter alone and tracker (segment + centreline + lift), per loop
-    segmenter; the two trackers are timed on the same frames, interleaved, so both see the same load.
-    ``model`` (an ONNX file or shipped name) replaces the loop's learned network."""
-    from dyndlo_vision.control.sim_perception import tracked_state
-    from dyndlo_vision.policies import load
-    from dyndlo_vision.tasks.registry import make_env
-
-    env = make_env("tip-control", multi_step=True)
-    policy = load("tip-control-multi-step")
-    frames: list = []
-    sources = {}
-    for ep in range(episodes):
-        obs, _ = env.reset(seed=100_000 + ep)
-        getattr(policy, "reset", lambda: None)()
-        for name in ("learned", "background"):
-            if ep:  # a new background image for the new episode's cable
-                sources[name][1].close()
-            sources[name] = tracked_state(env, segmenter=name)
-            if name == "learned" and model is not None:  # the gripper mask's inner segmenter
-                sources[name][0].tracker.segmenter.base.base = LearnedSegmenter(onnx_bytes(model))
-        cam = sources["background"][1]
-        done = False
-        while not done:
-            frames.append((cam.read().rgb, np.asarray(env.unwrapped.scene.tcp_positions())[0].copy()))
-            obs, _, term, trunc, _ = env.step(policy.predict(obs)[0])
-            done = term or trunc
-    out: dict = {"frames": len(frames)}
-    times: dict = {f"{n}_{part}": [] for n in sources for part in ("segmenter", "tracker")}
-    for _ in range(repeats):
-        for k, (rgb, tcp) in enumerate(frames):
-            for name, (src, _) in sources.items():
-                src.project(tcp)  # moves the gripper mask to the TCP, as the loop does
-                seg = src.tracker.segmenter
-                t = time.perf_counter()
-                seg(rgb)
-                times[f"{name}_segmenter"].append(time.perf_counter() - t)
-                t = time.perf_counter()
-                src.tracker.process(rgb, 0.04 * k, anchor_uv=src.project(tcp))
-                times[f"{name}_tracker"].append(time.perf_counter() - t)
-    for key, ts in times.items():
-        out[f"{key}_ms_median"] = float(np.median(ts) * 1e3)
-        out[f"{key}_ms_p95"] = float(np.percentile(ts, 95) * 1e3)
-    for _, cam in sources.values():
-        cam.close()
-    env.close()
-    return out
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--model", help="ONNX file (default: the shipped segmenter)")
@@ -511,7 +457,11 @@ def main() -> int:
     ap.add_argument("--parts", default="external,flat,renders,whip,loopcam,speed")
     ap.add_argument("--checkpoint", help="seg-train checkpoint.pt: also time the network in torch")
     ap.add_argument("--out", required=True)
+    ap.add_argument("--quick", action="store_true",
+                    help="the flat and renders parts on 3 renders (a smoke test)")
     args = ap.parse_args()
+    if args.quick:
+        args.parts, args.renders = "flat,renders", 3
     cv2.setNumThreads(1)
     ss = args.short_side.lower()
     short = "auto" if ss == "auto" else None if ss == "none" else int(ss)
@@ -543,9 +493,6 @@ def main() -> int:
     if "loopcam" in parts:
         report["loopcam"] = part_loopcam(args.model)
         print(json.dumps(report["loopcam"], indent=1))
-    if "loopspeed" in parts:
-        report["loopspeed"] = part_loopspeed(args.model)
-        print(json.dumps(report["loopspeed"], indent=1))
     if "speed" in parts:
         report["speed"] = part_speed(seg, args.checkpoint, args.whip_seed)
         print(json.dumps(report["speed"], indent=1))
