@@ -1,55 +1,34 @@
 """Closed-loop tip control on tracked state behind a camera latency: success and P_DLO estimate error.
 
 A real camera hands a frame over tens of milliseconds after exposing it. This runs the demo's loop (render,
-track, filter, policy, re-plan at 25 Hz) with the tracker seeing every frame ``latency`` late
-(``DelayedCamera``), for several latencies and tip-filter settings (``sigma_accel``), with the filter's
-prediction to the controller's time ("predict") and without it ("hold": the estimate at the newest frame's
-capture time, i.e. uncompensated). The error is |estimate - truth| at the controller's time, per cycle.
+track, filter, policy, re-plan at 25 Hz) with the pipeline seeing every frame ``latency`` late
+(``LoopPerception(latency_s=...)``: the filter updates at the frame's capture time and predicts to the
+controller's), for several latencies, with the loop's shipped filter for that latency
+(``tracking.params.LOOP_FILTER`` without latency, ``LATENT_LOOP_FILTER`` with one) or with the acceleration
+noises ``--sigmas``. The error is |estimate - truth| at the controller's time, per cycle; its RMSE per
+episode is summarised over the episodes.
 
-    python benchmarks/camera_latency.py [--episodes 20] [--latencies-ms 0 40 80]
-        [--sigmas 20 200 2000] [--noise piecewise continuous] [--policy NAME|PATH] [--out results.json]
-
-``--noise continuous`` runs each sigma as a continuous white acceleration of the same velocity variance per
-40 ms frame (``FilterParams.accel_psd`` = sigma^2 x 0.04), the loop filter's model since session 23.
+    python benchmarks/camera_latency.py [--episodes 20] [--latencies-ms 0 40 80] [--sigmas 200 2000]
+        [--segmenter background|learned] [--policy NAME|PATH] [--out results.json]
+    python benchmarks/camera_latency.py --quick     # one episode at 0 and 40 ms (a smoke test)
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import platform
 import sys
 import time
-from typing import Any
+from dataclasses import replace
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
-from loop_latency import pinned_demo_policy  # noqa: E402
 
-import dyndlo_vision  # noqa: E402,F401
-
-
-class HoldAtCapture:
-    """A point filter read at its newest measurement's time, whatever time it is asked for (no prediction)."""
-
-    def __init__(self, point_filter: Any) -> None:
-        self.filter = point_filter
-        self.t_measured: float | None = None
-
-    def reset(self) -> None:
-        self.filter.reset()
-        self.t_measured = None
-
-    def update(self, point: Any, t: float) -> bool:
-        accepted = bool(self.filter.update(point, t))
-        if accepted:
-            self.t_measured = t
-        return accepted
-
-    def estimate(self, t: float) -> Any:
-        return self.filter.estimate(t if self.t_measured is None else self.t_measured)
+import dyndlo_vision  # noqa: E402,F401  (before mujoco)
 
 
 def main() -> int:
@@ -57,61 +36,75 @@ def main() -> int:
     parser.add_argument("--episodes", type=int, default=20)
     parser.add_argument("--seed", type=int, default=300_000)
     parser.add_argument("--latencies-ms", type=float, nargs="+", default=[0.0, 40.0, 80.0])
-    parser.add_argument("--sigmas", type=float, nargs="+", default=[20.0, 200.0, 2000.0])
-    parser.add_argument("--noise", nargs="+", choices=("piecewise", "continuous"), default=["piecewise"],
-                        help="the process noise model(s) to run each sigma with")
+    parser.add_argument("--sigmas", type=float, nargs="*", default=[],
+                        help="filter acceleration noises (m/s^2) to run besides the shipped filter")
+    parser.add_argument("--segmenter", choices=("background", "learned"), default=None,
+                        help="the loop's segmenter (default: the scene's own)")
     parser.add_argument("--policy", default=None, help="policy (default: the demo's)")
     parser.add_argument("--out", default=None)
+    parser.add_argument("--quick", action="store_true", help="one episode at 0 and 40 ms (a smoke test)")
     args = parser.parse_args()
-    from dataclasses import replace
+    if args.quick:
+        args.episodes, args.latencies_ms, args.sigmas = 1, [0.0, 40.0], []
+    if args.episodes < 1:
+        parser.error(f"--episodes must be >= 1, got {args.episodes}")
+    import torch
 
+    from dyndlo_vision import policies
     from dyndlo_vision.control.episode import run_loop_episode
-    from dyndlo_vision.tracking import FilterParams, PointFilter
+    from dyndlo_vision.control.sim_perception import LoopPerception, loop_segmenter
+    from dyndlo_vision.tasks import make_env
+    from dyndlo_vision.tracking.params import LATENT_LOOP_FILTER, LOOP_FILTER
 
-    name, env, act = pinned_demo_policy(args.policy)
+    torch.set_num_threads(1)
+    logging.disable(logging.WARNING)
+    name = args.policy or policies.default_for("tip-control")
+    _, meta = policies.resolve(name)
+    env = make_env("tip-control", multi_step=bool(meta.get("multi_step", False)))
+    model = policies.load(name, env=env)
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        return model.predict(obs, deterministic=True)[0]
+
+    segmenter = None if args.segmenter is None else loop_segmenter(args.segmenter)
     rows = []
-    print(f"# {platform.machine()}, {os.cpu_count()} cpus, pinned to one core; policy {name}; "
-          f"{args.episodes} episodes per row, seeds {args.seed}+")
-    print("| latency ms | sigma_accel m/s^2 | noise | read | hits | estimate RMSE per episode, median / p95 "
-          "(mm) |")
-    print("|---|---|---|---|---|---|")
-    cases = [(latency_ms, sigma, noise) for latency_ms in args.latencies_ms for sigma in args.sigmas
-             for noise in args.noise]
-    for latency_ms, sigma, noise in cases:
-        for read in ("predict", "hold"):
-            if read == "hold" and latency_ms == 0:
-                continue  # without latency both read the filter at the frame's time
+    print(f"# {platform.machine()}, {os.cpu_count()} cpus; policy {name}; {args.episodes} episodes per row, "
+          f"seeds {args.seed}+; segmenter {args.segmenter or 'the scene default'}")
+    print("| latency ms | filter sigma_accel m/s^2 | hits | estimate RMSE per episode, median / p95 (mm) |")
+    print("|---|---|---|---|")
+    for latency_ms in args.latencies_ms:
+        shipped = LOOP_FILTER if latency_ms == 0 else LATENT_LOOP_FILTER
+        for sigma in [None, *args.sigmas]:
+            params = None if sigma is None else replace(shipped, sigma_accel=sigma)
+            perception = LoopPerception(segmenter=segmenter, latency_s=1e-3 * latency_ms, filter=params)
             t0 = time.perf_counter()
             hits, rmse = 0, []
             for i in range(args.episodes):
-                params = replace(FilterParams(), sigma_accel=sigma,
-                                 accel_psd=sigma**2 * 0.04 if noise == "continuous" else None,
-                                 max_coast_s=FilterParams().max_coast_s + 1e-3 * latency_ms)
-                base_filter = PointFilter(params)
-                point_filter = base_filter if read == "predict" else HoldAtCapture(base_filter)
-                r = run_loop_episode(env, act, args.seed + i, "tracked", "tracking",
-                                     latency_s=1e-3 * latency_ms, point_filter=point_filter)
+                if hasattr(model, "reset"):
+                    model.reset()
+                r = run_loop_episode(env, act, args.seed + i, "tracked", "tracking", perception=perception)
                 hits += bool(r["success"])
-                if r["estimate_rmse_m"] is not None:
-                    rmse.append(r["estimate_rmse_m"])
+                rmse.append(np.nan if r["estimate_rmse_m"] is None else r["estimate_rmse_m"])
+            sigma_used = shipped.sigma_accel if sigma is None else sigma
             row = {
                 "latency_ms": latency_ms,
-                "sigma_accel": sigma,
-                "noise": noise,
-                "read": read,
+                "filter": "shipped" if sigma is None else "sigma",
+                "sigma_accel": sigma_used,
                 "episodes": args.episodes,
                 "hits": hits,
-                "estimate_rmse_mm_median": 1e3 * float(np.median(rmse)),
-                "estimate_rmse_mm_p95": 1e3 * float(np.percentile(rmse, 95)),
-                "wall_s": time.perf_counter() - t0,
+                "estimate_rmse_mm_median": 1e3 * float(np.nanmedian(rmse)),
+                "estimate_rmse_mm_p95": 1e3 * float(np.nanpercentile(rmse, 95)),
+                "wall_s": round(time.perf_counter() - t0, 1),
             }
             rows.append(row)
-            rmse_mm = f"{row['estimate_rmse_mm_median']:.1f} / {row['estimate_rmse_mm_p95']:.1f}"
-            print(f"| {latency_ms:.0f} | {sigma:g} | {noise} | {read} | {hits} / {args.episodes} | "
-                  f"{rmse_mm} |", flush=True)
+            label = f"{sigma_used:g}" + (" (shipped)" if sigma is None else "")
+            print(f"| {latency_ms:.0f} | {label} | {hits} / {args.episodes} | "
+                  f"{row['estimate_rmse_mm_median']:.1f} / {row['estimate_rmse_mm_p95']:.1f} |", flush=True)
+    env.close()
     if args.out:
         with open(args.out, "w") as f:
-            json.dump({"policy": str(name), "seed": args.seed, "rows": rows}, f, indent=2)
+            json.dump({"command": " ".join(sys.argv), "machine": platform.platform(), "policy": str(name),
+                       "seed": args.seed, "rows": rows}, f, indent=2)
     return 0
 
 

@@ -6,6 +6,7 @@ controller's whole cycle (everything but the simulated robot's physics, which a 
 plus the share of cycles that missed the 40 ms deadline and the estimate's error against the truth.
 
     python benchmarks/loop_latency.py [--episodes 10] [--policy NAME|PATH] [--out results.json]
+    python benchmarks/loop_latency.py --quick       # one episode (a smoke test)
 """
 
 from __future__ import annotations
@@ -51,7 +52,12 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=200_000)
     parser.add_argument("--policy", default=None, help="policy (default: the demo's)")
     parser.add_argument("--out", default=None)
+    parser.add_argument("--quick", action="store_true", help="one episode (a smoke test)")
     args = parser.parse_args()
+    if args.quick:
+        args.episodes = 1
+    if args.episodes < 1:
+        parser.error(f"--episodes must be >= 1, got {args.episodes}")
     from dyndlo_vision.control.episode import run_loop_episode
 
     name, env, act = pinned_demo_policy(args.policy)

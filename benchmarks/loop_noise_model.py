@@ -13,6 +13,8 @@ the last period, as :class:`~dyndlo_vision.tasks.noise.NoiseProcess` computes it
     python benchmarks/loop_noise_model.py --task vaulting --policy vaulting-multi-step --episodes 40 \
         --seed 300000 --cable-ranges beyond --out noise_vault.json [--records rec.npz]
 
+    python benchmarks/loop_noise_model.py --quick --out /tmp/noise.json   # one episode (a smoke test)
+
 Seeds default to 300000+, away from the evaluation seeds (100000+, 200000+).
 """
 
@@ -58,13 +60,21 @@ def main(argv: list[str] | None = None) -> int:
                     "control.sim_perception.default_segmenter)")
     ap.add_argument("--out", type=Path, required=True, help="the fitted model (JSON)")
     ap.add_argument("--records", type=Path, default=None, help="also write the per-cycle records (.npz)")
+    ap.add_argument("--quick", action="store_true", help="one episode (a smoke test)")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.episodes = 1
     if args.episodes < 1:
         raise SystemExit(f"--episodes must be >= 1, got {args.episodes}")
 
     from dyndlo_vision import policies
     from dyndlo_vision.control.episode import run_loop_episode
-    from dyndlo_vision.control.sim_perception import default_segmenter, scene_views
+    from dyndlo_vision.control.sim_perception import (
+        LoopPerception,
+        default_segmenter,
+        loop_segmenter,
+        scene_views,
+    )
     from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
     from dyndlo_vision.tasks.registry import make_env
     from dyndlo_vision.tasks.wrappers import cable_ranges_for
@@ -76,6 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     model = policies.load(name, env=env)
     views = scene_views(env)
     segmenter = args.segmenter or default_segmenter(env)
+    perception = LoopPerception(segmenter=loop_segmenter(segmenter), views=views)
     parts: list[dict[str, np.ndarray]] = []
     rmse = []
     t0 = time.perf_counter()
@@ -83,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
         if hasattr(model, "reset"):
             model.reset()  # a policy with a P_DLO history starts every episode afresh (as the demo does)
         record = run_loop_episode(env, lambda obs: model.predict(obs, deterministic=True)[0], args.seed + i,
-                                  "tracked", "tracking", views=views, segmenter=segmenter)
+                                  "tracked", "tracking", perception=perception)
         rec = episode_records(record["trace"], CONTROL_PERIOD_S)
         rec["episode"] = np.full(len(rec["speed"]), i)
         parts.append(rec)

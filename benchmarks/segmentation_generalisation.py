@@ -14,10 +14,6 @@ Every figure is per *kind*, never only pooled: a network that does well on avera
 * ``phase``: a straight 1.6 px line at each of the four horizontal offsets within the 4x4 pixel blocks a block
   network reads: the share of lines found (median probability > 0.5) at the worst and the best offset.
 * ``speed``: one-core milliseconds per 640x480 frame of the segmenter (cv2.dnn) and of the centreline.
-* ``loopspeed``: the loop's configuration: tip control's camera, frames from episodes of the shipped
-  multi-step policy, and the loop's own tracker (``control.sim_perception.tracked_state``: gripper masked,
-  centreline from the gripper, lifted to the motion plane), learned (the loop's network, or ``--model``) and
-  classical (the rendered background image), interleaved frame by frame. Median ms per frame.
 * ``whip``: rendered whip videos of a dark 2.5 px cable in three styles no generator draws (plain wall,
   wood grain with motion blur, a pole in front): mask DICE and tip figures.
 * ``loopcam``: the control loop's own camera (tip control, 640x480, a 1.6 px red cable): DICE and time at
@@ -454,55 +450,6 @@ def part_loopcam(model: str | None, episodes: int = 3) -> dict:
     return out
 
 
-def part_loopspeed(model: str | None = None, episodes: int = 3, repeats: int = 5) -> dict:
-    """Median ms per 640x480 loop frame: segmenter alone and tracker (segment + centreline + lift), per loop
-    segmenter; the two trackers are timed on the same frames, interleaved, so both see the same load.
-    ``model`` (an ONNX file or shipped name) replaces the loop's learned network."""
-    from dyndlo_vision.control.sim_perception import tracked_state
-    from dyndlo_vision.policies import load
-    from dyndlo_vision.tasks.registry import make_env
-
-    env = make_env("tip-control", multi_step=True)
-    policy = load("tip-control-multi-step")
-    frames: list = []
-    sources = {}
-    for ep in range(episodes):
-        obs, _ = env.reset(seed=100_000 + ep)
-        getattr(policy, "reset", lambda: None)()
-        for name in ("learned", "background"):
-            if ep:  # a new background image for the new episode's cable
-                sources[name][1].close()
-            sources[name] = tracked_state(env, segmenter=name)
-            if name == "learned" and model is not None:  # the gripper mask's inner segmenter
-                sources[name][0].tracker.segmenter.base.base = LearnedSegmenter(onnx_bytes(model))
-        cam = sources["background"][1]
-        done = False
-        while not done:
-            frames.append((cam.read().rgb, np.asarray(env.unwrapped.scene.tcp_positions())[0].copy()))
-            obs, _, term, trunc, _ = env.step(policy.predict(obs)[0])
-            done = term or trunc
-    out: dict = {"frames": len(frames)}
-    times: dict = {f"{n}_{part}": [] for n in sources for part in ("segmenter", "tracker")}
-    for _ in range(repeats):
-        for k, (rgb, tcp) in enumerate(frames):
-            for name, (src, _) in sources.items():
-                src.project(tcp)  # moves the gripper mask to the TCP, as the loop does
-                seg = src.tracker.segmenter
-                t = time.perf_counter()
-                seg(rgb)
-                times[f"{name}_segmenter"].append(time.perf_counter() - t)
-                t = time.perf_counter()
-                src.tracker.process(rgb, 0.04 * k, anchor_uv=src.project(tcp))
-                times[f"{name}_tracker"].append(time.perf_counter() - t)
-    for key, ts in times.items():
-        out[f"{key}_ms_median"] = float(np.median(ts) * 1e3)
-        out[f"{key}_ms_p95"] = float(np.percentile(ts, 95) * 1e3)
-    for _, cam in sources.values():
-        cam.close()
-    env.close()
-    return out
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--model", help="ONNX file or shipped name (default: the shipped default segmenter)")
@@ -565,10 +512,6 @@ def main() -> int:
     if "loopcam" in parts and not args.quick:
         report["loopcam"] = part_loopcam(args.model)
         print(json.dumps(report["loopcam"], indent=1))
-    if "loopspeed" in parts:
-        report["loopspeed"] = part_loopspeed(args.model, episodes=1 if args.quick else 3,
-                                             repeats=1 if args.quick else 5)
-        print(json.dumps(report["loopspeed"], indent=1))
     report["wall_s"] = time.perf_counter() - t0
     Path(args.out).write_text(json.dumps(report, indent=1))
     return 0

@@ -9,7 +9,8 @@ gripper, camera, light, blur, frame rate, compression, motion with rests, whips,
 
 * measured: the share of frames with ``visible=1`` (of all frames, and of those whose tip is in view);
 * wrong: ``visible=1`` and the reported ``x,y,z`` more than 50 mm from the true tip;
-* gripper: ``visible=1``, the reported point within 40 mm of the gripper while the tip is at least 100 mm away;
+* gripper: ``visible=1``, the reported point within 40 mm of the gripper while the tip is at least 100 mm
+  away;
 * the median (p90) world error of measured frames, sharp and blurred apart (blurred: the tip moved more than
   3 px on the image during the exposure).
 
@@ -91,8 +92,8 @@ def run_video(folder: Path, extra: list[str], out_csv: Path) -> tuple[dict, floa
     calib = PinholeCamera.from_json(folder / "camera.json")
     u, v = truth.tcp_uv[0]
     argv = [sys.executable, "-m", "dyndlo_vision", "track", str(folder / "video.mp4"), "--calib",
-            str(folder / "camera.json"), "--plane", "0,1,0,0", "--anchor", f"{u:.0f},{v:.0f}", "--point", "tip",
-            "--out", str(out_csv), "--quiet",
+            str(folder / "camera.json"), "--plane", "0,1,0,0", "--anchor", f"{u:.0f},{v:.0f}",
+            "--point", "tip", "--out", str(out_csv), "--quiet",
             *[a.replace("{tcp}", str(folder / "tcp.csv")) for a in extra]]
     t0 = time.perf_counter()
     done = subprocess.run(argv, capture_output=True, text=True)
@@ -104,8 +105,8 @@ def run_video(folder: Path, extra: list[str], out_csv: Path) -> tuple[dict, floa
 
 
 def _table(title: str, groups: dict[str, dict]) -> str:
-    keys = ("frames", "measured_share", "wrong_frames", "gripper_frames", "median_mm_sharp", "median_mm_blurred",
-            "p90_mm_sharp", "p90_mm_blurred")
+    keys = ("frames", "measured_share", "wrong_frames", "gripper_frames", "median_mm_sharp",
+            "median_mm_blurred", "p90_mm_sharp", "p90_mm_blurred")
     lines = [f"{title}:", f"  {'':28s}" + "".join(f"{k:>18s}" for k in keys)]
     for name, s in groups.items():
         lines.append(f"  {name:28s}" + "".join(f"{'-' if s[k] is None else s[k]!s:>18s}" for k in keys))
@@ -145,7 +146,7 @@ def main() -> int:
             frames, wall, _ = run_video(folder, extra, Path(tmp) / f"{seed}.csv")
             calib = PinholeCamera.from_json(folder / "camera.json")
             truth = load_truth(folder / "truth.npz")
-            factors = _factors(spec, calib) | {}
+            factors = _factors(spec, calib)
             kinds = motion_kind(spec, truth.t)
             summary = summarise(frames)
             per_video.append({"seed": seed, "wall_s": round(wall, 1), **factors, **summary})

@@ -1,182 +1,165 @@
-"""Per-frame speed of the cable tracking pipeline on one CPU core (640x480 synthetic frames).
+"""Per-frame time of each stage of the perception pipeline, as the control loop runs it, per segmenter.
 
-Stages: segmentation (BackgroundSegmenter), centreline (thinning + graph + ordering +
-resampling; thinning also shown alone), lifting to 3D on a plane, and the N-node Kalman
-filter (update + latency-compensated read). "total" is the whole per-frame pipeline timed
-end to end, not the sum of the stage medians. Two per-node alternatives the filter's design
-rejected are timed after it on a still cable: N one-point filters (``PointFilter``), and N
-filterpy ``KalmanFilter`` objects doing only the Kalman predict/update (no gating, no replay).
+Tip control's loop camera (640x480, a 1.6 px cable) on episodes of the demo's policy: each frame is rendered
+once and given to two :class:`~dyndlo_vision.tracking.pipeline.CablePipeline` built as the loop builds
+them (``control.sim_perception.loop_pipeline_config`` and ``view_segmenter``), one with the learned segmenter
+(``cable-segmenter-loop`` at 1.5x, following the cable) and one with the classical one (against the scene
+rendered without the cable), in alternating order so that both see the same load. Stages, medians per
+frame:
 
-Run from the repository root:
+* ``render``: the camera's render (the loop's ``camera`` stage);
+* ``segment``: the view's segmenter stack (the network or background model, the cable's reach, the gripper
+  mask), timed around the stack's call;
+* ``centreline..point``: the rest of the pipeline's ``track`` stage (``FrameResult.stage_ms["track"]`` minus
+  ``segment``): centreline, the held end's identity, lifting onto the plane, the tracked point;
+* ``filter``: ``FrameResult.stage_ms["filter"]``, the Kalman update;
+* ``total``: ``track`` + ``filter``.
 
-    python benchmarks/tracking_speed.py [--frames 300] [--nodes 20]
+One core (``OMP_NUM_THREADS=1``, one torch thread); on a shared machine quote the ratio of the two
+segmenters, measured side by side.
+
+    python benchmarks/tracking_speed.py [--episodes 5] [--seed 100000] [--out speed.json]
+    python benchmarks/tracking_speed.py --quick     # one episode (a smoke test)
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import logging
 import os
+import platform
 import sys
 import time
-from pathlib import Path
+from typing import Any
 
-# One core: set before numpy/OpenCV start their thread pools.
 os.environ.setdefault("OMP_NUM_THREADS", "1")
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-os.environ.setdefault("MKL_NUM_THREADS", "1")
 
-import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-# Benchmark the checkout this file lives in, even if another copy is installed.
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import dyndlo_vision  # noqa: E402,F401  (before mujoco)
+from dyndlo_vision.tracking.segmenters import ViewSegmenter  # noqa: E402
 
-from filterpy.kalman import KalmanFilter  # noqa: E402
-
-from dyndlo_vision.tracking import (  # noqa: E402
-    BackgroundSegmenter,
-    FilterParams,
-    MultiPointFilter,
-    PinholeCamera,
-    Plane,
-    PointFilter,
-    extract_centerline,
-    lift_with_plane,
-    thin_coords,
-)
-from dyndlo_vision.tracking.filter import cv_process_noise, cv_transition  # noqa: E402
-from dyndlo_vision.tracking.synthetic import loop_curve, render_cable, s_curve  # noqa: E402
+SEGMENTERS = ("learned", "background")
+STAGES = ("render", "segment", "centreline..point", "filter", "total")
 
 
-def make_frames(n: int) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Moving cables (S-curves and self-crossing loops), each with its start pixel."""
-    frames = []
-    for k in range(n):
-        t = k / 25.0
-        if (k // 50) % 2 == 0:
-            curve = s_curve(
-                u0=90 + 30 * np.sin(2 * t),
-                u1=550 + 40 * np.sin(1.3 * t),
-                v0=240 + 50 * np.sin(3 * t),
-                amp=100 * np.cos(2.5 * t),
-                periods=0.9 + 0.3 * np.sin(1.7 * t),
-            )
-        else:
-            curve = loop_curve(
-                u0=70 + 20 * np.sin(t), v0=260 + 30 * np.sin(2 * t), radius=80 + 15 * np.sin(3 * t)
-            )
-        rgb, _ = render_cable(curve, thickness=6, noise_sigma=4.0, seed=k)
-        frames.append((rgb, curve[0]))
-    return frames
+class TimedSegmenter(ViewSegmenter):
+    """A view's segmenter stack that records the wall time of each call (ms)."""
+
+    def __init__(self, stack: ViewSegmenter) -> None:
+        super().__init__(stack.base, stack.reach, stack.gripper, stack.shape)
+        self.ms: list[float] = []
+
+    def __call__(self, rgb: np.ndarray) -> np.ndarray:
+        t0 = time.perf_counter()
+        mask = super().__call__(rgb)
+        self.ms.append(1e3 * (time.perf_counter() - t0))
+        return mask
 
 
-def look_down_camera() -> PinholeCamera:
-    R = np.diag([1.0, -1.0, -1.0])  # looking straight down at z = 0 from z = 1
-    K = np.array([[520.0, 0, 319.5], [0, 520.0, 239.5], [0, 0, 1]])
-    return PinholeCamera(640, 480, K, np.zeros(0), R, -R @ np.array([0.0, 0.0, 1.0]), fps=25.0)
-
-
-def filterpy_filter(z0: np.ndarray, params: FilterParams) -> KalmanFilter:
-    """A filterpy KalmanFilter of the same constant-velocity model, initialised at ``z0`` at rest."""
-    kf = KalmanFilter(dim_x=6, dim_z=3)
-    kf.H = np.hstack((np.eye(3), np.zeros((3, 3))))
-    kf.R = np.eye(3) * params.sigma_meas**2
-    kf.x = np.concatenate((z0, np.zeros(3))).reshape(6, 1)
-    kf.P = np.diag([params.sigma_meas**2] * 3 + [params.init_speed_sigma**2] * 3)
-    return kf
-
-
-def stats(ms: list[float]) -> tuple[float, float, float]:
-    a = np.asarray(ms)
-    return float(np.median(a)), float(np.percentile(a, 95)), float(a.mean())
-
-
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--frames", type=int, default=300)
-    ap.add_argument("--nodes", type=int, default=20)
-    args = ap.parse_args()
-    cv2.setNumThreads(1)
-    frames = make_frames(args.frames)
-    cam = look_down_camera()
-    plane = Plane(np.array([0.0, 0.0, 1.0]), 0.0)
-    seg = BackgroundSegmenter()
-    params = FilterParams()
-    flt = MultiPointFilter(args.nodes, params)
-    timings: dict[str, list[float]] = {
-        k: []
-        for k in (
-            "segmentation",
-            "centreline",
-            "  of which thinning",
-            "lift (plane)",
-            f"filter (N={args.nodes})",
-            "total",
-        )
-    }
-    prev = None
-    clock = time.perf_counter
-    for _ in range(2):  # warm-up pass
-        for rgb, anchor in frames[:10]:
-            extract_centerline(seg(rgb), args.nodes, anchor_uv=anchor)
-    for k, (rgb, anchor) in enumerate(frames):
-        t_cap = k / 25.0
-        t0 = clock()
-        mask = seg(rgb)
-        t1 = clock()
-        cl = extract_centerline(mask, args.nodes, anchor_uv=anchor, prev_nodes_uv=prev)
-        t2 = clock()
-        xyz = lift_with_plane(cl.nodes_uv, cam, plane, cl.visible)
-        t3 = clock()
-        flt.update(xyz, t_cap, visible=cl.visible)
-        flt.estimate(t_cap + 0.04)
-        t4 = clock()
-        prev = cl.nodes_uv
-        timings["segmentation"].append((t1 - t0) * 1e3)
-        timings["centreline"].append((t2 - t1) * 1e3)
-        timings["lift (plane)"].append((t3 - t2) * 1e3)
-        timings[f"filter (N={args.nodes})"].append((t4 - t3) * 1e3)
-        timings["total"].append((t4 - t0) * 1e3)
-        m8 = mask.astype(np.uint8)
-        x, y, w, h = cv2.boundingRect(m8)
-        t5 = clock()
-        thin_coords(m8[y : y + h, x : x + w])
-        timings["  of which thinning"].append((clock() - t5) * 1e3)
-
-    # The alternatives the filter's design rejected: N one-point filters, and N filterpy KalmanFilters.
-    z = np.zeros((args.nodes, 3))
-    singles = [PointFilter(params) for _ in range(args.nodes)]
-    per_point: list[float] = []
-    for k in range(200):
-        t0 = clock()
-        for i, f in enumerate(singles):
-            f.update(z[i] + 0.001 * k, k / 25.0)
-            f.estimate(k / 25.0 + 0.04)
-        per_point.append((clock() - t0) * 1e3)
-    kfs = [filterpy_filter(z[i], params) for i in range(args.nodes)]
-    F, Q = cv_transition(0.04), cv_process_noise(0.04, params.sigma_accel)
-    per_kf: list[float] = []
-    for k in range(1, 201):
-        t0 = clock()
-        for i, kf in enumerate(kfs):
-            kf.predict(F=F, Q=Q)
-            kf.update((z[i] + 0.001 * k).reshape(3, 1))
-            _ = F @ kf.x, F @ kf.P @ F.T + Q  # the latency-compensated read
-        per_kf.append((clock() - t0) * 1e3)
-
-    print(f"command: {' '.join([os.path.basename(sys.executable), *sys.argv])}")
-    print(
-        f"frames: {args.frames} synthetic 640x480 RGB, cable 6 px thick; nodes: {args.nodes}; "
-        f"cv2 threads: {cv2.getNumThreads()}; OpenCV {cv2.__version__}, numpy {np.__version__}"
+def loop_pipeline(env: Any, kind: str, camera: Any) -> tuple[Any, TimedSegmenter]:
+    """The loop's pipeline for ``kind`` on ``camera`` (call at the start of an episode), with its segmenter
+    stack timed."""
+    from dyndlo_vision.control.sim_env import as_sim_env
+    from dyndlo_vision.control.sim_perception import (
+        loop_pipeline_config,
+        loop_segmenter,
+        render_without_cable,
+        view_segmenter,
     )
-    print(f"{'stage':<24}{'median ms':>10}{'p95 ms':>10}{'mean ms':>10}")
-    for name, ms in timings.items():
-        med, p95, mean = stats(ms)
-        print(f"{name:<24}{med:>10.3f}{p95:>10.3f}{mean:>10.3f}")
-    for name, ms in (("(N PointFilters, unused)", per_point), ("(filterpy x N, unused)", per_kf)):
-        med, p95, mean = stats(ms)
-        print(f"{name:<24}{med:>10.3f}{p95:>10.3f}{mean:>10.3f}")
+    from dyndlo_vision.tracking.params import LOOP_FILTER
+    from dyndlo_vision.tracking.pipeline import CablePipeline
+
+    base = as_sim_env(env)
+    node = base.task.p_dlo_node(base.scene)
+    point = node / (base.scene.config.cable.num_nodes - 1)
+    config = loop_pipeline_config(base.scene, point, loop_segmenter(kind), LOOP_FILTER)
+    calibration = camera.calibration
+    background = None if kind == "learned" else render_without_cable(camera)
+    seg = TimedSegmenter(view_segmenter(config, camera, calibration, background))
+    return CablePipeline(config, [calibration], [seg]), seg
+
+
+def median(values: list[float]) -> float:
+    return float(np.median(values)) if values else float("nan")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--episodes", type=int, default=5)
+    ap.add_argument("--seed", type=int, default=100_000)
+    ap.add_argument("--out", default=None, help="JSON file of the results")
+    ap.add_argument("--quick", action="store_true", help="one episode (a smoke test)")
+    args = ap.parse_args()
+    if args.quick:
+        args.episodes = 1
+    if args.episodes < 1:
+        ap.error(f"--episodes must be >= 1, got {args.episodes}")
+    import cv2
+    import torch
+
+    from dyndlo_vision import policies
+    from dyndlo_vision.cameras.simulated import MujocoCamera
+    from dyndlo_vision.control.sim_env import as_sim_env
+    from dyndlo_vision.tasks import make_env
+
+    cv2.setNumThreads(1)
+    torch.set_num_threads(1)
+    logging.disable(logging.WARNING)
+    name = policies.default_for("tip-control")
+    _, meta = policies.resolve(name)
+    env = make_env("tip-control", multi_step=bool(meta.get("multi_step", False)))
+    model = policies.load(name, env=env)
+    times: dict[str, dict[str, list[float]]] = {k: {s: [] for s in STAGES} for k in SEGMENTERS}
+    measured = dict.fromkeys(SEGMENTERS, 0)
+    frames = 0
+    for e in range(args.episodes):
+        obs, _ = env.reset(seed=args.seed + e)
+        if hasattr(model, "reset"):
+            model.reset()
+        base = as_sim_env(env)
+        camera = MujocoCamera(base.model, base.data, "tracking", 640, 480)
+        pipes = {k: loop_pipeline(env, k, camera) for k in SEGMENTERS}
+        done = False
+        while not done:
+            t0 = time.perf_counter()
+            frame = camera.read()
+            render_ms = 1e3 * (time.perf_counter() - t0)
+            held = np.asarray(base.scene.tcp_positions())[0].copy()
+            order = SEGMENTERS if frames % 2 == 0 else SEGMENTERS[::-1]
+            for kind in order:
+                pipeline, seg = pipes[kind]
+                result = pipeline.step([frame.rgb], frame.t_capture, held_world=held)
+                stage = times[kind]
+                stage["render"].append(render_ms)
+                stage["segment"].append(seg.ms[-1])
+                stage["centreline..point"].append(result.stage_ms["track"] - seg.ms[-1])
+                stage["filter"].append(result.stage_ms["filter"])
+                stage["total"].append(result.stage_ms["track"] + result.stage_ms["filter"])
+                measured[kind] += bool(result.status.seen)
+            frames += 1
+            obs, _, term, trunc, _ = env.step(model.predict(obs, deterministic=True)[0])
+            done = bool(term or trunc)
+        camera.close()
+    env.close()
+    medians = {k: {s: round(median(v), 3) for s, v in times[k].items()} for k in SEGMENTERS}
+    ratio = medians["learned"]["total"] / medians["background"]["total"]
+    print(f"# {platform.machine()}, {os.cpu_count()} cpus, one thread; {frames} frames of {args.episodes} "
+          f"episode(s), seeds {args.seed}+, policy {name}; OpenCV {cv2.__version__}")
+    print("| stage | " + " | ".join(f"{k} median ms" for k in SEGMENTERS) + " |")
+    print("|---|" + "---|" * len(SEGMENTERS))
+    for s in STAGES:
+        print(f"| {s} | " + " | ".join(f"{medians[k][s]:.2f}" for k in SEGMENTERS) + " |")
+    print(f"learned / classical total: {ratio:.2f}; point measured in "
+          + ", ".join(f"{measured[k]} ({k})" for k in SEGMENTERS) + f" of {frames} frames")
+    if args.out:
+        with open(args.out, "w") as f:
+            json.dump({"command": " ".join(sys.argv), "machine": platform.platform(), "frames": frames,
+                       "median_ms": medians, "learned_over_classical": ratio, "measured": measured}, f,
+                      indent=1)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

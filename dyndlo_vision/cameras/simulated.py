@@ -27,7 +27,7 @@ class MujocoCamera(_FrameSource):
 
         with MujocoCamera(env.unwrapped.model, env.unwrapped.data, "front", depth=True) as cam:
             frame = cam.read()
-            tracker = CableTracker(cam.calibration)
+            calibration = cam.calibration   # for a CablePipeline (tracking.pipeline)
     """
 
     #: Frames are stamped with the simulator's time (see :mod:`dyndlo_vision.control.clocks`).

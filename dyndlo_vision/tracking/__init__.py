@@ -4,12 +4,17 @@ MuJoCo needed).
 
 Typical use, per camera frame (RGB uint8)::
 
+    from dyndlo_vision.tracking.pipeline import CablePipeline, PipelineConfig
+    from dyndlo_vision.tracking.segmenters import build_segmenter, build_view_segmenter
+
     cam = PinholeCamera.from_json("camera.json")
-    tracker = CableTracker(cam, plane=Plane(np.array([0.0, 0.0, 1.0]), 0.0), anchor_uv=(320, 40))
-    tip = PointFilter(FilterParams())          # the defaults; tracking.params says why each
-    meas = tracker.process(rgb, t_capture)
-    tip.update(meas.point(-1), t_capture)      # None (tip not seen) coasts
-    est = tip.estimate(t_now)                   # latency-compensated read
+    config = PipelineConfig(plane=Plane(np.array([0.0, 0.0, 1.0]), 0.0))  # tracking.params: why each default
+    base, _ = build_segmenter(config.segmenter)
+    segmenter = build_view_segmenter(base, max_width_share=config.max_width_share,
+                                     max_width_ratio=config.max_width_ratio)
+    pipeline = CablePipeline(config, [cam], [segmenter], anchors=[(320, 40)])
+    result = pipeline.step([rgb], t_capture)    # result.status: measured, continued, predicted or lost
+    est = pipeline.estimate(t_now)              # latency-compensated read
 
 The names below load their submodule on first use, so importing the package (e.g. for
 :class:`FilterParams` in a command's ``--help``) loads neither OpenCV nor SciPy nor filterpy.
@@ -55,7 +60,6 @@ _EXPORTS = {
     "nodes_by_arc_length": "stereo",
     "stereo_measurement": "stereo",
     "triangulate": "stereo",
-    "CableTracker": "tracker",
     "Measurement": "tracker",
     "Plane": "tracker",
     "lift_with_depth": "tracker",
@@ -102,4 +106,4 @@ if TYPE_CHECKING:  # the same names for type checkers (tests/tracking/test_packa
         stereo_measurement,
         triangulate,
     )
-    from .tracker import CableTracker, Measurement, Plane, lift_with_depth, lift_with_plane
+    from .tracker import Measurement, Plane, lift_with_depth, lift_with_plane

@@ -1,7 +1,7 @@
 """Segmentation masks made safe to follow: the robot's gripper cleared, and regions not shaped like a cable.
 
-Both wrap a segmenter (``rgb -> bool mask``) and are segmenters themselves, so they stack in front of
-:class:`~dyndlo_vision.tracking.tracker.CableTracker`:
+Each wraps a segmenter (``rgb -> bool mask``) and is a segmenter itself, so they stack in front of the
+pipeline (:func:`~dyndlo_vision.tracking.segmenters.build_view_segmenter`):
 
 * :class:`GripperMaskedSegmenter` clears a disk around the gripper where the robot's pose says it is (the
   loop knows it every frame; ``track --tcp-log`` reads it from a log). A gripper segmented as cable is the

@@ -1,24 +1,20 @@
-"""Per-frame cable tracker: segmentation + ordered centreline + 3D lifting, temporally consistent.
-
-Frames are RGB uint8. The tracker keeps the previous frame's nodes to keep the ordering stable:
-without an anchor, node 0 is the end nearest the previous node 0, and if the whole polyline
-matches the previous one better reversed, it is reversed. With ``anchor_uv`` (the held end's
-pixel, e.g. the projected gripper position) node 0 is always the end nearest the anchor.
+"""One frame's cable measurement and its 3D lifting: the :class:`Measurement` of N ordered nodes, lifting
+pixels onto a plane (:func:`lift_with_plane`) or with a depth image (:func:`lift_with_depth`), and the tip
+of a polyline shorter than the cable (:func:`tip_from_polyline`). The pipeline that produces measurements
+frame by frame is :class:`~dyndlo_vision.tracking.pipeline.CablePipeline`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .camera_model import PinholeCamera
-from .centerline import Centerline, CenterlineParams, extract_centerline, nodes_from_path
-from .segmentation import BackgroundSegmenter
+from .centerline import Centerline
 
-__all__ = ["Plane", "Measurement", "CableTracker", "lift_with_depth", "lift_with_plane"]
+__all__ = ["Plane", "Measurement", "lift_with_depth", "lift_with_plane", "tip_from_polyline"]
 
 
 @dataclass(frozen=True)
@@ -81,13 +77,13 @@ def _path_length(points: NDArray[np.float64]) -> float:
 
 #: Shortest share of the cable's known length that the measured polyline (from the held end) must cover for
 #: its tip to be estimated at all; below it the tip is *not seen*. Measured in the loop (``python
-#: benchmarks/tip_completion.py``: tip control, chain, the shipped policies, tracked, seeds 500000+; 1 833
-#: frames; docs/RESULTS.md): where the polyline covered 0.8-0.97 of the cable (looked at: the tip behind the
-#: target sphere) its end was 33-64 mm from the tip (medians), continued straight by the missing length
-#: (:func:`tip_from_polyline`) 2.5-7.8 mm (max 21 mm); at 0.5-0.8, 3 frames, 25-37 mm. An earlier run, whose
-#: loop still took the polyline's end for the tip, also had frames below 0.3 of the cable: continued, they
-#: were up to 113 mm off. 0.5 is the boundary. On foreign scenes with wrong masks continuing does harm
-#: (RESULTS, whip videos): it trusts the segmentation.
+#: benchmarks/tip_completion.py``, since removed: tip control, chain, the shipped policies, tracked, seeds
+#: 500000+; 1 833 frames; docs/results.md, "Decided questions"): where the polyline covered 0.8-0.97 of the
+#: cable (looked at: the tip behind the target sphere) its end was 33-64 mm from the tip (medians), continued
+#: straight by the missing length (:func:`tip_from_polyline`) 2.5-7.8 mm (max 21 mm); at 0.5-0.8, 3 frames,
+#: 25-37 mm. An earlier run, whose loop still took the polyline's end for the tip, also had frames below 0.3
+#: of the cable: continued, they were up to 113 mm off. 0.5 is the boundary. On foreign scenes with wrong
+#: masks continuing does harm (RESULTS, whip videos): it trusts the segmentation.
 MIN_SEEN_LENGTH_FRACTION = 0.5
 
 
@@ -221,138 +217,3 @@ def lift_with_plane(
             if np.any(below):
                 out[below] = camera.intersect_plane(uv[below], floor.normal, float(floor.d))
     return out
-
-
-def _match_cost(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
-    """Mean distance between corresponding finite nodes of two (N, 2) polylines."""
-    ok = np.all(np.isfinite(a), axis=1) & np.all(np.isfinite(b), axis=1)
-    if np.count_nonzero(ok) < 2:
-        return float("nan")
-    return float(np.mean(np.hypot(*(a[ok] - b[ok]).T)))
-
-
-class CableTracker:
-    """Runs segmentation, centreline ordering and 3D lifting on each frame.
-
-    Example::
-
-        tracker = CableTracker(camera, anchor_uv=(320, 40), plane=Plane(np.array([0, 0, 1.0]), 0))
-        meas = tracker.process(rgb, t_capture)
-        tip = meas.point(-1)  # None when the tip is not observed
-    """
-
-    def __init__(
-        self,
-        camera: PinholeCamera | None = None,
-        segmenter: Callable[[NDArray[np.uint8]], NDArray[np.bool_]] | None = None,
-        n_nodes: int = 20,
-        anchor_uv: ArrayLike | None = None,
-        cable_length_px: float | None = None,
-        plane: Plane | tuple[ArrayLike, float] | None = None,
-        params: CenterlineParams | None = None,
-        flip_ratio: float = 0.6,
-        floor: Plane | None = None,
-    ) -> None:
-        """Creates the tracker.
-
-        Args:
-            camera: Needed for 3D lifting; without it ``nodes_xyz`` is NaN.
-            segmenter: Callable RGB -> bool mask; default :class:`BackgroundSegmenter`.
-            n_nodes: Number of centreline nodes N.
-            anchor_uv: Pixel of the held end, fixed; may also be given per frame to
-                :meth:`process` (e.g. the projected gripper position).
-            cable_length_px: Full cable length in pixels if known (planar scenes): nodes past
-                the observed length are then invisible instead of stretched.
-            plane: World plane the cable lies on, for lifting when no depth is given.
-            params: Centreline tuning.
-            flip_ratio: Without an anchor, the new polyline is reversed when its reversed
-                match cost to the previous one is below ``flip_ratio`` times the direct cost.
-            floor: With ``plane``: the plane the cable cannot go below (see :func:`lift_with_plane`).
-        """
-        self.camera = camera
-        self.segmenter = segmenter if segmenter is not None else BackgroundSegmenter()
-        self.n_nodes = int(n_nodes)
-        self.anchor_uv = None if anchor_uv is None else np.asarray(anchor_uv, dtype=np.float64).reshape(2)
-        self.cable_length_px = cable_length_px
-        self.plane = plane
-        self.floor = floor
-        self.params = params or CenterlineParams()
-        self.flip_ratio = float(flip_ratio)
-        self.prev: Centerline | None = None
-        self.last_mask: NDArray[np.bool_] | None = None
-
-    def reset(self) -> None:
-        """Forgets the previous frame."""
-        self.prev = None
-        self.last_mask = None
-
-    def centerline_from_mask(self, mask: NDArray[np.bool_], anchor_uv: ArrayLike | None = None) -> Centerline:
-        """Ordered, temporally consistent centreline from a mask (updates the tracker's memory)."""
-        anchor = self.anchor_uv if anchor_uv is None else np.asarray(anchor_uv, dtype=np.float64).reshape(2)
-        prev_nodes = None
-        if self.prev is not None and self.prev.any_visible:
-            prev_nodes = np.where(self.prev.visible[:, None], self.prev.nodes_uv, np.nan)
-        cl = extract_centerline(
-            mask,
-            self.n_nodes,
-            anchor_uv=anchor,
-            expected_length_px=self.cable_length_px,
-            prev_nodes_uv=prev_nodes,
-            params=self.params,
-        )
-        if anchor is None and prev_nodes is not None and cl.any_visible:
-            rev = nodes_from_path(
-                cl.path_uv[::-1],
-                cl.path_visible[::-1],
-                self.n_nodes,
-                self.cable_length_px,
-                mask.shape,
-                cl.width_px,
-                self.params,
-            )
-            direct = _match_cost(np.where(cl.visible[:, None], cl.nodes_uv, np.nan), prev_nodes)
-            flipped = _match_cost(np.where(rev.visible[:, None], rev.nodes_uv, np.nan), prev_nodes)
-            if np.isfinite(flipped) and (not np.isfinite(direct) or flipped < self.flip_ratio * direct):
-                cl = rev
-        if cl.any_visible:
-            self.prev = cl
-        return cl
-
-    def lift(self, cl: Centerline, depth: NDArray[np.floating] | None = None) -> NDArray[np.float64]:
-        """3D world nodes of a centreline: with ``depth`` if given, else on ``self.plane``."""
-        if self.camera is None or not cl.any_visible:
-            return np.full((cl.n_nodes, 3), np.nan)
-        if depth is not None:
-            return lift_with_depth(cl.nodes_uv, depth, self.camera, cl.visible)
-        if self.plane is not None:
-            return lift_with_plane(cl.nodes_uv, self.camera, self.plane, cl.visible, self.floor)
-        return np.full((cl.n_nodes, 3), np.nan)
-
-    def process(
-        self,
-        rgb: NDArray[np.uint8],
-        t_capture: float,
-        depth: NDArray[np.floating] | None = None,
-        anchor_uv: ArrayLike | None = None,
-    ) -> Measurement:
-        """Measures the cable in one RGB frame.
-
-        Args:
-            rgb: (H, W, 3) uint8 RGB frame.
-            t_capture: Capture time of the frame (s).
-            depth: Optional (H, W) depth image (m along camera z) aligned with ``rgb``.
-            anchor_uv: Held-end pixel for this frame (overrides the fixed anchor).
-
-        Returns:
-            The :class:`Measurement`; all nodes invisible (NaN) when no cable is found.
-        """
-        mask = self.segmenter(rgb)
-        self.last_mask = mask
-        cl = self.centerline_from_mask(mask, anchor_uv)
-        xyz = self.lift(cl, depth)
-        visible = (
-            cl.visible & np.all(np.isfinite(xyz), axis=1)
-            if self.camera is not None and (depth is not None or self.plane is not None)
-            else cl.visible.copy()
-        )
-        return Measurement(xyz, cl.nodes_uv, visible, float(t_capture), cl)
