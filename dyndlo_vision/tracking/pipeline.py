@@ -109,9 +109,10 @@ class PipelineConfig:
             (:func:`~dyndlo_vision.tracking.tracker.tip_from_polyline`).
         min_seen_learned: See ``short_tolerance``.
         identity: The held end's identification (:class:`~dyndlo_vision.tracking.identity.IdentityParams`).
-        learn_length_frames: The learned length is the longest length that at least ``min_length_frames``
-            of the last this many clean frames (both ends seen free, no gap bridged, the held end identified)
-            agree with, within ``max_length_spread`` of it (their median). A faint or hidden tip shortens a
+        learn_length_frames: The learned length is the longest length that at least ``min_length_frames``,
+            and ``min_length_share``, of the last this many clean frames (both ends seen free, no gap bridged,
+            the held end identified) agree with, within ``max_length_spread`` of it (their median), seen in
+            at least ``min_length_poses`` poses of the cable. A faint or hidden tip shortens a
             polyline, often and for long (a cable hanging still with its tip over a patch of its own colour);
             a length learned from such frames would report the cable's middle as its tip, while one learned
             too long only withholds tips. Frames with a gap bridged are kept apart: when enough of them agree
@@ -119,6 +120,12 @@ class PipelineConfig:
             a length, given or learned, the tip is not measured: the end of a polyline of unknown length may
             be anywhere along the cable.
         min_length_frames: See ``learn_length_frames``.
+        min_length_share: See ``learn_length_frames`` (a few frames whose path ran on into the gripper's blob
+            or a shadow agree on a length a little too long).
+        min_length_poses: See ``learn_length_frames``: frames of a cable at rest are one view of it, repeated
+            (its far part faint over one patch of the background in all of them). A frame is a new pose when
+            the cable's quarter, middle and three-quarter points moved by more than a tenth of its length
+            since the last clean frame counted as one.
         max_length_spread: See ``learn_length_frames``.
     """
 
@@ -140,6 +147,8 @@ class PipelineConfig:
     identity: IdentityParams = field(default_factory=IdentityParams)
     learn_length_frames: int = 1000
     min_length_frames: int = 5
+    min_length_share: float = 0.1
+    min_length_poses: int = 3
     max_length_spread: float = 0.03
 
     def __post_init__(self) -> None:
@@ -166,6 +175,10 @@ class PipelineConfig:
         if self.min_length_frames < 1 or self.learn_length_frames < self.min_length_frames:
             raise ValueError(f"need 1 <= min_length_frames <= learn_length_frames, got {self.min_length_frames}, "
                              f"{self.learn_length_frames}")
+        if not 0.0 <= self.min_length_share <= 1.0:
+            raise ValueError(f"min_length_share must be in [0, 1], got {self.min_length_share}")
+        if self.min_length_poses < 1:
+            raise ValueError(f"min_length_poses must be at least 1, got {self.min_length_poses}")
         if not isinstance(self.filter, FilterParams):
             raise ValueError(f"filter must be a FilterParams, got {self.filter!r}")
 
@@ -263,6 +276,9 @@ class _View:
     #: frame. A cable upside down (held end well below its tip) falls, or is whipped: it is slow only at the
     #: top of a throw, so a slow one upside down is not measured (its ends may be swapped).
     SLOW_LENGTHS_PER_S = 1.5
+    #: A lost held end is found again at the upper end of a cable that is still (two frames), or slow for this
+    #: long: an upside-down cable falls, or is thrown, faster (it drops a third of a metre in a quarter second).
+    REACQUIRE_SLOW_S = 0.25
 
     def __init__(self, camera: Any, segmenter: ViewSegmenter, anchor_uv: Any, config: PipelineConfig,
                  px_per_m: float) -> None:
@@ -285,6 +301,7 @@ class _View:
         self.prev_ends: NDArray[np.float64] | None = None
         self.still_frames = 0
         self.slow_frames = 0
+        self.slow_s = 0.0
         self.still_t = -math.inf
         self.first_rule = ""
         reset = getattr(self.segmenter.reach, "reset", None)
@@ -301,12 +318,14 @@ class _View:
         dt = t - self.still_t
         if self.prev_ends is None or len(self.prev_ends) != 3 or not 0 < dt <= 0.1:
             self.still_frames = self.slow_frames = 0
+            self.slow_s = 0.0
         else:
             moved = min(np.max(np.hypot(*(marks - self.prev_ends).T)),
                         np.max(np.hypot(*(marks[::-1] - self.prev_ends).T)))
             self.still_frames = self.still_frames + 1 if moved <= self.STILL_SHARE * cl.length_px else 0
             slow = moved <= self.SLOW_LENGTHS_PER_S * dt * cl.length_px
             self.slow_frames = self.slow_frames + 1 if slow else 0
+            self.slow_s = self.slow_s + dt if slow else 0.0
         self.still_t = t
         self.prev_ends = marks
 
@@ -324,9 +343,12 @@ class _View:
         return (0 if ends[0, 2] >= ends[1, 2] else 1), float(abs(ends[0, 2] - ends[1, 2]))
 
     def _at_rest_upper(self, cl: Any, slow: bool = False) -> int | None:
-        """At rest (still for two frames; ``slow``: slow since the last frame), the clearly upper end (0 or 1):
-        a hanging cable's held end."""
-        if (self.slow_frames < 1) if slow else (self.still_frames < 2):
+        """At rest (still for two frames, or slow for ``REACQUIRE_SLOW_S``; with ``slow``: slow since the last
+        frame), the clearly upper end (0 or 1): a hanging cable's held end."""
+        if slow:
+            if self.slow_frames < 1:
+                return None
+        elif self.still_frames < 2 and self.slow_s < self.REACQUIRE_SLOW_S:
             return None
         upper = self._upper_end(cl)
         length_m = cl.length_px / max(self.px_per_m, 1e-9)
@@ -530,8 +552,10 @@ class CablePipeline:
                       for cam, seg, anchor in zip(cameras, segmenters, anchors, strict=True)]
         params = config.filter if self.world else config.filter.scaled(NOMINAL_PX_PER_M)
         self.filter = PointFilter(params)
-        self._lengths: deque[float] = deque(maxlen=config.learn_length_frames)
-        self._bridged_lengths: deque[float] = deque(maxlen=config.learn_length_frames)
+        self._lengths: deque[tuple[float, bool]] = deque(maxlen=config.learn_length_frames)
+        self._bridged_lengths: deque[tuple[float, bool]] = deque(maxlen=config.learn_length_frames)
+        #: The first view's pose (its quarter points, px) at the last clean frame counted as a new pose.
+        self._pose: NDArray[np.float64] | None = None
         #: Frames seen, and why points were not measured (reason -> frames).
         self.n_frames = 0
         self.reasons: Counter[str] = Counter()
@@ -558,6 +582,7 @@ class CablePipeline:
         self.filter.reset()
         self._lengths.clear()
         self._bridged_lengths.clear()
+        self._pose = None
 
     @property
     def learned_length(self) -> float | None:
@@ -568,23 +593,34 @@ class CablePipeline:
 
     @property
     def length_doubt(self) -> bool:
-        """Frames in which the cable was bridged across a gap agree on a length longer than the one learned
-        from the frames without gaps (beyond ``long_tolerance``): the cable's far part is faint, and what
-        looked like its tip may be its middle."""
+        """Frames show the cable longer than the length learned (beyond ``long_tolerance``): frames bridged
+        across a gap agree on a longer length, or a tenth of all frames (at least two) are longer. The
+        cable's far part is faint, and what looked like its tip may be its middle."""
         length = self._longest_agreed(self._lengths)
-        bridged = self._longest_agreed(self._bridged_lengths)
-        return length is not None and bridged is not None and bridged > length * (1.0 + self.config.long_tolerance)
+        if length is None:
+            return False
+        longest = length * (1.0 + self.config.long_tolerance)
+        bridged = self._longest_agreed(self._bridged_lengths, poses=0)  # doubt needs less evidence
+        every = [v for v, _ in self._lengths] + [v for v, _ in self._bridged_lengths]
+        longer = sum(v > longest for v in every)
+        return (bridged is not None and bridged > longest) or longer >= max(2, 0.1 * len(every))
 
-    def _longest_agreed(self, values: deque[float]) -> float | None:
-        """The median of the longest group of at least ``min_length_frames`` values within
-        ``max_length_spread`` of one of them; None without one."""
-        if len(values) < self.config.min_length_frames:
+    def _longest_agreed(self, values: deque[tuple[float, bool]], poses: int | None = None) -> float | None:
+        """The median of the longest group of lengths within ``max_length_spread`` of one of them, with at
+        least ``min_length_frames`` (and ``min_length_share``) of them, from ``poses`` poses (default
+        ``min_length_poses``); None without one."""
+        cfg = self.config
+        if len(values) < cfg.min_length_frames:
             return None
-        lengths = np.sort(np.asarray(values))
-        spread = self.config.max_length_spread
-        lo = np.searchsorted(lengths, lengths * (1.0 - spread), side="left")
-        hi = np.searchsorted(lengths, lengths * (1.0 + spread), side="right")
-        ok = np.flatnonzero((hi - lo >= self.config.min_length_frames) & (lengths > 0))
+        pairs = np.asarray(values, dtype=np.float64)
+        order = np.argsort(pairs[:, 0])
+        lengths, new_pose = pairs[order, 0], np.concatenate(([0], np.cumsum(pairs[order, 1])))
+        lo = np.searchsorted(lengths, lengths * (1.0 - cfg.max_length_spread), side="left")
+        hi = np.searchsorted(lengths, lengths * (1.0 + cfg.max_length_spread), side="right")
+        least = max(cfg.min_length_frames, cfg.min_length_share * len(lengths))
+        seen_in = new_pose[hi] - new_pose[lo]
+        need = cfg.min_length_poses if poses is None else poses
+        ok = np.flatnonzero((hi - lo >= least) & (seen_in >= need) & (lengths > 0))
         if ok.size == 0:
             return None
         k = ok[-1]
@@ -702,6 +738,19 @@ class CablePipeline:
             return meas, held, "the two views' centrelines do not match"
         return meas, held, ""
 
+    def _new_pose(self) -> bool:
+        """Whether the first view's cable moved by more than a tenth of its length since the last new pose."""
+        marks = self.views[0].prev_ends
+        if marks is None:
+            return False
+        if self._pose is not None:
+            moved = min(np.max(np.hypot(*(marks - self._pose).T)), np.max(np.hypot(*(marks[::-1] - self._pose).T)))
+            span = float(np.hypot(*(marks[0] - marks[-1]).T))  # half the cable's length, or less where bent
+            if moved <= 0.2 * span:
+                return False
+        self._pose = marks.copy()
+        return True
+
     def _cut(self, results: list[ViewResult]) -> str:
         """Why fractions of the cable mean nothing in this frame ("" when they do): in some view the cable runs
         out of the image, or into a region too thick to be cable, at an end the point is counted from."""
@@ -750,7 +799,7 @@ class CablePipeline:
         if cut:
             return None, None, length, False, cut
         if clean:
-            (self._bridged_lengths if bridged else self._lengths).append(length)
+            (self._bridged_lengths if bridged else self._lengths).append((length, self._new_pose()))
         reference = cfg.cable_length_m if self.world else None
         ref = reference if reference is not None else self.learned_length
         point_space = meas.nodes_xyz if self.world else np.column_stack([meas.nodes_uv, np.zeros(len(meas.nodes_uv))])
@@ -758,6 +807,8 @@ class CablePipeline:
             seen = np.flatnonzero(meas.visible & np.all(np.isfinite(point_space), axis=1))
             if seen.size == 0:
                 return None, None, length, False, "the tip's node is not seen"
+            if any(_doubles_back(r.centerline) for r in results):
+                return None, None, length, False, "the cable doubles back along itself at its end"
             if ref is None and self.stereo:
                 if not _reaches_far_ends(meas, self.views, results):
                     return None, None, length, False, ("the triangulated cable does not reach its far end in both "
@@ -799,6 +850,24 @@ class CablePipeline:
             return None, None, length, False, "the point's nodes are not seen"
         uv = (self.views[0].camera.project(point[None])[0] if self.world else point[:2].copy())
         return point, uv, length, continued, ""
+
+
+def _doubles_back(cl: Any, share: float = 0.1) -> bool:
+    """Whether the last ``share`` of the centreline's path runs back along an earlier part of it, within two
+    cable widths (beyond that tail's own length back along the path): a mask split along the cable (a
+    highlight, a seam) walked down one strand and back up the other ends in the cable's middle, not at its
+    tip."""
+    path = np.asarray(cl.path_uv, dtype=np.float64)
+    s = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))))
+    if len(path) < 4 or not s[-1] > 0:
+        return False
+    tail_len = share * s[-1]
+    tail, earlier = path[s >= s[-1] - tail_len], path[s < s[-1] - 2.0 * tail_len]
+    if len(tail) == 0 or len(earlier) == 0:
+        return False
+    width = float(cl.width_px) if np.isfinite(cl.width_px) else 2.0
+    near = np.min(np.linalg.norm(tail[:, None, :] - earlier[None, :, :], axis=2), axis=1)
+    return bool(np.median(near) <= 2.0 * width + 1.0)
 
 
 def _length_from(points: NDArray[np.float64], held: NDArray[np.float64], radius: float = 0.0) -> float:
