@@ -168,10 +168,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--cable-length",
         type=float,
         metavar="L",
-        help="length of the cable in metres from where it leaves the held end (the gripper) to its tip; with "
-        "--point tip, a polyline shorter than that is continued straight by the missing length (the tip "
-        "hidden behind something), and under half of it the tip is not measured (visible=0); with two "
-        "cameras, --point FRACTION is then that share of the length along the triangulated cable",
+        help="length of the cable in metres from where it leaves the held end (the gripper) to its tip; the "
+        "tip is measured from the first frame (without it, once the length is learned from the video). With "
+        "--point tip and the held end placed by --tcp-log or the clicked gripper's appearance, a polyline "
+        "shorter than that is continued straight by the missing length (status continued) when at least 80%% "
+        "of it is seen; otherwise a short one is not measured (visible=0). With two cameras, --point FRACTION "
+        "is that share of the length along the triangulated cable",
     )
     p.add_argument(
         "--tcp-log",

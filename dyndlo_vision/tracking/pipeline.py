@@ -49,7 +49,6 @@ from dyndlo_vision.tracking.identity import GripperTemplate, HeldEnd, IdentityPa
 from dyndlo_vision.tracking.params import TRACK_FILTER, FilterParams
 from dyndlo_vision.tracking.segmenters import SegmenterConfig, ViewSegmenter
 from dyndlo_vision.tracking.tracker import (
-    MIN_SEEN_LENGTH_FRACTION,
     Measurement,
     Plane,
     lift_with_depth,
@@ -102,12 +101,14 @@ class PipelineConfig:
         follow_px: With ``reach_margin_m`` and a learned segmenter: follow the last mask's box grown by this.
         long_tolerance: A polyline longer than ``1 + long_tolerance`` times the cable does not end at its tip
             (the walk went on into something else): the tip is not measured.
-        short_tolerance: With a learned length, a polyline shorter by more than this share of it is continued
-            straight to the tip (its end is where the cable disappears: a faint tip, an occluder), when at
-            least ``min_seen_learned`` of it is seen, else the tip is not measured. With a given length every
-            shortfall is continued when at least half of the cable is seen
-            (:func:`~dyndlo_vision.tracking.tracker.tip_from_polyline`).
-        min_seen_learned: See ``short_tolerance``.
+        short_tolerance: A polyline shorter than the cable by more than this share of it does not end at the
+            tip, and the tip is not measured, except as ``min_seen_given`` says: where the held end is found
+            from the cable alone, a shortfall may as well be at the held end (a cable cut below the gripper)
+            as at the tip.
+        min_seen_given: With a given length (``cable_length_m``) and the held end placed by the robot's pose
+            or the gripper's template, a shorter polyline is continued straight to the tip by the missing length when at least this share
+            of the cable is seen, else the tip is not measured: the hidden part bends, and in a whip a
+            straight continuation of a quarter of the cable missed the tip by up to 98 mm.
         identity: The held end's identification (:class:`~dyndlo_vision.tracking.identity.IdentityParams`).
         learn_length_frames: The learned length is the longest length that at least ``min_length_frames``,
             and ``min_length_share``, of the last this many clean frames (both ends seen free, no gap bridged,
@@ -143,7 +144,7 @@ class PipelineConfig:
     follow_px: int | None = None
     short_tolerance: float = 0.03
     long_tolerance: float = 0.15
-    min_seen_learned: float = 0.9
+    min_seen_given: float = 0.8
     identity: IdentityParams = field(default_factory=IdentityParams)
     learn_length_frames: int = 1000
     min_length_frames: int = 5
@@ -168,7 +169,7 @@ class PipelineConfig:
             raise ValueError(f"max_width_ratio must be above 1 (or None), got {self.max_width_ratio!r}")
         if self.floor is not None and self.plane is None:
             raise ValueError("a floor needs the motion plane")
-        for name in ("short_tolerance", "long_tolerance", "min_seen_learned"):
+        for name in ("short_tolerance", "long_tolerance", "min_seen_given"):
             value = getattr(self, name)
             if not 0 < value < 1:
                 raise ValueError(f"{name} must be in (0, 1), got {value!r}")
@@ -821,10 +822,12 @@ class CablePipeline:
                 ratio = length / ref
                 if ratio > 1.0 + cfg.long_tolerance:
                     return None, None, length, False, "longer than the cable"
-                given = reference is not None
-                if ratio < (MIN_SEEN_LENGTH_FRACTION if given else cfg.min_seen_learned):
-                    return None, None, length, False, "shorter than the cable: its tip is hidden"
-                if ratio < 1.0 - (0.0 if given else cfg.short_tolerance):
+                # Continued only from a held end the robot's pose or the gripper's template places, with the
+                # cable's length given: elsewhere the missing part may be at the held end.
+                placed = reference is not None and (held is not None or results[0].gripper_uv is not None)
+                if ratio < 1.0 - (0.0 if placed else cfg.short_tolerance):
+                    if not placed or ratio < cfg.min_seen_given:
+                        return None, None, length, False, "shorter than the cable: its tip is hidden"
                     if self.world:
                         start = held if held is not None else point_space[seen[0]]
                     else:

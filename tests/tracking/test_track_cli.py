@@ -33,7 +33,7 @@ HELD_END_Z = 0.55
 TIP_TOL_PX = 6.0
 TIP_TOL_M = 0.012
 #: Without ``--cable-length`` the tip is measured once the cable's length is learned: from the fifth frame in
-#: which the whole cable was seen (the sixth without an anchor: the first frame's end is a guess).
+#: which the whole cable was seen, in three poses (measured here: the fifth to the seventh frame).
 LEARN_FRAMES = PipelineConfig().min_length_frames
 
 
@@ -115,7 +115,7 @@ def _read_csv(path: Path) -> tuple[list[str], list[dict[str, str]]]:
 
 
 def _learned_then_seen(rows: list[dict[str, str]], blank: tuple[int, ...] = BLANK_FRAMES,
-                       first: int = LEARN_FRAMES - 1) -> np.ndarray:
+                       first: int = LEARN_FRAMES + 2) -> np.ndarray:
     """Checks that every frame is measured but the blank ones and those before the length was learned (at
     most ``first``; they are reported lost, not guessed), and returns the measured frames."""
     visible = np.array([int(r["visible"]) for r in rows], dtype=bool)
@@ -214,7 +214,7 @@ def test_pixel_mode_on_an_image_folder(clip: Clip, tmp_path: Path, capsys: pytes
     assert len(rows) == N_FRAMES
     np.testing.assert_allclose(_column(rows, "time_s")[:, 0], np.arange(N_FRAMES) / 25.0)
     assert all(r["x"] == r["y"] == r["z"] == "" for r in rows)
-    visible = _learned_then_seen(rows, first=LEARN_FRAMES)
+    visible = _learned_then_seen(rows)
     uv = _column(rows, "u,v")[visible]
     # Without an anchor the upper end, where the cable hangs from, is the held end: the tip is measured.
     err_tip = np.linalg.norm(uv - clip.camera.project(clip.tip_world[visible]), axis=1)
@@ -298,9 +298,10 @@ def test_a_still_cable_under_the_median_background_is_reported_unseen(
     assert "hardly moves is part of the median background" in captured.err
     assert main(["track", str(folder), "--background", "frame", "--out", str(out), "--quiet"]) == 0
     captured = capsys.readouterr()
-    # All but the frames before its length was learned (the first without an anchor is a guess).
-    assert f"point measured in {10 - LEARN_FRAMES} ({100 - 10 * LEARN_FRAMES:.1f}%)" in captured.out
-    assert f"the cable's length is not known yet ({LEARN_FRAMES})" in captured.err
+    # Seen, but a cable that never moves is one view of itself: its length is not learned, its end not
+    # taken for the tip (that is what --cable-length is for).
+    assert "point measured in 0 (0.0%)" in captured.out
+    assert "the cable's length is not known yet (10)" in captured.err
 
 
 def test_without_an_anchor_the_upper_end_is_the_held_end(
@@ -529,7 +530,7 @@ def test_on_the_demo_video_the_tip_is_never_confidently_wrong(tmp_path: Path) ->
     them, and its end there is not taken for the tip (not measured: no confident answer). With the shape test
     off (``--max-width-ratio 0``) the end at the marker's rim is reported. Measured with the chain and its
     policy: defaults 0 of 17 frames (the cable never ends free, so its length is never learned);
-    ``--max-width-ratio 0`` 10 of 17 (the first six while the length is learned), 7.1-11.7 px from the tip.
+    ``--max-width-ratio 0`` 7 to 10 of 17 (none while the length is learned), 7.1-11.7 px from the tip.
     Before the floor was removed as too thick: the skeleton of the floor, 157-308 px away in every frame.
     """
     import gymnasium as gym
@@ -557,7 +558,7 @@ def test_on_the_demo_video_the_tip_is_never_confidently_wrong(tmp_path: Path) ->
     # none is anywhere as far as the floor was.
     centre_uv = camera.project(np.asarray(record["trace"]["goal"], dtype=float)[None])[0]
     near_target = np.linalg.norm(tip_uv - centre_uv, axis=1) < 3 * 14
-    for extra, least_measured in (([], 0), (["--max-width-ratio", "0"], len(frames) // 2)):
+    for extra, least_measured in (([], 0), (["--max-width-ratio", "0"], len(frames) // 3)):
         out = tmp_path / "demo.csv"
         argv = ["track", str(video), "--calib", str(calib), "--plane", plane, "--out", str(out), "--quiet"]
         assert main([*argv, *extra]) == 0
@@ -627,7 +628,7 @@ def test_a_gripper_blob_is_never_the_tip(gripper_clip: tuple[Clip, Path], tmp_pa
         visible, err, to_gripper = _tip_and_gripper_px(clip, out)
         # Measured once the length is learned, but where the disk swallows the held end (2 frames of 36
         # without the shape test: "held end not seen").
-        assert visible[LEARN_FRAMES - 1:].mean() >= 0.9, extra
+        assert visible[LEARN_FRAMES - 1:].mean() >= 0.85, extra
         assert np.all(err[visible] < TIP_TOL_PX), (extra, err)
         assert np.all(to_gripper[visible] > 100), (extra, to_gripper)
 
