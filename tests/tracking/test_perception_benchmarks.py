@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
@@ -39,6 +40,16 @@ def test_track_videos_quick_scores_track_on_two_generated_videos(tmp_path: Path)
     assert total["wrong_frames"] <= 0.01 * total["frames"]
     assert total["median_mm_sharp"] is None or total["median_mm_sharp"] < 25
     assert total["median_mm_blurred"] is None or total["median_mm_blurred"] < 25
+    assert 0 < total["tip_accel_p99_m_s2"] <= total["tip_accel_max_m_s2"]
+
+
+def test_tip_accelerations_are_second_differences_over_uneven_frames() -> None:
+    sys.path.insert(0, str(BENCHMARKS))
+    from track_videos import tip_accelerations
+
+    t = np.cumsum([0.0, 0.04, 0.02, 0.04, 0.04, 0.02])  # uneven frame times, a tip falling freely
+    tip = np.column_stack([np.zeros(6), np.zeros(6), -0.5 * 9.81 * t**2])
+    np.testing.assert_allclose(tip_accelerations(tip, t), 9.81, rtol=1e-9)
 
 
 @pytest.mark.slow
