@@ -503,3 +503,50 @@ class BSplineTrajectory:
             o[before] = start
             o[after] = end
         return tuple(out)
+
+
+def sample_many(
+    trajectories: list[BSplineTrajectory], t: ArrayLike
+) -> tuple[FloatArray, FloatArray]:
+    """Positions and velocities of M trajectories at their own times, ``t`` (M, K) -> (M, K, 3) each.
+
+    Row ``m`` equals ``trajectories[m].position(t[m])`` and ``.velocity(t[m])`` to the last bit: the same
+    arithmetic, with the segments of every trajectory padded to the longest (the batched environment
+    evaluates all its simulations' plans in one call).
+    """
+    tt = np.asarray(t, dtype=float)
+    m = len(trajectories)
+    if tt.ndim != 2 or tt.shape[0] != m:
+        raise ValueError(f"t must have shape ({m}, K) for {m} trajectories, got shape {tt.shape}")
+    nt = max(tr._nt for tr in trajectories)
+    n_p = max(tr._np for tr in trajectories)
+    tb = np.full((m, nt + 1), np.inf)
+    tc = np.zeros((m, nt, 4))
+    pb = np.full((m, n_p + 1), np.inf)
+    pc = np.zeros((m, n_p, 4, 3))
+    t0, dur, nts, nps = np.empty(m), np.empty(m), np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
+    start_p, start_v, end_p = np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3))
+    for k, tr in enumerate(trajectories):
+        tb[k, : tr._nt + 1] = tr._tb_a
+        tc[k, : tr._nt] = tr._tc_a
+        pb[k, : tr._np + 1] = tr._pb_a
+        pc[k, : tr._np] = tr._pc_a
+        t0[k], dur[k], nts[k], nps[k] = tr._t0, tr._dur, tr._nt, tr._np
+        start_p[k], start_v[k], end_p[k] = tr._start[0], tr._start[1], tr._end[0]
+    rel = tt - t0[:, None]
+    tau = np.clip(rel, 0.0, dur[:, None])
+    # searchsorted(side="right") - 1 of each row: how many breakpoints are <= tau, less one (padding is inf)
+    i = np.clip((tb[:, None, :] <= tau[:, :, None]).sum(axis=2) - 1, 0, (nts - 1)[:, None])
+    rows = np.arange(m)[:, None]
+    s, c = tau - tb[rows, i], tc[rows, i]
+    u = ((c[..., 0] * s + c[..., 1]) * s + c[..., 2]) * s + c[..., 3]
+    j = np.clip((pb[:, None, :] <= u[:, :, None]).sum(axis=2) - 1, 0, (nps - 1)[:, None])
+    w, kk = (u - pb[rows, j])[..., None], pc[rows, j]
+    pos = ((kk[..., 0, :] * w + kk[..., 1, :]) * w + kk[..., 2, :]) * w + kk[..., 3, :]
+    du = ((3.0 * c[..., 0] * s + 2.0 * c[..., 1]) * s + c[..., 2])[..., None]
+    dp = (3.0 * kk[..., 0, :] * w + 2.0 * kk[..., 1, :]) * w + kk[..., 2, :]
+    vel = dp * du
+    before, after = rel <= 0.0, rel >= dur[:, None]
+    pos = np.where(before[..., None], start_p[:, None], np.where(after[..., None], end_p[:, None], pos))
+    vel = np.where(before[..., None], start_v[:, None], np.where(after[..., None], 0.0, vel))
+    return pos, vel
