@@ -1,10 +1,10 @@
 """The batched environment behind stable-baselines3's ``VecEnv`` API.
 
 :class:`BatchedVecEnv` steps the N episodes of a :class:`~dyndlo_vision.tasks.batched.BatchedEpisodes` as
-``DummyVecEnv`` steps N environments: the same seeds (``seed(s)`` gives simulation ``i`` the seed ``s + i`` at the
-next reset), options, automatic resets with ``info["terminal_observation"]``, ``TimeLimit.truncated`` and
-``reset_infos``; with the physics of all N in one call. ``learning.envs.make_vec_env(..., kind="batch")`` builds
-it for training, evaluation and distillation.
+``DummyVecEnv`` steps N environments: the same seeds (``seed(s)`` gives simulation ``i`` the seed ``s + i``
+at the next reset), options, automatic resets with ``info["terminal_observation"]``,
+``TimeLimit.truncated`` and ``reset_infos``; with the physics of all N in one call.
+``learning.envs.make_vec_env(..., kind="batch")`` builds it for training.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Many simulations of one scene's model stepped together: the physics behind the batched environment.
 
-:class:`BatchPhysics` is the seam: what ``tasks.batched`` needs from a physics engine, and nothing else. Rows are
-MuJoCo integration states (``mjSTATE_INTEGRATION``), so a row moves between engines and to a
+:class:`BatchPhysics` is the seam: what ``tasks.batched`` needs from a physics engine, and nothing else.
+Rows are MuJoCo integration states (``mjSTATE_INTEGRATION``), so a row moves between engines and to a
 :class:`~dyndlo_vision.sim.Scene`; a simulation's cable is given as a compiled model of the same structure.
 :class:`MujocoBatch` implements it with ``mujoco.batch`` (C threads, GIL released, bit-identical to a loop of
 ``mj_step``). Another engine (MuJoCo Warp on a GPU) is one more class with these methods and one more row of
@@ -113,7 +113,8 @@ class MujocoBatch:
         nstep = controls.shape[1]
         if cold_start:
             self._batch.bind("qacc_warmstart")[ids] = 0.0
-        out = self._batch.rollout(nstep, control=controls, record=(mujoco.mjtState.mjSTATE_TIME, "qpos", "qvel"),
+        record = (mujoco.mjtState.mjSTATE_TIME, "qpos", "qvel")
+        out = self._batch.rollout(nstep, control=controls, record=record,
                                   ids=None if len(ids) == self.nsim else ids)
         return out[mujoco.mjtState.mjSTATE_TIME][..., 0], out["qpos"], out["qvel"]
 
@@ -131,7 +132,8 @@ PHYSICS_BACKENDS: dict[str, Callable[[mujoco.MjModel, int, int], BatchPhysics]] 
 
 
 def make_batch_physics(backend: str, model: mujoco.MjModel, nsim: int, nthread: int = 0) -> BatchPhysics:
-    """The physics engine ``backend`` (a key of :data:`PHYSICS_BACKENDS`) for ``nsim`` simulations of ``model``.
+    """The physics engine ``backend`` (a key of :data:`PHYSICS_BACKENDS`) for ``nsim`` simulations of
+    ``model``.
 
     Raises:
         ValueError: An unknown backend, naming the known ones.

@@ -680,8 +680,8 @@ class Scene:
         return self.state()
 
     def state(self) -> NDArray[np.float64]:
-        """The scene's integration state now (``mjSTATE_INTEGRATION``: time, positions, velocities, warm start,
-        controls, mocap bodies), as one row."""
+        """The scene's integration state now (``mjSTATE_INTEGRATION``: time, positions, velocities, warm
+        start, controls, mocap bodies), as one row."""
         state = np.empty(mujoco.mj_stateSize(self.model, self._state_spec))
         mujoco.mj_getState(self.model, self.data, state, self._state_spec)
         return state

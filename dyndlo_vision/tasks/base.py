@@ -640,7 +640,8 @@ def record_samples(
     task: Task, monitor: EpisodeMonitor, goal: NDArray[np.float64], times: NDArray[np.float64],
     p: NDArray[np.float64], v: NDArray[np.float64], p_dlo: NDArray[np.float64],
 ) -> None:
-    """Update ``monitor`` with K samples (K,), (K, n_g, 3), (K, n_g, 3), (K, 3), then call ``task.on_samples``."""
+    """Update ``monitor`` with K samples (K,), (K, n_g, 3), (K, n_g, 3), (K, 3), then call
+    ``task.on_samples``."""
     mon = monitor
     flags = avoid_flags(p, v, p_dlo, task.limits, task.check_collision)
     for key, value in flags.items():

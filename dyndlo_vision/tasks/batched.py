@@ -16,7 +16,8 @@ observations, to the last bit; ``tests/tasks/test_batched.py``):
   :class:`~dyndlo_vision.sim.Scene` of its cable.
 
 Cable randomisation is per simulation: a drawn cable's compiled model sets that simulation's model fields
-(:meth:`~dyndlo_vision.sim.batch.BatchPhysics.set_model`), its settled state its row; the batch is not rebuilt.
+(:meth:`~dyndlo_vision.sim.batch.BatchPhysics.set_model`), its settled state its row; the batch is not
+rebuilt.
 Observation noise is a :class:`~dyndlo_vision.tasks.noise.NoiseProcess` per simulation.
 
 Not here (use :class:`DynDLOEnv`): a real arm's plan checks (``robot``), cable pushes, frame hooks, rendering.
@@ -52,7 +53,7 @@ from dyndlo_vision.tasks.base import (
 )
 from dyndlo_vision.trajectory import Replanner
 from dyndlo_vision.trajectory.bspline import sample_many
-from dyndlo_vision.trajectory.replanner import MIRROR
+from dyndlo_vision.trajectory.replanner import MIRROR, replan_many
 
 #: Compiled and settled scenes kept per cable (a randomised cable is redrawn every few episodes).
 SCENE_CACHE_SIZE = 64
@@ -139,7 +140,8 @@ class BatchedEpisodes:
                 raise ValueError(f"randomize_cable_every must be >= 1, got {randomize_cable_every!r}")
             if nominal_cable is None:
                 raise ValueError(f"{type(task).__name__} has no cable option to randomise")
-            self._cable_ranges = check_cable_ranges(DEFAULT_CABLE_RANGES if cable_ranges is None else cable_ranges)
+            ranges = DEFAULT_CABLE_RANGES if cable_ranges is None else cable_ranges
+            self._cable_ranges = check_cable_ranges(ranges)
         self._noise: list[Any] | None = None
         if obs_noise is not None:
             from dyndlo_vision.tasks.noise import NoiseProcess, ObservationNoiseModel, noise_model_file
@@ -167,7 +169,8 @@ class BatchedEpisodes:
             self._reset_rows[key] = scene.reset_state()
             if len(self._scenes) > SCENE_CACHE_SIZE:
                 in_use = {self._key(c) for c in getattr(self, "_cables", [])} | {key}
-                for old in [k for k in self._scenes if k not in in_use][: len(self._scenes) - SCENE_CACHE_SIZE]:
+                unused = [k for k in self._scenes if k not in in_use]
+                for old in unused[: len(self._scenes) - SCENE_CACHE_SIZE]:
                     del self._scenes[old], self._reset_rows[old]
         return scene
 
@@ -278,13 +281,11 @@ class BatchedEpisodes:
         if self._ended.any():
             raise RuntimeError(f"episodes of simulations {np.flatnonzero(self._ended).tolist()} have ended: "
                                "reset them first")
-        for i in range(n):
-            if not self.multi_step and self._replanners[i].trajectory is not None:
-                raise RuntimeError(f"single-step episode of simulation {i} already ended: reset it")
-            try:
-                self._replanners[i].replan(a[i].astype(np.float64), float(self._time[i]))
-            except ValueError as err:
-                raise ValueError(f"simulation {i}: {err}") from err
+        bad = np.argwhere(~np.isfinite(a))
+        if bad.size:  # checked before any plan changes, so a refused call leaves every episode as it was
+            i, j = (int(x) for x in bad[0])
+            raise ValueError(f"simulation {i}: action must be finite, got {a[i, j]} at index {j}")
+        replan_many(self._replanners, a.astype(np.float64), self._time)
         all_ids = np.arange(n)
         diverged = np.zeros(n, dtype=bool)
         if self.multi_step:
@@ -317,9 +318,8 @@ class BatchedEpisodes:
             if diverged[i]:
                 info["diverged"] = True
             p_dlo = scene.cable_nodes()[self.tasks[i].p_dlo_node(scene)]
-            obs[i] = self._corrupt(
-                i, observation_vector(scene.tcp_positions(), scene.tcp_velocities(), p_dlo, self._goals[i]), info
-            )
+            true = observation_vector(scene.tcp_positions(), scene.tcp_velocities(), p_dlo, self._goals[i])
+            obs[i] = self._corrupt(i, true, info)
             infos.append(info)
         self._ended = done.copy()
         return obs, rewards, done, infos
@@ -344,7 +344,9 @@ class BatchedEpisodes:
         return out
 
     # ------------------------------------------------------------------ simulate
-    def _simulate(self, ids: NDArray[np.int64], nsteps: NDArray[np.int64], diverged: NDArray[np.bool_]) -> None:
+    def _simulate(
+        self, ids: NDArray[np.int64], nsteps: NDArray[np.int64], diverged: NDArray[np.bool_]
+    ) -> None:
         """Follow each simulation's plan for its number of physics steps, then monitor the recorded states.
 
         As ``DynDLOEnv._simulate_span`` with the C rollout: references at the step times, the physics, then
@@ -359,7 +361,8 @@ class BatchedEpisodes:
         times = t0[:, None] + self._dt * np.arange(kmax)[None, :]
         ref_p, ref_v = self._references(ids, times)
         ctrl = np.tile(self._base_ctrl, (len(ids), kmax, 1))
-        ctrl[:, :, self._tcp_act.ravel()] = (ref_v + self._kp * (ref_p - self._home)).reshape(len(ids), kmax, -1)
+        tcp = (ref_v + self._kp * (ref_p - self._home)).reshape(len(ids), kmax, -1)
+        ctrl[:, :, self._tcp_act.ravel()] = tcp
         nq, nv = self.nominal_scene.model.nq, self.nominal_scene.model.nv
         rec_t = np.empty((len(ids), kmax))
         rec_q = np.empty((len(ids), kmax, nq))
@@ -377,8 +380,8 @@ class BatchedEpisodes:
             cold = done[active] == 0
             if cold.any() and not cold.all():
                 raise AssertionError("a call mixes the starts and continuations of stretches")
-            tt, qq, vv = self.physics.rollout(ids[active], np.ascontiguousarray(ctrl[active, start:start + k]),
-                                              cold_start=bool(cold[0]))
+            part = np.ascontiguousarray(ctrl[active, start:start + k])
+            tt, qq, vv = self.physics.rollout(ids[active], part, cold_start=bool(cold[0]))
             rec_t[active, start:start + k], rec_q[active, start:start + k] = tt, qq
             rec_v[active, start:start + k] = vv
             done[active] += k
@@ -438,8 +441,8 @@ class BatchedEpisodes:
                 start += q.shape[0]
         return out  # type: ignore[return-value]
 
-    def _record_many(self, owners: list[int], times: list[NDArray[np.float64]], qpos: list[NDArray[np.float64]],
-                     qvel: list[NDArray[np.float64]]) -> None:
+    def _record_many(self, owners: list[int], times: list[NDArray[np.float64]],
+                     qpos: list[NDArray[np.float64]], qvel: list[NDArray[np.float64]]) -> None:
         """``DynDLOEnv._record_samples`` for the recorded samples of several simulations, on all at once."""
         counts = np.array([len(t) for t in times])
         starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
@@ -462,8 +465,10 @@ class BatchedEpisodes:
         max_speed = np.maximum.reduceat(speed.max(axis=1), starts)
         max_height = np.maximum.reduceat(p_all[:, :, 2].mean(axis=1), starts)
         if self._custom_distances:
-            dist = np.concatenate([self.tasks[i].goal_distances(p_all[s:s + c], p_dlo[s:s + c], self._goals[i])
-                                   for i, s, c in zip(owners, starts, counts, strict=True)])
+            dist = np.concatenate([
+                self.tasks[i].goal_distances(p_all[s:s + c], p_dlo[s:s + c], self._goals[i])
+                for i, s, c in zip(owners, starts, counts, strict=True)
+            ])
         else:
             dist = np.linalg.norm(p_dlo - goals, axis=-1)
         if self.task.swept_goal_check:
@@ -488,7 +493,8 @@ class BatchedEpisodes:
             mon.last_p_dlo = p_dlo[s + c - 1].copy()
             mon.samples += c
             if self._custom_samples:
-                self.tasks[i].on_samples(times[k], p_all[s:s + c], v_all[s:s + c], p_dlo[s:s + c], running, mon)
+                self.tasks[i].on_samples(times[k], p_all[s:s + c], v_all[s:s + c], p_dlo[s:s + c], running,
+                                         mon)
 
     def _record(self, i: int, times: NDArray[np.float64], p: NDArray[np.float64], v: NDArray[np.float64],
                 p_dlo: NDArray[np.float64]) -> None:
