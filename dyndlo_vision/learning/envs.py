@@ -123,11 +123,11 @@ def _batched_vec_env(
     )
     vec = BatchedVecEnv(episodes)
     vec.seed(seed)
+    monitor = VecMonitor(vec, None, info_keywords=MONITOR_KEYWORDS)  # episode statistics, as Monitor's
     if monitor_dir is None:
-        return vec
+        return monitor
     from stable_baselines3.common.monitor import ResultsWriter
 
-    monitor = VecMonitor(vec, None, info_keywords=MONITOR_KEYWORDS)
     # The writer made here rather than by VecMonitor, which always starts its file afresh: a resumed run
     # continues its episode log.
     monitor.results_writer = ResultsWriter(

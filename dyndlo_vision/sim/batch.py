@@ -10,15 +10,12 @@ Rows are MuJoCo integration states (``mjSTATE_INTEGRATION``), so a row moves bet
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from typing import Protocol
 
 import mujoco
 import numpy as np
 from numpy.typing import NDArray
-
-#: The integration state a row holds (time, qpos, qvel, act, warm start, ctrl, mocap, ...).
-STATE_SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
 
 
 class BatchPhysics(Protocol):
@@ -142,14 +139,3 @@ def make_batch_physics(backend: str, model: mujoco.MjModel, nsim: int, nthread: 
         raise ValueError(f"unknown physics backend {backend!r}; expected one of {sorted(PHYSICS_BACKENDS)}")
     return PHYSICS_BACKENDS[backend](model, nsim, nthread)
 
-
-def integration_state(model: mujoco.MjModel, data: mujoco.MjData) -> NDArray[np.float64]:
-    """The integration state of ``data`` as one row."""
-    state = np.empty(mujoco.mj_stateSize(model, STATE_SPEC))
-    mujoco.mj_getState(model, data, state, STATE_SPEC)
-    return state
-
-
-def split_ids(ids: Sequence[int]) -> NDArray[np.int64]:
-    """Sorted unique simulation ids as an array (what a batch call takes)."""
-    return np.unique(np.asarray(list(ids), dtype=np.int64))
