@@ -1,16 +1,17 @@
 """Can MuJoCo Warp run the task scenes? Model loading, a CPU-device comparison with MuJoCo, a GPU throughput.
 
-For every task's scene (the nominal cable, the scenes training uses): ``mujoco_warp.put_model`` (it raises for
-a feature it does not support), then a short rollout from the settled state with random TCP references (the
-same controls in both engines), on Warp's CPU device, against MuJoCo's ``mj_step``. MuJoCo's ``discrete``
-integrator is not one Warp has, so each scene is also compared with both engines on ``implicitfast``, the
-integrator closest to it that both run. Reports per scene: whether it loads, the largest difference of the
-cable's node positions and of qpos after 0.1 s / the whole rollout, and NaNs.
+For every task's scene (the nominal cable, as training builds it): ``mujoco_warp.put_model`` (it raises for
+a feature it does not support); where it refuses the chain's dense constraint Jacobian (Warp: dense only up to
+60 DOFs), the same scene with ``PhysicsOptions(jacobian="sparse")``, which in MuJoCo is the same physics
+stored otherwise. Then a short rollout from the settled state with random TCP references (the same controls in
+both engines) on Warp's CPU device against MuJoCo's ``mj_step`` on the same model: the largest distance of
+the cable's nodes between the two after 0.1 s and over the whole rollout, and where Warp's state turned NaN.
 
 ``--gpu`` also measures physics steps per second at 1 024 - 8 192 worlds on a CUDA device (a graph-captured
 ``mujoco_warp.step``), against ``mujoco.batch`` on this machine's CPU cores in the same run.
 
-Warp is not a dependency of the package: install it beside it (``pip install mujoco-warp``).
+Warp is not a dependency of the package: install it beside it (``pip install mujoco-warp``). Its CPU device
+compiles its kernels on first use (about 10 min on 2 cores, cached in ``~/.cache/warp`` afterwards).
 
     python benchmarks/warp_backend.py [--quick] [--steps 200] [--gpu --worlds 1024 4096 8192]
 """
@@ -30,19 +31,19 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
-from dyndlo_vision.sim import PhysicsOptions, Scene  # noqa: E402
+from dyndlo_vision.sim import Scene  # noqa: E402
 from dyndlo_vision.sim.batch import MujocoBatch  # noqa: E402
 from dyndlo_vision.tasks import TASKS  # noqa: E402
 from dyndlo_vision.tasks.registry import make_task  # noqa: E402
 
 
-def scenes(integrator: str | None) -> dict[str, Scene]:
-    """Each task's scene (nominal cable), optionally with another integrator."""
+def scenes(jacobian: str | None = None) -> dict[str, Scene]:
+    """Each task's scene (nominal cable), optionally with another constraint Jacobian storage."""
     out = {}
     for name in TASKS:
         config = make_task(name).scene_config()
-        if integrator is not None:
-            config = replace(config, physics=replace(config.physics, integrator=integrator))
+        if jacobian is not None:
+            config = replace(config, physics=replace(config.physics, jacobian=jacobian))
         out[name] = Scene(config)
     return out
 
@@ -77,9 +78,12 @@ def warp_rollout(scene: Scene, controls: np.ndarray, device: str) -> np.ndarray:
     import warp as wp
 
     scene.reset()
+    # Room for twice the contacts of the settled state (a cable on the floor has one per capsule and more),
+    # four constraint rows per pyramidal contact, and the equality rows.
+    nconmax = max(64, 2 * int(scene.data.ncon) + 32)
     with wp.ScopedDevice(device):
         m = mjw.put_model(scene.model)
-        d = mjw.put_data(scene.model, scene.data, nconmax=64, njmax=256)
+        d = mjw.put_data(scene.model, scene.data, nconmax=nconmax, njmax=4 * nconmax + 32)
         out = np.empty((controls.shape[0], scene.model.nq))
         for k, u in enumerate(controls):
             wp.copy(d.ctrl, wp.array(u[None].astype(np.float32), dtype=float))
@@ -88,46 +92,50 @@ def warp_rollout(scene: Scene, controls: np.ndarray, device: str) -> np.ndarray:
     return out
 
 
+def loads(scene: Scene) -> str:
+    import mujoco_warp as mjw
+
+    try:
+        mjw.put_model(scene.model)
+    except Exception as err:  # noqa: BLE001  what Warp refuses is the finding
+        return f"{type(err).__name__}: {err}"
+    return "ok"
+
+
 def compare(steps: int, device: str, rng: np.random.Generator) -> list[dict[str, Any]]:
     rows = []
-    for integrator in (None, "implicitfast"):
-        for name, scene in scenes(integrator).items():
-            row: dict[str, Any] = {"task": name, "integrator": scene.model.opt.integrator,
-                                   "integrator_name": integrator or PhysicsOptions().integrator}
-            try:
-                import mujoco_warp as mjw
-
-                mjw.put_model(scene.model)
-                row["put_model"] = "ok"
-            except Exception as err:  # noqa: BLE001  what Warp refuses is the finding
-                row["put_model"] = f"{type(err).__name__}: {err}"
+    sparse = scenes("sparse")
+    for name, scene in scenes().items():
+        row: dict[str, Any] = {"task": name, "nv": scene.model.nv, "put_model": loads(scene)}
+        if row["put_model"] != "ok":
+            scene = sparse[name]
+            row["put_model_sparse_jacobian"] = loads(scene)
+            if row["put_model_sparse_jacobian"] != "ok":
                 rows.append(row)
                 print(json.dumps(row), flush=True)
                 continue
-            controls = random_controls(scene, steps, rng)
-            reference = mujoco_rollout(scene, controls)
-            start = time.perf_counter()
-            try:
-                warp = warp_rollout(scene, controls, device)
-            except Exception as err:  # noqa: BLE001
-                row["rollout"] = f"{type(err).__name__}: {err}"
-                rows.append(row)
-                print(json.dumps(row), flush=True)
-                continue
-            row["warp_s"] = round(time.perf_counter() - start, 1)
-            nodes_ref = scene.nodes_from_qpos(reference)
-            finite = np.all(np.isfinite(warp), axis=1)
-            row["warp_nan_from_step"] = None if finite.all() else int(np.argmin(finite))
-            good = warp[finite] if not finite.all() else warp
-            nodes_warp = scene.nodes_from_qpos(good)
-            early = min(len(good), int(round(0.1 / scene.timestep)))
-            diff = np.linalg.norm(nodes_warp - nodes_ref[: len(good)], axis=2).max(axis=1)
-            row["node_diff_m_at_0.1s"] = float(diff[:early].max()) if early else None
-            row["node_diff_m_max"] = float(diff.max()) if len(diff) else None
-            row["qpos_diff_max"] = float(np.abs(good - reference[: len(good)]).max()) if len(good) else None
-            row["steps"] = steps
+        controls = random_controls(scene, steps, rng)
+        reference = mujoco_rollout(scene, controls)
+        start = time.perf_counter()
+        try:
+            warp = warp_rollout(scene, controls, device)
+        except Exception as err:  # noqa: BLE001
+            row["rollout"] = f"{type(err).__name__}: {err}"
             rows.append(row)
             print(json.dumps(row), flush=True)
+            continue
+        row["warp_s"] = round(time.perf_counter() - start, 1)
+        finite = np.all(np.isfinite(warp), axis=1)
+        row["warp_nan_from_step"] = None if finite.all() else int(np.argmin(finite))
+        good = warp[: row["warp_nan_from_step"]] if row["warp_nan_from_step"] is not None else warp
+        diff = np.linalg.norm(scene.nodes_from_qpos(good) - scene.nodes_from_qpos(reference[: len(good)]),
+                              axis=2).max(axis=1)
+        early = min(len(good), int(round(0.1 / scene.timestep)))
+        row["node_diff_m_at_0.1s"] = float(diff[:early].max()) if early else None
+        row["node_diff_m_max"] = float(diff.max()) if len(diff) else None
+        row["steps"] = steps
+        rows.append(row)
+        print(json.dumps(row), flush=True)
     return rows
 
 
@@ -136,7 +144,7 @@ def gpu_throughput(worlds: list[int], steps: int) -> list[dict[str, Any]]:
     import mujoco_warp as mjw
     import warp as wp
 
-    scene = scenes(None)["tip-control"]
+    scene = scenes()["tip-control"]
     scene.reset()
     rows = []
     for nworld in worlds:

@@ -670,6 +670,12 @@ class Scene:
         return (self._node_offset + (q @ self._node_jacobian).reshape(q.shape[0], self._vert_num, 3))
 
     @property
+    def tcp_indices(self) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+        """Where the TCPs are: their joints' qpos and dof addresses and their servos' actuator ids, each
+        (n_g, 3) (x, y, z per gripper)."""
+        return self._tcp_qpos.copy(), self._tcp_dof.copy(), self._tcp_act.copy()
+
+    @property
     def chain(self) -> chain_model.ChainKinematics | None:
         """The chain cable's batched kinematics (None for the rod)."""
         return self._chain

@@ -112,7 +112,7 @@ class BatchedEpisodes:
         self._steps_per_control = int(round(CONTROL_PERIOD_S / self._dt))
         self._home = scene.gripper_home
         self._kp = scene.config.gains.kp_per_s
-        self._tcp_qpos, self._tcp_dof, self._tcp_act = scene._tcp_qpos, scene._tcp_dof, scene._tcp_act
+        self._tcp_qpos, self._tcp_dof, self._tcp_act = scene.tcp_indices
         self._base_ctrl = scene.data.ctrl.copy()
         self._limits = task.limits
         self._custom_distances = type(task).goal_distances is not Task.goal_distances
