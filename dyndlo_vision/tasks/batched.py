@@ -114,9 +114,6 @@ class BatchedEpisodes:
         self._kp = scene.config.gains.kp_per_s
         self._tcp_qpos, self._tcp_dof, self._tcp_act = scene.tcp_indices
         self._base_ctrl = scene.data.ctrl.copy()
-        self._limits = task.limits
-        self._custom_distances = type(task).goal_distances is not Task.goal_distances
-        self._custom_samples = type(task).on_samples is not Task.on_samples
         # Per simulation.
         self._cables: list[Any] = [nominal_cable] * n
         self._sim_scenes: list[Scene] = [scene] * n
@@ -237,8 +234,8 @@ class BatchedEpisodes:
         self._ended[i] = False
         scene.load_state(self._reset_rows[self._key(self._cables[i])])
         if scene.config.target_radius_m > 0:
-            # The marker is part of the state: where it stands orders the collision checks, and so the
-            # solver's rounding, as in the single environment.
+            # The marker is part of the state (not of the physics: it collides with nothing); set as the
+            # single environment sets it, a simulation's state row is the single environment's.
             scene.set_target(self._goals[i])
         self.physics.set_states(np.array([i]), scene.state()[None])
         # The first monitor sample, of the state at reset (DynDLOEnv._sample_monitor).
@@ -444,59 +441,68 @@ class BatchedEpisodes:
     def _record_many(self, owners: list[int], times: list[NDArray[np.float64]],
                      qpos: list[NDArray[np.float64]], qvel: list[NDArray[np.float64]]) -> None:
         """``DynDLOEnv._record_samples`` for the recorded samples of several simulations, on all at once."""
-        counts = np.array([len(t) for t in times])
-        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        q, v = np.concatenate(qpos), np.concatenate(qvel)
-        p_all = self._home + q[:, self._tcp_qpos]
-        v_all = v[:, self._tcp_dof]
-        p_dlo = np.concatenate(self._nodes(owners, qpos))
-        owner_rows = np.repeat(np.array(owners), counts)
-        goals = self._goals[owner_rows]
-        limits = self._limits
-        shoulder = np.asarray(limits.shoulder_position_m)
-        speed = np.linalg.norm(v_all, axis=-1)
-        flags = {
-            "outreach": np.any(np.linalg.norm(p_all - shoulder, axis=-1) > limits.outreach_m, axis=1),
-            "velocity": np.any(speed > limits.v_max_m_s, axis=1),
-            "collision": (p_dlo[..., 2] < limits.collision_height_m) & self.task.check_collision,
-            "shoulder": np.any(np.linalg.norm(p_all[..., :2], axis=-1) < limits.shoulder_m, axis=1),
-        }
-        flags_any = {key: np.logical_or.reduceat(value, starts) for key, value in flags.items()}
-        max_speed = np.maximum.reduceat(speed.max(axis=1), starts)
-        max_height = np.maximum.reduceat(p_all[:, :, 2].mean(axis=1), starts)
-        if self._custom_distances:
-            dist = np.concatenate([
-                self.tasks[i].goal_distances(p_all[s:s + c], p_dlo[s:s + c], self._goals[i])
-                for i, s, c in zip(owners, starts, counts, strict=True)
-            ])
-        else:
-            dist = np.linalg.norm(p_dlo - goals, axis=-1)
-        if self.task.swept_goal_check:
-            previous = np.empty_like(p_dlo)
-            previous[1:] = p_dlo[:-1]
-            for i, s in zip(owners, starts, strict=True):
-                last = self._monitors[i].last_p_dlo
-                previous[s] = p_dlo[s] if last is None else last
-            dist = np.minimum(dist, _segment_point_distances(previous, p_dlo, goals))
-        min_dist = np.minimum.reduceat(dist, starts)
-        for k, i in enumerate(owners):
-            mon = self._monitors[i]
-            for key in flags_any:
-                mon.avoid[key] = mon.avoid[key] or bool(flags_any[key][k])
-            mon.max_tcp_speed_m_s = max(mon.max_tcp_speed_m_s, float(max_speed[k]))
-            mon.max_mean_height_m = max(mon.max_mean_height_m, float(max_height[k]))
-            s, c = int(starts[k]), int(counts[k])
-            running_min = float(min(mon.min_goal_distance_m, float(min_dist[k])))
-            if self._custom_samples:
-                running = np.minimum.accumulate(np.minimum(dist[s:s + c], mon.min_goal_distance_m))
-            mon.min_goal_distance_m = running_min
-            mon.last_p_dlo = p_dlo[s + c - 1].copy()
-            mon.samples += c
-            if self._custom_samples:
-                self.tasks[i].on_samples(times[k], p_all[s:s + c], v_all[s:s + c], p_dlo[s:s + c], running,
-                                         mon)
+        p = [self._home + q[:, self._tcp_qpos] for q in qpos]
+        v = [qv[:, self._tcp_dof] for qv in qvel]
+        record_samples_many([self.tasks[i] for i in owners], [self._monitors[i] for i in owners],
+                            self._goals[owners], times, p, v, self._nodes(owners, qpos))
 
     def _record(self, i: int, times: NDArray[np.float64], p: NDArray[np.float64], v: NDArray[np.float64],
                 p_dlo: NDArray[np.float64]) -> None:
         """One simulation's samples (the reset sample), as the single environment records them."""
         record_samples(self.tasks[i], self._monitors[i], self._goals[i], times, p, v, p_dlo)
+
+
+def record_samples_many(
+    tasks: list[Task], monitors: list[EpisodeMonitor], goals: NDArray[np.float64],
+    times: list[NDArray[np.float64]], p: list[NDArray[np.float64]], v: list[NDArray[np.float64]],
+    p_dlo: list[NDArray[np.float64]],
+) -> None:
+    """:func:`~dyndlo_vision.tasks.base.record_samples` for M simulations at once, each with its task,
+    monitor, goal (M, 3) and K_m samples: times (K_m,), TCP positions and velocities (K_m, n_g, 3), P_DLO
+    (K_m, 3). Every monitor ends as ``record_samples`` leaves it, to the last bit; the avoid conditions,
+    speeds, heights and goal distances of all samples are computed together. The tasks are of one class (one
+    batch)."""
+    task = tasks[0]
+    counts = np.array([len(t) for t in times])
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    p_all, v_all, dlo = np.concatenate(p), np.concatenate(v), np.concatenate(p_dlo)
+    rows_goal = np.repeat(np.asarray(goals, dtype=float), counts, axis=0)
+    limits = task.limits
+    shoulder = np.asarray(limits.shoulder_position_m)
+    speed = np.linalg.norm(v_all, axis=-1)
+    flags = {
+        "outreach": np.any(np.linalg.norm(p_all - shoulder, axis=-1) > limits.outreach_m, axis=1),
+        "velocity": np.any(speed > limits.v_max_m_s, axis=1),
+        "collision": (dlo[..., 2] < limits.collision_height_m) & task.check_collision,
+        "shoulder": np.any(np.linalg.norm(p_all[..., :2], axis=-1) < limits.shoulder_m, axis=1),
+    }
+    flags_any = {key: np.logical_or.reduceat(value, starts) for key, value in flags.items()}
+    max_speed = np.maximum.reduceat(speed.max(axis=1), starts)
+    max_height = np.maximum.reduceat(p_all[:, :, 2].mean(axis=1), starts)
+    if type(task).goal_distances is not Task.goal_distances:
+        dist = np.concatenate([t.goal_distances(pp, dd, g) for t, pp, dd, g in zip(tasks, p, p_dlo, goals,
+                                                                                     strict=True)])
+    else:
+        dist = np.linalg.norm(dlo - rows_goal, axis=-1)
+    if task.swept_goal_check:
+        # Each simulation's first segment starts where its P_DLO was at its previous sample.
+        previous = np.empty_like(dlo)
+        previous[1:] = dlo[:-1]
+        for mon, s in zip(monitors, starts, strict=True):
+            previous[s] = dlo[s] if mon.last_p_dlo is None else mon.last_p_dlo
+        dist = np.minimum(dist, _segment_point_distances(previous, dlo, rows_goal))
+    min_dist = np.minimum.reduceat(dist, starts)
+    custom_samples = type(task).on_samples is not Task.on_samples
+    for k, (t, mon) in enumerate(zip(tasks, monitors, strict=True)):
+        for key in flags_any:
+            mon.avoid[key] = mon.avoid[key] or bool(flags_any[key][k])
+        mon.max_tcp_speed_m_s = max(mon.max_tcp_speed_m_s, float(max_speed[k]))
+        mon.max_mean_height_m = max(mon.max_mean_height_m, float(max_height[k]))
+        s, c = int(starts[k]), int(counts[k])
+        if custom_samples:
+            running = np.minimum.accumulate(np.minimum(dist[s:s + c], mon.min_goal_distance_m))
+        mon.min_goal_distance_m = float(min(mon.min_goal_distance_m, float(min_dist[k])))
+        mon.last_p_dlo = dlo[s + c - 1].copy()
+        mon.samples += c
+        if custom_samples:
+            t.on_samples(times[k], p[k], v[k], p_dlo[k], running, mon)

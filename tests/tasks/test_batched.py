@@ -48,6 +48,11 @@ def run_both(task: str, multi_step: bool, n: int, steps: int, seed: int = 7, **k
         for i, (a, b) in enumerate(zip(info_a, info_b, strict=True)):
             _same_info(a, b, f"step {k}, simulation {i}")
         np.testing.assert_array_equal(obs_a, obs_b, err_msg=f"step {k}: observations")
+        # The whole simulation state too: time, positions, velocities, solver warm start, controls, marker.
+        states = batched.episodes.physics.states(np.arange(n))
+        for i, env in enumerate(single.envs):
+            np.testing.assert_array_equal(env.unwrapped.scene.state(), states[i],
+                                          err_msg=f"step {k}: state of simulation {i}")
         counts["episodes"] += int(done_a.sum())
         ended = [info for info, d in zip(info_a, done_a, strict=True) if d]
         counts["successes"] += sum(bool(info["is_success"]) for info in ended)
@@ -122,3 +127,46 @@ def test_bad_input_is_refused_with_what_was_expected() -> None:
     assert done.all()
     with pytest.raises(RuntimeError, match=r"episodes of simulations \[0, 1\] have ended: reset them first"):
         episodes.step(np.zeros((2, 9), dtype=np.float32))
+
+
+def _monitor_fields(mon: Any) -> tuple[Any, ...]:
+    last = None if mon.last_p_dlo is None else tuple(mon.last_p_dlo)
+    return (dict(mon.avoid), mon.max_tcp_speed_m_s, mon.max_mean_height_m, mon.min_goal_distance_m, last,
+            mon.samples)
+
+
+@pytest.mark.parametrize("task_name", ["tip-control", "time-oscillation", "hooking"])
+def test_monitor_of_many_equals_the_single_monitor_across_calls(task_name: str) -> None:
+    from dyndlo_vision.tasks.base import EpisodeMonitor, record_samples
+    from dyndlo_vision.tasks.batched import record_samples_many
+    from dyndlo_vision.tasks.registry import make_task
+
+    rng = np.random.default_rng(3)
+    m = 4
+    goals = np.array([[0.8, 0.0, 0.4]] * m) + rng.normal(0, 0.05, (m, 3))
+    tasks_a = [make_task(task_name) for _ in range(m)]
+    tasks_b = [make_task(task_name) for _ in range(m)]
+    for t in tasks_a + tasks_b:
+        t.begin_episode()
+    one, many = [EpisodeMonitor() for _ in range(m)], [EpisodeMonitor() for _ in range(m)]
+    for call in range(3):
+        counts = [int(c) for c in rng.integers(2, 30, m)]
+        times = [0.1 * call + 0.002 * np.arange(1, c + 1) for c in counts]
+        n_g = tasks_a[0].scene_config().num_grippers  # hooking: two grippers
+        p = [np.array([0.45, 0.0, 0.6]) + rng.normal(0, 0.3, (c, n_g, 3)) for c in counts]
+        v = [rng.normal(0, 1.2, (c, n_g, 3)) for c in counts]
+        p_dlo = [goals[k] + rng.normal(0, 0.1, (c, 3)) for k, c in enumerate(counts)]
+        # Simulation 0's tip sweeps straight through its target between this call's last sample and the
+        # next call's first: only the segment across the calls comes within the target.
+        side = 1.0 if call % 2 == 0 else -1.0
+        p_dlo[0][-1] = goals[0] + side * np.array([0.2, 0.0, 0.0])
+        if call > 0:
+            p_dlo[0][0] = goals[0] + side * np.array([0.2, 0.0, 0.0])  # across from the last call's last
+        for k in range(m):
+            record_samples(tasks_a[k], one[k], goals[k], times[k], p[k], v[k], p_dlo[k])
+        record_samples_many(tasks_b, many, goals, times, p, v, p_dlo)
+        for k in range(m):
+            assert _monitor_fields(one[k]) == _monitor_fields(many[k]), f"call {call}, simulation {k}"
+            assert vars(tasks_a[k]).keys() == vars(tasks_b[k]).keys()
+    if task_name == "tip-control":
+        assert one[0].min_goal_distance_m < 1e-9  # the swept segment through the target was seen
