@@ -4,7 +4,9 @@ Part 1, side by side: tip control (single-step and multi-step), random actions, 
 every configuration for ``--seconds`` of wall time, in turn (DummyVecEnv with 1 environment, SubprocVecEnv
 with 2 workers, the batched environment with 2, 4, 8 and 16 simulations), and counts env steps (decisions).
 Reported per configuration: the median over rounds of env steps/s, and the median of its per-round ratio to
-SubprocVecEnv with 2 workers and to one environment.
+SubprocVecEnv with 2 workers and to one environment; and the CPU time one env step costs (this process with
+all its threads, and the worker processes), which a loaded machine changes much less than the wall time: on
+2 idle cores a configuration that keeps both busy makes about 2 000 / (CPU ms per step) steps per second.
 
 Part 2, one core: whole single-step episodes (reset, plan, simulate, observe, reward) with the same random
 actions, per CPU second of this thread: the single environment, the batched environment (8 simulations,
@@ -48,22 +50,37 @@ CONFIGS = (("dummy", 1), ("subproc", 2), ("batch", 2), ("batch", 4), ("batch", 8
 REFERENCE = ("subproc", 2)
 
 
-def env_steps_per_s(multi_step: bool, kind: str, n_envs: int, seconds: float, seed: int) -> float:
-    """Env steps per second of wall time, random actions, after one warm-up step."""
+def cpu_seconds(pids: list[int]) -> float:
+    """CPU time (user + system) of this process, all its threads, and of the processes ``pids`` (Linux)."""
+    total = sum(os.times()[:2])
+    tick = os.sysconf("SC_CLK_TCK")
+    for pid in pids:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        total += (int(fields[11]) + int(fields[12])) / tick  # utime, stime
+    return total
+
+
+def env_steps_per_s(multi_step: bool, kind: str, n_envs: int, seconds: float, seed: int
+                    ) -> tuple[float, float]:
+    """Env steps per second of wall time and CPU milliseconds per env step (this process, its threads and
+    its worker processes), random actions, after one warm-up step."""
     config = RunConfig(task="tip-control", multi_step=multi_step, algo="sac", timesteps=1, n_envs=n_envs,
                        vec_env=kind)
     vec = make_vec_env(config, n_envs, seed, None, kind)
     rng = np.random.default_rng(seed)
     shape = (n_envs, *vec.action_space.shape)
+    workers = [p.pid for p in getattr(vec, "processes", [])]
     try:
         vec.reset()
         vec.step(rng.uniform(-1, 1, shape).astype(np.float32))
         steps = 0
+        cpu = cpu_seconds(workers)
         start = time.perf_counter()
         while time.perf_counter() - start < seconds:
             vec.step(rng.uniform(-1, 1, shape).astype(np.float32))
             steps += n_envs
-        return steps / (time.perf_counter() - start)
+        wall = time.perf_counter() - start
+        return steps / wall, 1e3 * (cpu_seconds(workers) - cpu) / steps
     finally:
         vec.close()
 
@@ -72,15 +89,21 @@ def side_by_side(rounds: int, seconds: float, configs: tuple[tuple[str, int], ..
     rows = []
     for multi_step in (False, True):
         rates: dict[tuple[str, int], list[float]] = {c: [] for c in configs}
+        costs: dict[tuple[str, int], list[float]] = {c: [] for c in configs}
         for r in range(rounds):
             for kind, n in configs:
-                rates[(kind, n)].append(env_steps_per_s(multi_step, kind, n, seconds, seed=1000 * r))
+                rate, cost = env_steps_per_s(multi_step, kind, n, seconds, seed=1000 * r)
+                rates[(kind, n)].append(rate)
+                costs[(kind, n)].append(cost)
         for kind, n in configs:
             vs_ref = [a / b for a, b in zip(rates[(kind, n)], rates[REFERENCE], strict=True)]
             vs_one = [a / b for a, b in zip(rates[(kind, n)], rates[("dummy", 1)], strict=True)]
+            cost_ref = [b / a for a, b in zip(costs[(kind, n)], costs[REFERENCE], strict=True)]
             rows.append({"mode": "multi-step" if multi_step else "single-step", "vec_env": kind, "n_envs": n,
                          "env_steps_per_s": statistics.median(rates[(kind, n)]),
                          "vs_subproc_2": statistics.median(vs_ref), "vs_one_env": statistics.median(vs_one),
+                         "cpu_ms_per_step": statistics.median(costs[(kind, n)]),
+                         "cpu_efficiency_vs_subproc_2": statistics.median(cost_ref),
                          "rounds": [round(x, 2) for x in rates[(kind, n)]]})
     return rows
 
@@ -160,11 +183,13 @@ def main() -> None:
         sys.exit(f"--paper-python {args.paper_python}: no such file")
     print(f"# {platform.machine()}, {os.cpu_count()} cpus, python {platform.python_version()}; tip control, "
           f"random actions, no learning; {args.rounds} rounds of {args.seconds:g} s per configuration")
-    print("| mode | vec env | n_envs | env steps/s (median) | vs SubprocVecEnv 2 | vs one env |")
-    print("|---|---|---|---|---|---|")
+    print("| mode | vec env | n_envs | env steps/s (median) | vs SubprocVecEnv 2 | vs one env | CPU ms per "
+          "env step | CPU per step, SubprocVecEnv 2 / this |")
+    print("|---|---|---|---|---|---|---|---|")
     for row in side_by_side(args.rounds, args.seconds, configs):
         print(f"| {row['mode']} | {row['vec_env']} | {row['n_envs']} | {row['env_steps_per_s']:.1f} | "
-              f"{row['vs_subproc_2']:.2f} | {row['vs_one_env']:.2f} |", flush=True)
+              f"{row['vs_subproc_2']:.2f} | {row['vs_one_env']:.2f} | {row['cpu_ms_per_step']:.1f} | "
+              f"{row['cpu_efficiency_vs_subproc_2']:.2f} |", flush=True)
     paper = against_paper(args.rounds, args.episodes, args.paper_python)
     print("\n# one core, single-step episodes per CPU second (medians over rounds)")
     print(json.dumps({k: round(v, 3) for k, v in paper.items() if k != "rounds"}))
