@@ -55,11 +55,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--out", default=None, help="run folder (default: runs/<task>[-multi-step]-<algo>-s<seed>)"
     )
     p.add_argument("--n-envs", type=int, default=None, help="parallel environments (default: from the YAML)")
-    p.add_argument("--vec-env", choices=["subproc", "dummy", "batch"], default=None,
+    p.add_argument("--vec-env", choices=["subproc", "dummy", "batch"], default="subproc",
                    help="environments in worker processes, in this one, or one batched environment (the "
-                        "physics of all in one call on C threads; the same episodes). Default: the task and "
-                        "mode's entry in the hyperparameter file (batch where it measured faster, "
-                        "docs/throughput.md), else subproc; subproc with --robot")
+                        "physics of all in one call on C threads; the same episodes; not with --robot)")
     p.add_argument(
         "--hp", action="append", metavar="KEY=VALUE", help="override a hyperparameter (repeatable)"
     )
@@ -138,7 +136,7 @@ def _new_config(args: argparse.Namespace, algo: str) -> RunConfig:
         timesteps=args.timesteps if args.timesteps is not None else int(entry["n_timesteps"]),
         seed=args.seed,
         n_envs=args.n_envs if args.n_envs is not None else int(entry["n_envs"]),
-        vec_env=args.vec_env or ("subproc" if args.robot else str(entry.get("vec_env", "subproc"))),
+        vec_env=args.vec_env,
         policy=entry.get("policy", "MlpPolicy"),
         hyperparams=hyperparams,
         env_options=parse_assignments(args.env_option, "--env-option"),

@@ -24,8 +24,7 @@ DEMONSTRABLE_TASKS = tuple(name for name, entry in TASKS.items() if entry.demons
 
 
 def load_hyperparams(algo: str, task: str, multi_step: bool) -> dict[str, Any]:
-    """The YAML entry of ``algo`` for a task and mode: n_envs, n_timesteps, policy, hyperparams, and
-    optionally vec_env (the vectorised environment ``train`` uses by default).
+    """The YAML entry of ``algo`` for a task and mode: n_envs, n_timesteps, policy, hyperparams.
 
     Raises:
         ValueError: For an unknown algorithm, a task and mode without an entry, or a file of another version.
