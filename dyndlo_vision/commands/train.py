@@ -55,8 +55,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--out", default=None, help="run folder (default: runs/<task>[-multi-step]-<algo>-s<seed>)"
     )
     p.add_argument("--n-envs", type=int, default=None, help="parallel environments (default: from the YAML)")
-    p.add_argument("--vec-env", choices=["subproc", "dummy"], default="subproc",
-                   help="environments in worker processes or in this one")
+    p.add_argument("--vec-env", choices=["subproc", "dummy", "batch"], default="subproc",
+                   help="environments in worker processes, in this one, or one batched environment (the "
+                        "physics of all in one call on C threads; the same episodes; not with --robot)")
     p.add_argument(
         "--hp", action="append", metavar="KEY=VALUE", help="override a hyperparameter (repeatable)"
     )

@@ -57,7 +57,8 @@ class RunConfig:
         timesteps: Total environment steps (decisions) to train for.
         seed: Seed of the algorithm and of the training environments (evaluation uses seed + 10_000).
         n_envs: Environments stepped in parallel.
-        vec_env: "subproc" (one process per environment) or "dummy" (all in this process).
+        vec_env: "subproc" (one process per environment), "dummy" (all in this process) or "batch" (one
+            batched environment: the physics of all of them in one call on C threads, the same episodes).
         policy: stable-baselines3 policy name.
         hyperparams: Keyword arguments of the algorithm (from the YAML file, then ``--hp`` overrides).
         env_options: Task options passed to ``gym.make`` (e.g. ``{"target": "down"}``).
@@ -102,8 +103,11 @@ class RunConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name}={value!r}; expected a positive integer")
-        if self.vec_env not in ("subproc", "dummy"):
-            raise ValueError(f"vec_env={self.vec_env!r}; expected 'subproc' or 'dummy'")
+        if self.vec_env not in ("subproc", "dummy", "batch"):
+            raise ValueError(f"vec_env={self.vec_env!r}; expected 'subproc', 'dummy' or 'batch'")
+        if self.vec_env == "batch" and self.robot is not None:
+            raise ValueError(f"vec_env='batch' does not judge plans on a real arm (robot={self.robot!r}); "
+                             "use 'subproc' or 'dummy'")
         if not isinstance(self.demonstrations, int) or self.demonstrations < 0:
             raise ValueError(f"demonstrations={self.demonstrations!r}; expected a non-negative integer")
         if self.demonstrations and self.algo != "sac":

@@ -1,5 +1,6 @@
 """Training's environments: the task's environment (:func:`dyndlo_vision.tasks.make_env`) behind a Monitor,
-one per worker, in a vectorised environment."""
+one per worker, in a vectorised environment; or all of them in one batched environment
+(:class:`~dyndlo_vision.learning.vec_env.BatchedVecEnv`, ``kind="batch"``)."""
 
 from __future__ import annotations
 
@@ -15,6 +16,9 @@ from dyndlo_vision.learning.config import RunConfig
 MONITOR_KEYWORDS = ("is_success",)
 #: A randomised training cable is redrawn every this many episodes (a new cable is a new MuJoCo model).
 RANDOMIZE_CABLE_EVERY = 10
+#: The vectorised environments ``make_vec_env`` builds: one process per environment, all in this process, or
+#: one batched environment (the physics of all in one call on C threads).
+VEC_ENV_KINDS = ("subproc", "dummy", "batch")
 
 
 def make_training_env(
@@ -67,9 +71,21 @@ def make_vec_env(
     randomize: bool | None = None,
     append_monitor: bool = False,
 ) -> Any:
-    """``n_envs`` environments in a DummyVecEnv or SubprocVecEnv, seeded ``seed, seed + 1, ...``."""
+    """``n_envs`` environments in a DummyVecEnv, a SubprocVecEnv or one batched environment (``kind``
+    ``"dummy"``, ``"subproc"``, ``"batch"``), seeded ``seed, seed + 1, ...``.
+
+    The batched one gives the same episodes as the others on the same seeds; its monitor file is
+    ``monitor_dir/batch.monitor.csv`` (one row per episode of every simulation).
+
+    Raises:
+        ValueError: An unknown kind, or ``"batch"`` with what it does not simulate (a real arm's plan checks).
+    """
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
+    if kind not in VEC_ENV_KINDS:
+        raise ValueError(f"vectorised environment {kind!r}; expected one of {VEC_ENV_KINDS}")
+    if kind == "batch":
+        return _batched_vec_env(config, n_envs, seed, monitor_dir, randomize, append_monitor)
     thunks = [
         env_factory(
             config, monitor_dir / f"env{rank}" if monitor_dir is not None else None, randomize, append_monitor
@@ -83,3 +99,39 @@ def make_vec_env(
     )
     vec.seed(seed)
     return vec
+
+
+def _batched_vec_env(
+    config: RunConfig, n_envs: int, seed: int, monitor_dir: Path | None, randomize: bool | None,
+    append_monitor: bool,
+) -> Any:
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    from dyndlo_vision.learning.vec_env import BatchedVecEnv
+    from dyndlo_vision.tasks.batched import BatchedEpisodes
+    from dyndlo_vision.tasks.registry import make_task
+
+    if config.robot is not None:
+        raise ValueError(f"--vec-env batch does not judge plans on a real arm (--robot {config.robot}); use "
+                         "--vec-env subproc or dummy")
+    randomize = config.randomize_cable if randomize is None else randomize
+    episodes = BatchedEpisodes(
+        make_task(config.task, multi_step=config.multi_step, **config.env_options),
+        n_envs,
+        randomize_cable_every=RANDOMIZE_CABLE_EVERY if randomize else None,
+        obs_noise=Path(config.obs_noise) if config.obs_noise else None,
+    )
+    vec = BatchedVecEnv(episodes)
+    vec.seed(seed)
+    monitor = VecMonitor(vec, None, info_keywords=MONITOR_KEYWORDS)  # episode statistics, as Monitor's
+    if monitor_dir is None:
+        return monitor
+    from stable_baselines3.common.monitor import ResultsWriter
+
+    # The writer made here rather than by VecMonitor, which always starts its file afresh: a resumed run
+    # continues its episode log.
+    monitor.results_writer = ResultsWriter(
+        str(monitor_dir / "batch"), header={"t_start": monitor.t_start, "env_id": config.env_id},
+        extra_keys=MONITOR_KEYWORDS, override_existing=not append_monitor,
+    )
+    return monitor

@@ -249,7 +249,9 @@ def save_checkpoint(model: Any, out: Path, wall_s: float) -> None:
 def _eval_callback(config: RunConfig, out: Path) -> Any:
     from stable_baselines3.common.callbacks import EvalCallback
 
-    eval_env = make_vec_env(config, 1, config.seed + 10_000, None, "dummy", randomize=False)
+    # One environment (the same episodes in either kind); a batched run evaluates in a batched one.
+    kind = "batch" if config.vec_env == "batch" else "dummy"
+    eval_env = make_vec_env(config, 1, config.seed + 10_000, None, kind, randomize=False)
     callback = EvalCallback(
         eval_env,
         n_eval_episodes=config.eval_episodes,

@@ -207,7 +207,24 @@ class ChainKinematics:
             out[k, -1] = d.xpos[last] + d.xmat[last].reshape(3, 3) @ self._end_local
         return out
 
-    def _nodes_np(self, q: NDArray[np.float64]) -> NDArray[np.float64]:
+    def nodes_vectorized(
+        self, q: NDArray[np.float64], segment_m: NDArray[np.float64] | None = None
+    ) -> NDArray[np.float64]:
+        """Node positions computed with NumPy for every row at once (what :meth:`nodes` does for more than
+        :attr:`SMALL_BATCH` rows), (K, nq) -> (K, N + 1, 3).
+
+        ``segment_m`` (K,) gives each row its own compiled segment length, for chains of other lengths but the
+        same structure (the batched environment's random cables); None: this chain's. Each row's result is
+        independent of the other rows.
+        """
+        return self._nodes_np(np.asarray(q, dtype=float), segment_m)
+
+    def segment_m(self) -> float:
+        """The compiled segment length (what :meth:`nodes_vectorized` takes per row)."""
+        return float(self._end_local[2])
+
+    def _nodes_np(self, q: NDArray[np.float64], segment_m: NDArray[np.float64] | None = None
+                  ) -> NDArray[np.float64]:
         k = q.shape[0]
         tcp = np.tile(self._tcp_pos, (k, 1))
         for adr, axis in self._tcp_slides:
@@ -218,7 +235,8 @@ class ChainKinematics:
         rots[:, 0] = self._first_quat
         for i in range(1, len(self._bodies)):
             rots[:, i] = np.matmul(right[:, i - 1], rots[:, i - 1, :, None])[..., 0]
-        edges = self._end_local[2] * _z_axes(rots)  # (K, N, 3)
+        seg = self._end_local[2] if segment_m is None else np.asarray(segment_m, dtype=float)[:, None, None]
+        edges = seg * _z_axes(rots)  # (K, N, 3)
         out = np.empty((k, self.num_nodes, 3))
         out[:, 0] = tcp
         np.cumsum(edges, axis=1, out=out[:, 1:])

@@ -645,13 +645,13 @@ class Scene:
         expected_time = state0[0] + m.opt.timestep * np.arange(1, k + 1)
         good = np.abs(states[:, 0] - expected_time) < 0.5 * m.opt.timestep
         good &= np.all(np.isfinite(states), axis=1)
-        good &= self._in_bounds(qpos)
+        good &= self.in_bounds(qpos)
         finite = k if good.all() else int(np.argmin(good))
         if finite < k:
             self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number += 1
         return qpos, qvel, finite
 
-    def _in_bounds(self, qpos: NDArray[np.float64]) -> NDArray[np.bool_]:
+    def in_bounds(self, qpos: NDArray[np.float64]) -> NDArray[np.bool_]:
         """Whether every cable node of each configuration (K, nq) lies within 50 m of the origin, (K,).
 
         The chain's nodes are within a cable length of its TCP (rigid links), so its TCPs alone are checked,
@@ -668,6 +668,34 @@ class Scene:
         if self._chain is not None:
             return self._chain.nodes(q)
         return (self._node_offset + (q @ self._node_jacobian).reshape(q.shape[0], self._vert_num, 3))
+
+    @property
+    def tcp_indices(self) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+        """Where the TCPs are: their joints' qpos and dof addresses and their servos' actuator ids, each
+        (n_g, 3) (x, y, z per gripper)."""
+        return self._tcp_qpos.copy(), self._tcp_dof.copy(), self._tcp_act.copy()
+
+    @property
+    def chain(self) -> chain_model.ChainKinematics | None:
+        """The chain cable's batched kinematics (None for the rod)."""
+        return self._chain
+
+    def reset_state(self) -> NDArray[np.float64]:
+        """The integration state (``mjSTATE_INTEGRATION``) :meth:`reset` puts the scene in, as one row."""
+        self.reset()
+        return self.state()
+
+    def state(self) -> NDArray[np.float64]:
+        """The scene's integration state now (``mjSTATE_INTEGRATION``: time, positions, velocities, warm
+        start, controls, mocap bodies), as one row."""
+        state = np.empty(mujoco.mj_stateSize(self.model, self._state_spec))
+        mujoco.mj_getState(self.model, self.data, state, self._state_spec)
+        return state
+
+    def load_state(self, state: NDArray[np.float64]) -> None:
+        """Put the scene in an integration state (a row of :meth:`reset_state`'s kind), blow-up count 0."""
+        mujoco.mj_setState(self.model, self.data, state, self._state_spec)
+        self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number = 0
 
     def tcp_from_state(
         self, qpos: ArrayLike, qvel: ArrayLike

@@ -584,24 +584,7 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     def _record_samples(self, times: NDArray[np.float64], p: NDArray[np.float64], v: NDArray[np.float64],
                         p_dlo: NDArray[np.float64]) -> None:
         """Update the monitor with K samples (K,), (K, n_g, 3), (K, n_g, 3), (K, 3), then call the task."""
-        mon = self._monitor
-        flags = avoid_flags(p, v, p_dlo, self.task.limits, self.task.check_collision)
-        for key, value in flags.items():
-            mon.avoid[key] = mon.avoid[key] or value
-        mon.max_tcp_speed_m_s = max(mon.max_tcp_speed_m_s, float(np.linalg.norm(v, axis=2).max()))
-        mon.max_mean_height_m = max(mon.max_mean_height_m, float(p[:, :, 2].mean(axis=1).max()))
-        dist = self.task.goal_distances(p, p_dlo, self._goal)
-        if self.task.swept_goal_check:
-            # The distance to the goal of the segment P_DLO moved along since the previous sample, so a fast
-            # tip cannot pass through the target between two samples unnoticed.
-            previous = p_dlo[:1] if mon.last_p_dlo is None else mon.last_p_dlo[None]
-            starts = np.vstack([previous, p_dlo[:-1]])
-            dist = np.minimum(dist, _segment_point_distances(starts, p_dlo, self._goal))
-        running = np.minimum.accumulate(np.minimum(dist, mon.min_goal_distance_m))
-        mon.min_goal_distance_m = float(running[-1])
-        mon.last_p_dlo = p_dlo[-1].copy()
-        mon.samples += len(times)
-        self.task.on_samples(times, p, v, p_dlo, running, mon)
+        record_samples(self.task, self._monitor, self._goal, times, p, v, p_dlo)
 
     def observation(self) -> NDArray[np.float32]:
         """The table-II observation of the simulator's true state now (what ``reset`` and ``step`` return)."""
@@ -651,6 +634,32 @@ class DynDLOEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     def is_done_early(self) -> bool:
         """Whether the task says the episode may end now (e.g. the target was hit)."""
         return bool(self.task.is_done_early(self.scene, self._goal, self._monitor))
+
+
+def record_samples(
+    task: Task, monitor: EpisodeMonitor, goal: NDArray[np.float64], times: NDArray[np.float64],
+    p: NDArray[np.float64], v: NDArray[np.float64], p_dlo: NDArray[np.float64],
+) -> None:
+    """Update ``monitor`` with K samples (K,), (K, n_g, 3), (K, n_g, 3), (K, 3), then call
+    ``task.on_samples``."""
+    mon = monitor
+    flags = avoid_flags(p, v, p_dlo, task.limits, task.check_collision)
+    for key, value in flags.items():
+        mon.avoid[key] = mon.avoid[key] or value
+    mon.max_tcp_speed_m_s = max(mon.max_tcp_speed_m_s, float(np.linalg.norm(v, axis=2).max()))
+    mon.max_mean_height_m = max(mon.max_mean_height_m, float(p[:, :, 2].mean(axis=1).max()))
+    dist = task.goal_distances(p, p_dlo, goal)
+    if task.swept_goal_check:
+        # The distance to the goal of the segment P_DLO moved along since the previous sample, so a fast
+        # tip cannot pass through the target between two samples unnoticed.
+        previous = p_dlo[:1] if mon.last_p_dlo is None else mon.last_p_dlo[None]
+        starts = np.vstack([previous, p_dlo[:-1]])
+        dist = np.minimum(dist, _segment_point_distances(starts, p_dlo, goal))
+    running = np.minimum.accumulate(np.minimum(dist, mon.min_goal_distance_m))
+    mon.min_goal_distance_m = float(running[-1])
+    mon.last_p_dlo = p_dlo[-1].copy()
+    mon.samples += len(times)
+    task.on_samples(times, p, v, p_dlo, running, mon)
 
 
 def observation_vector(

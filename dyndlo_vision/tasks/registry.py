@@ -146,6 +146,16 @@ def build_task_env(
     Raises:
         ValueError: For an unknown task or option, naming the valid ones.
     """
+    return DynDLOEnv(make_task(task, **options), render_mode=render_mode, render_camera=render_camera)
+
+
+def make_task(task: str, **options: Any) -> Task:
+    """The :class:`Task` of ``task`` with task ``options`` (what :func:`build_task_env` and the batched
+    environment simulate); options as :func:`build_task_env` takes them.
+
+    Raises:
+        ValueError: For an unknown task or option, naming the valid ones.
+    """
     entry = task_entry(task)
     valid = entry.options()
     unknown = sorted(set(options) - set(valid))
@@ -154,7 +164,7 @@ def build_task_env(
     cable = options.get("cable")
     if isinstance(cable, str | dict):
         options = {**options, "cable": _task_cable(entry.task_class, options, cable)}
-    return DynDLOEnv(entry.task_class(**options), render_mode=render_mode, render_camera=render_camera)
+    return entry.task_class(**options)
 
 
 def _task_cable(cls: type[Task], options: dict[str, Any], change: str | dict[str, Any]) -> Any:

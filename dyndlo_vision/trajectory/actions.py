@@ -138,6 +138,41 @@ class ActionSpec:
         times = t0 + np.concatenate([[0.0], np.cumsum(phys[npos:])])
         return np.array(points), times
 
+    def decode_many(
+        self, actions: ArrayLike, start_positions: ArrayLike, start_times: ArrayLike,
+    ) -> tuple[FloatArray, FloatArray]:
+        """:meth:`decode` of M actions at once (no final point), ``(M, size)``, ``(M, 3)``, ``(M,)`` ->
+        points ``(M, num_points + 1, 3)`` and times ``(M, num_points + 1)``; row ``m`` equals
+        ``decode(actions[m], start_positions[m], start_times[m])`` to the last bit.
+
+        Raises:
+            ValueError: As :meth:`decode`, naming the row.
+        """
+        a = np.asarray(actions, dtype=float)
+        p0 = np.asarray(start_positions, dtype=float)
+        t0 = np.asarray(start_times, dtype=float)
+        if a.ndim != 2 or a.shape[1] != self.size or p0.shape != (a.shape[0], 3) or t0.shape != (a.shape[0],):
+            raise ValueError(f"expected actions (M, {self.size}), start positions (M, 3) and start times "
+                             f"(M,), got shapes {a.shape}, {p0.shape}, {t0.shape}")
+        if self.append_final_point:
+            raise ValueError("decode_many does not take final points: use decode for each action")
+        bad = np.argwhere(~np.isfinite(a))
+        if bad.size:
+            m, i = (int(x) for x in bad[0])
+            raise ValueError(f"action {m} must be finite, got {a[m, i]} at index {i}")
+        if not (np.all(np.isfinite(p0)) and np.all(np.isfinite(t0))):
+            raise ValueError("start positions and times must be finite")
+        lo, hi = self._ranges()
+        phys = lo + 0.5 * (np.clip(a, -1.0, 1.0) + 1.0) * (hi - lo)
+        npos = self.dims * self.num_points
+        inc = phys[:, :npos].reshape(-1, self.num_points, self.dims)
+        if self.planar:
+            inc = np.stack([inc[..., 0], np.zeros(inc.shape[:2]), inc[..., 1]], axis=2)
+        points = np.concatenate([p0[:, None], p0[:, None] + np.cumsum(inc, axis=1)], axis=1)
+        times = t0[:, None] + np.concatenate([np.zeros((a.shape[0], 1)), np.cumsum(phys[:, npos:], axis=1)],
+                                             axis=1)
+        return points, times
+
     def encode(self, points: ArrayLike, times: ArrayLike) -> FloatArray:
         """Inverse of :meth:`decode` (for tests and scripted baselines).
 

@@ -57,7 +57,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.interpolate import BSpline, CubicSpline, make_interp_spline
-from scipy.optimize import linprog
+from scipy.optimize import linprog, nnls
 
 __all__ = ["BSplineTrajectory"]
 
@@ -129,6 +129,124 @@ def _min_rate(breaks: FloatArray, coef: FloatArray) -> float:
     return float(np.min(cand))
 
 
+def _start_rate(tau: FloatArray, v0: FloatArray, a0: FloatArray | None) -> float:
+    """``c0 = u'(t_0)``: the first segment's mean rate for a moving start, 0 for a start at rest."""
+    moving = a0 is not None or bool(np.any(v0 != 0.0))
+    return 1.0 / tau[1] if moving else 0.0
+
+
+def _tridiagonal(lower: FloatArray, diag: FloatArray, upper: FloatArray, rhs: FloatArray) -> FloatArray:
+    """Solve tridiagonal systems along axis 1 (Thomas algorithm, no pivoting: the spline systems are
+    diagonally dominant). Row ``i`` is
+    ``lower[:, i] x[i-1] + diag[:, i] x[i] + upper[:, i] x[i+1] = rhs[:, i]``; every array has the systems
+    along axis 0 and may have trailing axes. Elementwise, so each system's solution does not depend on the
+    others."""
+    n = diag.shape[1]
+    c = np.empty(np.broadcast_shapes(upper.shape, diag.shape))
+    d = np.empty(np.broadcast_shapes(rhs.shape, diag.shape))
+    c[:, 0] = upper[:, 0] / diag[:, 0]
+    d[:, 0] = rhs[:, 0] / diag[:, 0]
+    for i in range(1, n):
+        denom = diag[:, i] - lower[:, i] * c[:, i - 1]
+        c[:, i] = upper[:, i] / denom
+        d[:, i] = (rhs[:, i] - lower[:, i] * d[:, i - 1]) / denom
+    x = np.empty_like(d)
+    x[:, n - 1] = d[:, n - 1]
+    for i in range(n - 2, -1, -1):
+        x[:, i] = d[:, i] - c[:, i] * x[:, i + 1]
+    return x
+
+
+def _fit_plain(
+    p: FloatArray, t: FloatArray, v0: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, NDArray[np.bool_]]:
+    """Timing laws and paths of M plans without imposed start acceleration, solved together.
+
+    ``p`` (M, n, 3), ``t`` (M, n), ``v0`` (M, 3). The timing law is the cubic spline through
+    ``(tau_i, i)`` with ``u'(tau_0) = c0`` and ``u'(tau_end) = 0``; the path the cubic spline through the
+    points at ``u = 0 .. n-1`` with ``path'(0) = v0 / c0`` (moving start) or a natural start, and a natural
+    end: the splines of scipy's ``CubicSpline`` and ``make_interp_spline`` (equal to rounding), from their
+    tridiagonal slope equations.
+
+    Returns:
+        Timing breakpoints (M, n) and coefficients (M, n-1, 4), path breakpoints (M, n) and coefficients
+        (M, n-1, 4, 3) (highest power first), and whether each plan's timing law runs backwards somewhere
+        (it then needs :func:`_monotone_timing_law`).
+    """
+    m, n = t.shape
+    tau = t - t[:, :1]
+    moving = np.any(v0 != 0.0, axis=1)
+    c0 = np.where(moving, 1.0 / tau[:, 1], 0.0)
+    # Timing law: slopes s_j at the knots; s_0 = c0 and s_{n-1} = 0 given, the interior from
+    # h_j s_{j-1} + 2 (h_{j-1} + h_j) s_j + h_{j-1} s_{j+1} = 3 (h_j d_{j-1} + h_{j-1} d_j), d_j = 1 / h_j.
+    h = np.diff(tau, axis=1)
+    rate = 1.0 / h
+    slope = np.zeros((m, n))
+    slope[:, 0] = c0
+    if n > 2:
+        lower, upper = h[:, 1:], h[:, :-1]
+        diag = 2.0 * (h[:, :-1] + h[:, 1:])
+        rhs = 3.0 * (h[:, 1:] * rate[:, :-1] + h[:, :-1] * rate[:, 1:])
+        rhs[:, 0] -= lower[:, 0] * c0
+        slope[:, 1:-1] = _tridiagonal(lower, diag, upper, rhs)
+    excess = (slope[:, :-1] + slope[:, 1:] - 2.0 * rate) / h
+    tc = np.stack([excess / h, (rate - slope[:, :-1]) / h - excess, slope[:, :-1],
+                   np.broadcast_to(np.arange(n - 1, dtype=float), (m, n - 1))], axis=2)
+    # Path, u-spacing 1: m_{j-1} + 4 m_j + m_{j+1} = 3 (D_{j-1} + D_j), D_j = P_{j+1} - P_j; first row
+    # m_0 = v0 / c0 (moving) or 2 m_0 + m_1 = 3 D_0 (natural); last row m_{n-2} + 2 m_{n-1} = 3 D_{n-2}.
+    delta = np.diff(p, axis=1)
+    lower_p, upper_p, diag_p = np.ones((m, n, 1)), np.ones((m, n, 1)), np.full((m, n, 1), 4.0)
+    rhs_p = np.empty((m, n, 3))
+    rhs_p[:, 1:-1] = 3.0 * (delta[:, :-1] + delta[:, 1:])
+    rhs_p[:, -1] = 3.0 * delta[:, -1]
+    diag_p[:, -1] = 2.0
+    upper_p[:, -1] = 0.0
+    lower_p[:, 0] = 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        clamped = v0 / c0[:, None]
+    diag_p[:, 0] = np.where(moving, 1.0, 2.0)[:, None]
+    upper_p[:, 0] = np.where(moving, 0.0, 1.0)[:, None]
+    rhs_p[:, 0] = np.where(moving[:, None], clamped, 3.0 * delta[:, 0])
+    mp = _tridiagonal(lower_p, diag_p, upper_p, rhs_p)
+    excess_p = mp[:, :-1] + mp[:, 1:] - 2.0 * delta
+    pc = np.stack([excess_p, delta - mp[:, :-1] - excess_p, mp[:, :-1], p[:, :-1]], axis=2)
+    pb = np.broadcast_to(np.arange(n, dtype=float), (m, n))
+    return tau, tc, pb, pc, _min_rates(tau, tc) < -1e-9 * np.max(rate, axis=1)
+
+
+def _min_rates(breaks: FloatArray, coef: FloatArray) -> FloatArray:
+    """:func:`_min_rate` of M piecewise cubics at once, (M, k + 1) and (M, k, 4) -> (M,)."""
+    a, b, c = coef[..., 0], coef[..., 1], coef[..., 2]
+    h = np.diff(breaks, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(a > 0.0, -b / (3.0 * a), -1.0)
+    inside = (s > 0.0) & (s < h)
+    cand = np.minimum(np.minimum(c, (3.0 * a * h + 2.0 * b) * h + c),
+                      np.where(inside, (3.0 * a * s + 2.0 * b) * s + c, np.inf))
+    return np.min(cand, axis=1)
+
+
+def _fit_with_acceleration(
+    p: FloatArray, t: FloatArray, v0: FloatArray, a0: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, bool]:
+    """The fit for an imposed start acceleration (C2 re-planning): scipy's splines, one extra path knot."""
+    n = p.shape[0]
+    tau = t - t[0]
+    c0 = 1.0 / tau[1]
+    timing = CubicSpline(tau, np.arange(n, dtype=float), bc_type=((1, c0), (1, 0.0)))
+    tb, tc = timing.x, np.ascontiguousarray(timing.c.T)
+    fallback = _min_rate(tb, tc) < -1e-9 * float(np.max(1.0 / np.diff(tau)))
+    if fallback:
+        tb, tc = _monotone_timing_law(tau, c0)
+    u = np.arange(n, dtype=float)
+    d1 = v0 / c0
+    d2 = (a0 - d1 * 2.0 * tc[0, 1]) / c0**2  # u''(t_0) = 2 * (s**2 coefficient)
+    knots = np.concatenate([np.zeros(4), [0.5], u[1:-1], np.full(4, n - 1.0)])
+    path = make_interp_spline(u, p, k=3, t=knots, bc_type=([(1, d1), (2, d2)], [(2, np.zeros(3))]))
+    pb, pc = _pp_from_bspline(path)
+    return tb, tc, pb, pc, bool(fallback)
+
+
 def _nonneg_qp(q: FloatArray, g: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
     """Solve ``min x'Qx + 2g'x  s.t.  Ax = b, x >= 0`` exactly (small dense problems).
 
@@ -139,10 +257,13 @@ def _nonneg_qp(q: FloatArray, g: FloatArray, a: FloatArray, b: FloatArray) -> Fl
     m = q.shape[0]
     scale = float(np.max(np.abs(q)))  # rescaled objective, same minimiser, KKT entries O(1)
     q, g = q / scale, g / scale
-    lp = linprog(np.zeros(m), A_eq=a, b_eq=b, bounds=(0.0, None), method="highs")
-    if lp.status != 0:
-        raise RuntimeError(f"no monotone timing law exists on the refined knots: {lp.message}")
-    x = np.clip(lp.x, 0.0, None)
+    # A feasible start: non-negative least squares reaches Ax = b when it can, in a fraction of an LP's time.
+    x, residual = nnls(a, b)
+    if residual > 1e-9 * (1.0 + float(np.linalg.norm(b))):
+        lp = linprog(np.zeros(m), A_eq=a, b_eq=b, bounds=(0.0, None), method="highs")
+        if lp.status != 0:
+            raise RuntimeError(f"no monotone timing law exists on the refined knots: {lp.message}")
+        x = np.clip(lp.x, 0.0, None)
     work = np.zeros(m, dtype=bool)  # the empty working set is always a valid start
     eye = np.eye(m)
     for _ in range(20 * m + 20):
@@ -262,31 +383,64 @@ class BSplineTrajectory:
         start_acceleration: ArrayLike | None = None,
     ) -> None:
         p, t, v0, a0 = _validate(points, times, start_velocity, start_acceleration)
-        n = p.shape[0]
-        tau = t - t[0]  # local time keeps the fits well conditioned for large absolute t_0
-        moving = a0 is not None or bool(np.any(v0 != 0.0))
-        c0 = 1.0 / tau[1] if moving else 0.0
-
-        timing = CubicSpline(tau, np.arange(n, dtype=float), bc_type=((1, c0), (1, 0.0)))
-        tb, tc = timing.x, np.ascontiguousarray(timing.c.T)
-        fallback = _min_rate(tb, tc) < -1e-9 * float(np.max(1.0 / np.diff(tau)))
-        if fallback:
-            tb, tc = _monotone_timing_law(tau, c0)
-
-        u = np.arange(n, dtype=float)
-        end_bc = [(2, np.zeros(3))]
-        if a0 is not None:
-            d1 = v0 / c0
-            d2 = (a0 - d1 * 2.0 * tc[0, 1]) / c0**2  # u''(t_0) = 2 * (s**2 coefficient)
-            knots = np.concatenate([np.zeros(4), [0.5], u[1:-1], np.full(4, n - 1.0)])
-            path = make_interp_spline(u, p, k=3, t=knots, bc_type=([(1, d1), (2, d2)], end_bc))
+        if a0 is None:
+            tb, tc, pb, pc, fallback = _fit_plain(p[None], t[None], v0[None])
+            parts = (tb[0], tc[0], pb[0], pc[0], bool(fallback[0]))
+            if parts[4]:
+                parts = (*_monotone_timing_law(t - t[0], _start_rate(t - t[0], v0, None)), pb[0], pc[0], True)
         else:
-            start_bc = [(1, v0 / c0)] if moving else [(2, np.zeros(3))]
-            path = make_interp_spline(u, p, k=3, bc_type=(start_bc, end_bc))
-        pb, pc = _pp_from_bspline(path)
+            parts = _fit_with_acceleration(p, t, v0, a0)
+        self._finish(p, t, None if start_velocity is None else v0, v0, a0, *parts)
 
+    @classmethod
+    def many(
+        cls, points: ArrayLike, times: ArrayLike, start_velocities: ArrayLike | None = None
+    ) -> list[BSplineTrajectory]:
+        """M trajectories at once: ``points`` (M, n, 3), ``times`` (M, n), ``start_velocities`` (M, 3) or
+        None.
+
+        Trajectory ``m`` equals ``BSplineTrajectory(points[m], times[m], start_velocities[m])`` to the last
+        bit: the spline fits of all of them are solved together with the same arithmetic.
+
+        Raises:
+            ValueError: As the constructor, naming the trajectory.
+        """
+        pts = np.asarray(points, dtype=float)
+        tms = np.asarray(times, dtype=float)
+        if pts.ndim != 3 or tms.ndim != 2 or pts.shape[0] != tms.shape[0]:
+            raise ValueError(f"expected points (M, n, 3) and times (M, n), got shapes {pts.shape}, "
+                             f"{tms.shape}")
+        vels = None if start_velocities is None else np.asarray(start_velocities, dtype=float)
+        checked = []
+        for m in range(pts.shape[0]):
+            try:
+                checked.append(_validate(pts[m], tms[m], None if vels is None else vels[m], None))
+            except ValueError as err:
+                raise ValueError(f"trajectory {m}: {err}") from err
+        if not checked:
+            return []
+        p = np.stack([c[0] for c in checked])
+        t = np.stack([c[1] for c in checked])
+        v0 = np.stack([c[2] for c in checked])
+        tb, tc, pb, pc, fallback = _fit_plain(p, t, v0)
+        out = []
+        for m in range(len(checked)):
+            parts = (tb[m], tc[m], pb[m], pc[m], bool(fallback[m]))
+            if parts[4]:
+                tau = t[m] - t[m, 0]
+                parts = (*_monotone_timing_law(tau, _start_rate(tau, v0[m], None)), pb[m], pc[m], True)
+            traj = object.__new__(cls)
+            traj._finish(p[m], t[m], None if vels is None else v0[m], v0[m], None, *parts)
+            out.append(traj)
+        return out
+
+    def _finish(self, p: FloatArray, t: FloatArray, v0_arg: FloatArray | None, v0: FloatArray,
+                a0: FloatArray | None, tb: FloatArray, tc: FloatArray, pb: FloatArray, pc: FloatArray,
+                fallback: bool) -> None:
+        """Set the fields from the fitted timing law and path (the constructor's last step)."""
+        tau = t - t[0]
         s = object.__setattr__
-        s(self, "_args", (p, t, None if start_velocity is None else v0, a0))
+        s(self, "_args", (p, t, v0_arg, a0))
         s(self, "_t0", float(t[0]))
         s(self, "_dur", float(tau[-1]))
         s(self, "_fallback", bool(fallback))
@@ -503,3 +657,50 @@ class BSplineTrajectory:
             o[before] = start
             o[after] = end
         return tuple(out)
+
+
+def sample_many(
+    trajectories: list[BSplineTrajectory], t: ArrayLike
+) -> tuple[FloatArray, FloatArray]:
+    """Positions and velocities of M trajectories at their own times, ``t`` (M, K) -> (M, K, 3) each.
+
+    Row ``m`` equals ``trajectories[m].position(t[m])`` and ``.velocity(t[m])`` to the last bit: the same
+    arithmetic, with the segments of every trajectory padded to the longest (the batched environment
+    evaluates all its simulations' plans in one call).
+    """
+    tt = np.asarray(t, dtype=float)
+    m = len(trajectories)
+    if tt.ndim != 2 or tt.shape[0] != m:
+        raise ValueError(f"t must have shape ({m}, K) for {m} trajectories, got shape {tt.shape}")
+    nt = max(tr._nt for tr in trajectories)
+    n_p = max(tr._np for tr in trajectories)
+    tb = np.full((m, nt + 1), np.inf)
+    tc = np.zeros((m, nt, 4))
+    pb = np.full((m, n_p + 1), np.inf)
+    pc = np.zeros((m, n_p, 4, 3))
+    t0, dur, nts, nps = np.empty(m), np.empty(m), np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
+    start_p, start_v, end_p = np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3))
+    for k, tr in enumerate(trajectories):
+        tb[k, : tr._nt + 1] = tr._tb_a
+        tc[k, : tr._nt] = tr._tc_a
+        pb[k, : tr._np + 1] = tr._pb_a
+        pc[k, : tr._np] = tr._pc_a
+        t0[k], dur[k], nts[k], nps[k] = tr._t0, tr._dur, tr._nt, tr._np
+        start_p[k], start_v[k], end_p[k] = tr._start[0], tr._start[1], tr._end[0]
+    rel = tt - t0[:, None]
+    tau = np.clip(rel, 0.0, dur[:, None])
+    # searchsorted(side="right") - 1 of each row: how many breakpoints are <= tau, less one (padding is inf)
+    i = np.clip((tb[:, None, :] <= tau[:, :, None]).sum(axis=2) - 1, 0, (nts - 1)[:, None])
+    rows = np.arange(m)[:, None]
+    s, c = tau - tb[rows, i], tc[rows, i]
+    u = ((c[..., 0] * s + c[..., 1]) * s + c[..., 2]) * s + c[..., 3]
+    j = np.clip((pb[:, None, :] <= u[:, :, None]).sum(axis=2) - 1, 0, (nps - 1)[:, None])
+    w, kk = (u - pb[rows, j])[..., None], pc[rows, j]
+    pos = ((kk[..., 0, :] * w + kk[..., 1, :]) * w + kk[..., 2, :]) * w + kk[..., 3, :]
+    du = ((3.0 * c[..., 0] * s + 2.0 * c[..., 1]) * s + c[..., 2])[..., None]
+    dp = (3.0 * kk[..., 0, :] * w + 2.0 * kk[..., 1, :]) * w + kk[..., 2, :]
+    vel = dp * du
+    before, after = rel <= 0.0, rel >= dur[:, None]
+    pos = np.where(before[..., None], start_p[:, None], np.where(after[..., None], end_p[:, None], pos))
+    vel = np.where(before[..., None], start_v[:, None], np.where(after[..., None], 0.0, vel))
+    return pos, vel

@@ -77,3 +77,27 @@ class Replanner:
             p.append(self.home[i] + (pos - home0) * MIRROR)
             v.append(vel * MIRROR)
         return np.stack(p, axis=1), np.stack(v, axis=1)
+
+
+def replan_many(replanners: list[Replanner], actions: ArrayLike, times: ArrayLike) -> None:
+    """:meth:`Replanner.replan` of M planners at once (one action and one time each, (M, size), (M,)): the
+    decoding and the spline fits of all plans in one computation, each plan equal to the last bit to what
+    its own ``replan`` makes. Planners with a final point (task IV) re-plan one by one.
+
+    Raises:
+        ValueError: An action of the wrong shape or with NaN/inf, naming the row.
+    """
+    a = np.asarray(actions, dtype=np.float64)
+    t = np.asarray(times, dtype=float)
+    if not replanners:
+        return
+    spec = replanners[0].spec
+    if any(r.final_point is not None or r.spec != spec for r in replanners):
+        for r, action, time in zip(replanners, a, t, strict=True):
+            r.replan(action, float(time))
+        return
+    starts = [r.commanded_state(float(time)) for r, time in zip(replanners, t, strict=True)]
+    points, via_times = spec.decode_many(a, np.array([s[0] for s in starts]), t)
+    plans = BSplineTrajectory.many(points, via_times, np.array([s[1] for s in starts]))
+    for r, plan in zip(replanners, plans, strict=True):
+        r.trajectory = plan
