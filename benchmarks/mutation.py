@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import fnmatch
+import hashlib
 import json
 import os
 import platform
@@ -169,19 +170,30 @@ def prepare(group: Group, workdir: Path) -> None:
         (workdir / "shared").symlink_to(shared.resolve())
 
 
-def run_group(group: Group, workdir: Path, jobs: int, log: Path) -> Result:
-    """Run mutmut for one group in ``workdir`` and read back every selected mutant's status."""
-    prepare(group, workdir)
+def package_digest(root: Path) -> str:
+    """A hash of the package's Python files under ``root`` (is a working copy still current?)."""
+    h = hashlib.sha256()
+    for path in sorted((root / "dyndlo_vision").rglob("*.py")):
+        h.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes())
+    return h.hexdigest()
+
+
+def run_mutmut(group: Group, workdir: Path, names: list[str], jobs: int, log: Path) -> float:
+    """``mutmut run`` on the named mutants (fnmatch patterns) in ``workdir``; returns the wall time."""
     env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
     env.pop("CI", None)  # under CI a skipped test fails (tests/conftest.py); mutmut's forced-fail run skips
-    cmd = [sys.executable, "-m", "mutmut", "run", "--max-children", str(jobs), *group.mutant_globs()]
+    cmd = [sys.executable, "-m", "mutmut", "run", "--max-children", str(jobs), *names]
     t0 = time.monotonic()
-    with log.open("w", encoding="utf-8") as out:
+    with log.open("a", encoding="utf-8") as out:
         proc = subprocess.run(cmd, cwd=workdir, env=env, stdout=out, stderr=subprocess.STDOUT, check=False)
-    seconds = time.monotonic() - t0
     if proc.returncode != 0:
         tail = log.read_text(encoding="utf-8", errors="replace").replace("\r", "\n")[-3000:]
         raise SystemExit(f"mutmut failed for group {group.name!r} (exit {proc.returncode}); {log}:\n{tail}")
+    return time.monotonic() - t0
+
+
+def read_results(group: Group, workdir: Path, seconds: float) -> Result:
+    """Every selected mutant's status from the working copy, with the diffs of those not detected."""
     result = Result(group.name, seconds)
     globs = group.mutant_globs()
     for meta in sorted((workdir / "mutants").rglob("*.py.meta")):
@@ -193,11 +205,32 @@ def run_group(group: Group, workdir: Path, jobs: int, log: Path) -> Result:
                 result.path[name] = source
     undetected = [n for n, s in result.status.items() if s not in DETECTED]
     if undetected:
-        helper = subprocess.run([sys.executable, "-c", DIFF_HELPER], cwd=workdir, env=env, check=True,
+        helper = subprocess.run([sys.executable, "-c", DIFF_HELPER], cwd=workdir, check=True,
                                 input=json.dumps([[n, result.path[n]] for n in undetected]),
                                 capture_output=True, text=True)
         result.diffs = json.loads(helper.stdout)
     return result
+
+
+def run_group(group: Group, workdir: Path, jobs: int, log: Path, mode: str) -> Result:
+    """One group: a fresh run (``mode="fresh"``), a re-run of the undetected mutants against the current
+    tests (``"resume"``), or only the figures of the last run (``"report"``)."""
+    if mode == "fresh":
+        prepare(group, workdir)
+        log.write_text("", encoding="utf-8")
+        return read_results(group, workdir, run_mutmut(group, workdir, group.mutant_globs(), jobs, log))
+    if not (workdir / "mutants").is_dir():
+        raise SystemExit(f"no earlier run of group {group.name!r} in {workdir}: run it without --{mode}")
+    if package_digest(workdir) != package_digest(ROOT):
+        raise SystemExit(f"the package changed since group {group.name!r} ran in {workdir}: run it afresh")
+    if mode == "report":
+        return read_results(group, workdir, 0.0)
+    # Tests only added or strengthened cannot revive a killed mutant, so only the others are run again.
+    undetected = [n for n, s in read_results(group, workdir, 0.0).status.items() if s not in DETECTED]
+    shutil.rmtree(workdir / "tests")
+    shutil.copytree(ROOT / "tests", workdir / "tests", ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+    seconds = run_mutmut(group, workdir, undetected, jobs, log) if undetected else 0.0
+    return read_results(group, workdir, seconds)
 
 
 def readable(name: str) -> tuple[str, str]:
@@ -307,6 +340,11 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2, help="mutants tested at a time (default 2)")
     parser.add_argument("--workdir", type=Path, default=ROOT / "build" / "mutation",
                         help="where the groups' working copies go (default build/mutation)")
+    parser.add_argument("--resume", action="store_true",
+                        help="re-run only the mutants the group's last run did not detect, against the "
+                        "current tests (valid when tests were only added or strengthened, the package "
+                        "unchanged)")
+    parser.add_argument("--report", action="store_true", help="no run: the figures of each group's last run")
     parser.add_argument("--show", action="store_true", help="print the diff of every unexplained survivor")
     parser.add_argument("--json", type=Path, default=None, help="write the figures to this JSON file")
     parser.add_argument("--min-score", type=float, default=None,
@@ -339,7 +377,8 @@ def main() -> None:
     for name in names:
         group = groups[name]
         args.workdir.mkdir(parents=True, exist_ok=True)
-        result = run_group(group, args.workdir / name, args.jobs, args.workdir / f"{name}.log")
+        mode = "report" if args.report else "resume" if args.resume else "fresh"
+        result = run_group(group, args.workdir / name, args.jobs, args.workdir / f"{name}.log", mode)
         figures = score(result, survivors)
         print_report(group, figures, args.show)
         report["groups"][name] = {k: v for k, v in figures.items() if k != "unexplained"} | {

@@ -31,17 +31,36 @@ def test_each_joints_position_limit_is_checked(case: tuple, sign: float) -> None
     t = np.arange(4) * 0.5
     q = np.zeros((4, 6))
     q[:, j] = bound - sign * 0.1  # inside
-    q[1, j] = q[3, j] = bound + sign * 0.1  # 0.1 rad beyond, twice (slow: no speed limit broken)
-    q[3, j] = bound + sign * 0.05
+    q[1, j] = bound + sign * 0.05  # beyond at 0.5 s, and farther at 1.5 s (slow: no speed limit broken)
+    q[3, j] = bound + sign * 0.1
     report = check_joint_limits(arm, t, q)
     assert [(v.joint, v.quantity) for v in report.violations] == [(arm.joint_names[j], "position")]
     v = report.violations[0]
-    assert (v.t_s, v.first_t_s, v.samples) == (0.5, 0.5, 2)  # the worst and the first are the same sample
+    assert (v.t_s, v.first_t_s, v.samples) == (1.5, 0.5, 2)  # the worst sample, the first one, how many
     assert v.value == pytest.approx(bound + sign * 0.1, abs=1e-12)
     assert v.limit == pytest.approx(bound, abs=1e-12)
-    # Exactly at the bound is within it.
-    q[1, j] = q[3, j] = bound
-    assert check_joint_limits(arm, t, q).ok
+    # Exactly at the bound is within it, and so is the relative tolerance beyond it (rounding), not more.
+    slack = 1e-9 * abs(bound)
+    for beyond, ok in ((0.0, True), (0.5 * slack, True), (slack, True), (2.0 * slack, False)):
+        q[1, j] = q[3, j] = bound + sign * beyond
+        assert check_joint_limits(arm, t, q).ok == ok, beyond
+
+
+@pytest.mark.parametrize("make", ARMS)
+def test_the_worst_position_breach_is_the_farthest_beyond_either_bound(make) -> None:
+    """A joint that goes past both of its bounds: the report's value is the sample farthest beyond a bound."""
+    arm = make()
+    j = 2
+    lo, hi = arm.lower_rad[j], arm.upper_rad[j]
+    t = np.arange(5) * 10.0  # slow enough for every speed limit
+    q = np.zeros((5, 6))
+    q[:, j] = [0.0, lo - 0.1, 0.0, hi + 0.05, 0.0]
+    (v,) = check_joint_limits(arm, t, q).violations
+    assert (v.quantity, v.t_s, v.value, v.first_t_s, v.samples) == ("position", 10.0, lo - 0.1, 10.0, 2)
+    assert v.limit == lo
+    q[:, j] = [0.0, lo - 0.05, 0.0, hi + 0.1, 0.0]
+    (v,) = check_joint_limits(arm, t, q).violations
+    assert (v.t_s, v.value, v.limit) == (30.0, hi + 0.1, hi)
 
 
 @pytest.mark.parametrize("case", JOINTS, ids=_joint_ids)
@@ -63,6 +82,11 @@ def test_each_joints_velocity_limit_is_checked(case: tuple, sign: float) -> None
         assert v.value == pytest.approx(sign * factor * vmax, rel=1e-9)
         assert v.limit == pytest.approx(vmax, rel=1e-12)
         assert (v.first_t_s, v.samples) == (pytest.approx(0.004), 5)
+    # Two samples are one velocity: checked too.
+    q = np.zeros((2, 6))
+    q[1, j] = sign * 1.2 * vmax * 0.004
+    (v,) = check_joint_limits(arm, t[:2], q).violations
+    assert (v.joint, v.quantity, v.t_s) == (arm.joint_names[j], "velocity", 0.004)
 
 
 @pytest.mark.parametrize("case", JOINTS, ids=_joint_ids)
@@ -84,6 +108,46 @@ def test_each_joints_acceleration_limit_is_checked(case: tuple, sign: float) -> 
         assert v.value == pytest.approx(sign * factor * amax, rel=1e-6)
         assert v.limit == pytest.approx(amax, rel=1e-12)
         assert (v.first_t_s, v.samples) == (pytest.approx(0.004), 9)
+    # Three samples are one acceleration: checked too.
+    q = np.zeros((3, 6))
+    q[:, j] = sign * 0.5 * 1.2 * amax * t[:3] ** 2
+    (v,) = check_joint_limits(arm, t[:3], q).violations
+    assert (v.joint, v.quantity, v.t_s) == (arm.joint_names[j], "acceleration", 0.004)
+
+
+@pytest.mark.parametrize("make", ARMS)
+def test_accelerations_on_uneven_time_steps_use_both_intervals(make) -> None:
+    """Samples of a constant acceleration a at uneven times: the check's finite difference is exactly a (the
+    difference of two interval velocities over half the sum of the two intervals), at and past the limit."""
+    arm = make()
+    amax = arm.max_acceleration_rad_s2[4]
+    t = np.array([0.0, 0.002, 0.006, 0.007, 0.011, 0.014])
+    for factor in (1.0, 1.1):
+        q = np.zeros((t.size, 6))
+        q[:, 4] = 0.5 * factor * amax * t**2
+        report = check_joint_limits(arm, t, q)
+        assert report.ok == (factor == 1.0), str(report)
+    (v,) = report.violations
+    assert v.value == pytest.approx(1.1 * amax, rel=1e-9)
+    assert v.samples == t.size - 2
+
+
+def test_bad_input_is_refused_with_what_was_expected() -> None:
+    arm = ur5e()
+    t = np.array([0.0, 0.1, 0.2])
+    with pytest.raises(ValueError, match=r"^need t \(N,\) and q \(N, 6\), got shapes \(3,\) and \(3, 5\)$"):
+        check_joint_limits(arm, t, np.zeros((3, 5)))
+    with pytest.raises(ValueError, match=r"got shapes \(1, 3\) and \(3, 6\)$"):
+        check_joint_limits(arm, t[None], np.zeros((3, 6)))
+    q = np.zeros((3, 6))
+    q[1, 3] = np.nan
+    with pytest.raises(ValueError, match=r"^t and q must be finite$"):
+        check_joint_limits(arm, t, q)
+    with pytest.raises(ValueError, match=r"^t and q must be finite$"):
+        check_joint_limits(arm, [0.0, np.inf, 0.2], np.zeros((3, 6)))
+    for times in ([0.0, 0.1, 0.1], [0.0, 0.2, 0.1]):
+        with pytest.raises(ValueError, match=r"^t must be strictly increasing$"):
+            check_joint_limits(arm, times, np.zeros((3, 6)))
 
 
 def test_every_broken_joint_is_reported_in_joint_order() -> None:
