@@ -155,3 +155,13 @@ def test_bad_homes_and_actions_are_refused_with_their_shapes() -> None:
     with pytest.raises(ValueError, match=r"action must have shape \(8,\), got shape \(7,\)"):
         planner.replan(np.zeros(7), 0.0)
     assert planner.trajectory is None  # nothing was planned
+
+
+def test_references_are_floats_for_a_home_given_in_whole_metres() -> None:
+    """Setpoints go to drivers and the simulator as float arrays, before the first plan too."""
+    planner = Replanner(SPEC, [[0, 0, 1], [0, 1, 1]])
+    p, v = planner.references(np.array([0.0]))
+    assert p.dtype == v.dtype == np.float64
+    np.testing.assert_array_equal(p[0], [[0.0, 0.0, 1.0], [0.0, 1.0, 1.0]])
+    p0, _ = planner.commanded_state(0.0)
+    assert p0.dtype == np.float64
