@@ -113,6 +113,8 @@ def test_decode_rejects_bad_actions(action: np.ndarray, match: str) -> None:
 def test_decode_rejects_bad_start() -> None:
     with pytest.raises(ValueError, match=r"start_position must have shape \(3,\)"):
         ActionSpec().decode(np.zeros(12), np.zeros(2), 0.0)
+    with pytest.raises(ValueError, match=r"^start_position must be finite, got \[0\.0, nan, 1\.0\]$"):
+        ActionSpec().decode(np.zeros(12), [0.0, np.nan, 1.0], 0.0)
     with pytest.raises(ValueError, match=r"start_time must be finite"):
         ActionSpec().decode(np.zeros(12), np.zeros(3), float("nan"))
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pickle
+import warnings
 
 import numpy as np
 import pytest
@@ -526,3 +527,50 @@ def test_nonneg_qp_agrees_with_enumerating_the_active_sets(seed: int) -> None:
 def test_the_random_qps_have_binding_bounds() -> None:
     bound = sum(int(np.sum(_qp_by_enumeration(*_random_qp(seed)) < 1e-12)) for seed in range(40))
     assert bound > 20  # the bounds bind in many of these problems: the active set is exercised
+
+
+@pytest.mark.parametrize(
+    ("breaks", "coef", "minimum"),
+    [
+        # u' = 3 a s^2 + 2 b s + c per piece (coefficients of s^3, s^2, s, 1).
+        ([0.0, 2.0], [[2.0, -6.0, 2.0, 0.0]], -4.0),  # u' = 6s^2 - 12s + 2: vertex inside, at s = 1
+        ([0.0, 0.9], [[2.0, -6.0, 2.0, 0.0]], 6 * 0.81 - 12 * 0.9 + 2),  # vertex beyond: the end is lowest
+        ([0.0, 2.0], [[-1.0, 0.0, 1.0, 0.0]], -11.0),  # concave: an end is lowest
+        ([0.0, 1.0, 3.0], [[0.0, 0.0, 1.0, 0.0], [1.0, -3.0, 2.0, 1.0]], -1.0),  # linear piece, then a dip
+        ([0.0, 1.0], [[0.0, 1.0, -0.5, 0.0]], -0.5),  # a = 0: no vertex, the start is lowest
+    ],
+)
+def test_min_rate_hand_computed(breaks, coef, minimum) -> None:
+    """The exact minimum of u' over a piecewise cubic, silently (no division warning where a = 0)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert _min_rate(np.array(breaks), np.array(coef)) == pytest.approx(minimum, abs=1e-12)
+
+
+def test_deleting_an_attribute_is_refused() -> None:
+    traj = BSplineTrajectory(np.zeros((2, 3)), [0.0, 1.0])
+    with pytest.raises(AttributeError, match="^BSplineTrajectory is immutable$"):
+        del traj._t0
+
+
+def test_max_speed_and_acceleration_are_over_the_documented_samples() -> None:
+    rng = np.random.default_rng(81)
+    points, times, v0, _ = _random_plan(rng, 3, moving=True)
+    traj = BSplineTrajectory(points, times, v0)
+    for num in (7, 2001):
+        t = np.linspace(traj.t_start, traj.t_end, num)
+        assert traj.max_speed(num) == np.linalg.norm(traj.velocity(t), axis=1).max()
+        assert traj.max_acceleration(num) == np.linalg.norm(traj.acceleration(t[:-1]), axis=1).max()
+    t = np.linspace(traj.t_start, traj.t_end, 2001)
+    assert traj.max_speed() == np.linalg.norm(traj.velocity(t), axis=1).max()
+    assert traj.max_acceleration() == np.linalg.norm(traj.acceleration(t[:-1]), axis=1).max()
+
+
+def test_at_t_end_the_plan_is_at_rest_for_arrays_of_times_too() -> None:
+    rng = np.random.default_rng(91)
+    points, times, v0, a0 = _random_plan(rng, 3, True, True)
+    traj = BSplineTrajectory(points, times, v0, a0)
+    pos, vel, acc = traj.sample(np.array([traj.t_start, traj.t_end]))
+    np.testing.assert_array_equal(pos, [points[0], points[-1]])
+    np.testing.assert_array_equal(vel, [v0, np.zeros(3)])
+    np.testing.assert_array_equal(acc, [a0, np.zeros(3)])
