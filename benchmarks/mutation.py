@@ -8,13 +8,13 @@ changed. For each mutant it runs the tests that execute the changed function and
 The groups, the functions mutated in each and the tests that own them are in ``pyproject.toml`` under
 ``[tool.dyndlo-vision.mutation]``. mutmut reads its configuration from the working directory, so each group
 runs in its own copy of the repository (``build/mutation/<group>``, kept for ``mutmut browse``/``show``
-there) with that group's mutmut settings: a group's mutants meet only that group's tests, and a run takes
-minutes, not hours.
+there) with that group's mutmut settings: a group's mutants meet only that group's tests.
 
 Survivors that no test can kill because they behave exactly as the original (*equivalent*), and survivors a
-user cannot notice (*harmless*: a log line, a message), are listed with a one-line reason in
-``benchmarks/mutation_survivors.toml``. The score of a group is killed / (mutants - equivalent); harmless
-survivors count as not killed. Every other survivor is printed with its diff.
+user cannot notice (*harmless*: a log line, a message, a comparison where two floats tie to the last bit) are
+listed with a one-line reason in ``benchmarks/mutation_survivors.toml``. The score of a group is
+killed / (mutants - equivalent); harmless survivors count as not killed. Every other survivor is printed
+(``--show``: with its diff; ``--skeleton``: as entries for that file).
 
     python benchmarks/mutation.py                      # every group, one after the other
     python benchmarks/mutation.py --group trajectory   # one group
@@ -245,16 +245,17 @@ def readable(name: str) -> tuple[str, str]:
 
 
 def mutant_key(name: str, diff: str) -> str:
-    """The key of a survivor in ``mutation_survivors.toml``: its function and its changed line(s).
+    """The key of a survivor in ``mutation_survivors.toml``: its function, its line(s) before and after.
 
     Stable while the function's code is: mutmut numbers mutants per function, so a key by number would point
     at another mutant after an unrelated edit above it in the same function.
     """
     _, func = readable(name)
-    added = [ln[1:].strip() for ln in diff.splitlines() if ln.startswith("+") and not ln.startswith("+++")]
-    removed = [ln[1:].strip() for ln in diff.splitlines() if ln.startswith("-") and not ln.startswith("---")]
-    changed = " / ".join(added) if added else "removed: " + " / ".join(removed)
-    return f"{func}: " + re.sub(r"\s+", " ", changed)
+    lines = diff.splitlines()
+    removed = [ln[1:].strip() for ln in lines if ln.startswith("-") and not ln.startswith("---")]
+    added = [ln[1:].strip() for ln in lines if ln.startswith("+") and not ln.startswith("+++")]
+    before, after = (re.sub(r"\s+", " ", " / ".join(part)) for part in (removed, added))
+    return f"{func}: {before} -> {after}"
 
 
 def load_survivors() -> dict[str, dict[str, tuple[str, str]]]:
@@ -311,7 +312,12 @@ def score(result: Result, survivors: dict[str, dict[str, tuple[str, str]]]) -> d
             "unexplained": unexplained, "stale": stale, "seconds": result.seconds}
 
 
-def print_report(group: Group, figures: dict[str, object], show: bool) -> None:
+def toml_string(text: str) -> str:
+    """``text`` as a TOML basic string."""
+    return json.dumps(text, ensure_ascii=False)
+
+
+def print_report(group: Group, figures: dict[str, object], show: bool, skeleton: bool = False) -> None:
     print(f"\n## {group.name}: {figures['seconds'] / 60:.1f} min")
     print("| file | mutants | killed | timeout | survived | no tests | equivalent | harmless | score |")
     print("|---|---|---|---|---|---|---|---|---|")
@@ -330,6 +336,12 @@ def print_report(group: Group, figures: dict[str, object], show: bool) -> None:
                 print(textwrap.indent(diff, "      "))
     for path, key in figures["stale"]:
         print(f"  stale entry in {SURVIVORS_FILE.name} (no surviving mutant has it): [{path!r}] {key!r}")
+    if skeleton and unexplained:
+        print(f"\n# Entries for {SURVIVORS_FILE.name}, reasons to fill in:")
+        for path in sorted({p for p, _, _ in unexplained}):
+            print(f"\n[{toml_string(path)}]")
+            for _, key, _ in (u for u in unexplained if u[0] == path):
+                print(f"{toml_string(key)} = \"equivalent: \"")
 
 
 def main() -> None:
@@ -346,6 +358,8 @@ def main() -> None:
                         "unchanged)")
     parser.add_argument("--report", action="store_true", help="no run: the figures of each group's last run")
     parser.add_argument("--show", action="store_true", help="print the diff of every unexplained survivor")
+    parser.add_argument("--skeleton", action="store_true",
+                        help="print the unexplained survivors as entries for mutation_survivors.toml")
     parser.add_argument("--json", type=Path, default=None, help="write the figures to this JSON file")
     parser.add_argument("--min-score", type=float, default=None,
                         help="exit 1 when a group scores below this fraction (e.g. 0.9)")
@@ -380,7 +394,7 @@ def main() -> None:
         mode = "report" if args.report else "resume" if args.resume else "fresh"
         result = run_group(group, args.workdir / name, args.jobs, args.workdir / f"{name}.log", mode)
         figures = score(result, survivors)
-        print_report(group, figures, args.show)
+        print_report(group, figures, args.show, args.skeleton)
         report["groups"][name] = {k: v for k, v in figures.items() if k != "unexplained"} | {
             "unexplained": [[p, k] for p, k, _ in figures["unexplained"]]}
         if args.min_score is not None and figures["total"]["score"] < args.min_score:
