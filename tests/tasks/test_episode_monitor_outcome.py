@@ -241,10 +241,8 @@ def test_a_multi_step_episode_ends_at_its_length_after_settling() -> None:
     evaluate = _Spy(env.task.evaluate)
     env.task.evaluate = evaluate
     action = np.zeros(env.action_space.shape, np.float32)
-    decisions = 0
-    while True:
+    for decisions in range(1, 61):  # bounded: an episode that never ends fails here, it does not hang
         _, reward, terminated, truncated, info = env.step(action)
-        decisions += 1
         assert not truncated
         assert reward == pytest.approx(sum(info[k] for k in ("r_avoid", "r_distance", "r_success", "r_dyn")))
         if terminated:
