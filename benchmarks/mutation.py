@@ -74,6 +74,8 @@ class Group:
     mutate: dict[str, list[str]]
     tests: list[str]
     description: str = ""
+    #: mutmut's wall-clock limit per mutant is this times the tests' own time (plus 1 s); mutmut's default 15.
+    timeout_multiplier: float = 15.0
 
     def mutant_globs(self) -> list[str]:
         """mutmut's names for the functions of :attr:`mutate` (``mod.x_func__mutmut_3``,
@@ -121,7 +123,7 @@ def load_groups(pyproject: Path = ROOT / "pyproject.toml") -> dict[str, Group]:
             if not (ROOT / path).is_file():
                 raise SystemExit(f"{pyproject}: mutation group {name!r} names {path!r}, which is not a file")
         groups[name] = Group(name, {k: list(v) for k, v in mutate.items()}, list(tests),
-                             entry.get("description", ""))
+                             entry.get("description", ""), float(entry.get("timeout_multiplier", 15.0)))
     return groups
 
 
@@ -134,6 +136,7 @@ def mutmut_section(group: Group) -> str:
         f"pytest_add_cli_args_test_selection = {json.dumps(group.tests)}",
         # The plugins that could reorder or cache tests are off; the project's warnings filter stays.
         'pytest_add_cli_args = ["-p", "no:cacheprovider", "-p", "no:xdist"]',
+        f"timeout_multiplier = {group.timeout_multiplier}",
     ]
     return "\n".join(lines) + "\n"
 
