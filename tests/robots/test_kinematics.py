@@ -266,3 +266,49 @@ def test_arm_model_validation_and_scaling() -> None:
     assert DHLink(0.1, 0.0, 0.2).theta_offset_rad == 0.0
     with pytest.raises(ValueError, match="rotation"):
         ArmKinematics(gofa, tool_rotation=np.ones((3, 3)))
+
+
+@pytest.mark.parametrize("make_arm", ARMS)
+def test_tcp_velocity_is_the_derivative_of_the_tcp_position(make_arm) -> None:
+    kin = ArmKinematics(make_arm())
+    rng = np.random.default_rng(5)
+    for q in _well_conditioned(kin, rng, 5):
+        qd = rng.normal(size=6)
+        h = 1e-6
+        numeric = (kin.fk(q + h * qd)[0] - kin.fk(q - h * qd)[0]) / (2 * h)
+        np.testing.assert_allclose(kin.tcp_velocity(q, qd), numeric, atol=1e-7)
+    qs = np.stack(_well_conditioned(kin, rng, 3))
+    assert kin.tcp_velocity(qs, np.ones((3, 6))).shape == (3, 3)
+
+
+def test_limit_reports_read_as_sentences_with_units() -> None:
+    from dyndlo_vision.robots.kinematics import LimitReport, LimitViolation
+
+    position = LimitViolation("axis_3", "position", 3.0, 1.6, 1.4835, 2.5, 2)
+    velocity = LimitViolation("wrist_3", "velocity", 0.02, -4.7124, 3.1416, 0.004, 5)
+    acceleration = LimitViolation("elbow", "acceleration", 0.1, 30.0, 15.0, 0.05, 12)
+    assert str(position) == ("joint axis_3 position +1.6 rad at t=3.0000 s breaks the limit 1.484 rad "
+                             "(first at t=2.5000 s, 2 samples over)")
+    assert str(velocity).startswith("joint wrist_3 velocity -4.712 rad/s at t=0.0200 s breaks the limit 3.142")
+    assert "limit 3.142 rad/s (first" in str(velocity)
+    assert "+30 rad/s^2" in str(acceleration) and "limit 15 rad/s^2" in str(acceleration)
+    assert str(LimitReport()) == "joint trajectory within all position, velocity and acceleration limits"
+    report = LimitReport((position, velocity))
+    assert str(report) == f"joint limits broken:\n  {position}\n  {velocity}"
+    error = JointLimitError(report)
+    assert str(error) == str(report) and error.report is report and error.at_join is False
+    joined = JointLimitError(report, "\n  (a hint)", at_join=1)  # type: ignore[arg-type]
+    assert str(joined).endswith("(a hint)") and joined.at_join is True
+
+
+def test_scaled_limits_scale_only_what_is_asked() -> None:
+    gofa = abb_gofa_crb15000()
+    assert gofa.scaled_limits() == gofa
+    slower = gofa.scaled_limits(velocity=0.5)
+    assert slower.max_velocity_rad_s == tuple(0.5 * v for v in gofa.max_velocity_rad_s)
+    assert slower.max_acceleration_rad_s2 == gofa.max_acceleration_rad_s2
+    gentler = gofa.scaled_limits(acceleration=0.5)
+    assert gentler.max_velocity_rad_s == gofa.max_velocity_rad_s
+    for kwargs in ({"velocity": 0.0}, {"acceleration": 0.0}, {"velocity": -1.0, "acceleration": 1.0}):
+        with pytest.raises(ValueError, match=r"^limit scale factors must be > 0, got velocity="):
+            gofa.scaled_limits(**kwargs)
