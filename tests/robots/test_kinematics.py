@@ -289,7 +289,7 @@ def test_limit_reports_read_as_sentences_with_units() -> None:
     acceleration = LimitViolation("elbow", "acceleration", 0.1, 30.0, 15.0, 0.05, 12)
     assert str(position) == ("joint axis_3 position +1.6 rad at t=3.0000 s breaks the limit 1.484 rad "
                              "(first at t=2.5000 s, 2 samples over)")
-    assert str(velocity).startswith("joint wrist_3 velocity -4.712 rad/s at t=0.0200 s breaks the limit 3.142")
+    assert str(velocity).startswith("joint wrist_3 velocity -4.712 rad/s at t=0.0200 s breaks the limit")
     assert "limit 3.142 rad/s (first" in str(velocity)
     assert "+30 rad/s^2" in str(acceleration) and "limit 15 rad/s^2" in str(acceleration)
     assert str(LimitReport()) == "joint trajectory within all position, velocity and acceleration limits"
