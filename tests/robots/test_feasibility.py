@@ -207,3 +207,61 @@ def test_robot_arms_are_placed_with_the_shoulder_at_the_tasks_height():
         moved = arm.kinematics(base_in_world=pose_matrix((1.0, 0.0, 0.0)))
         q = moved.ik(HOME + [1.0, 0.0, 0.0]).q
         np.testing.assert_allclose(moved.fk(q)[0], HOME + [1.0, 0.0, 0.0], atol=1e-8)
+
+
+def test_a_stop_within_one_period_takes_one_sample_and_joint_plan_brakes_as_asked():
+    t, q = braking_tail(0.0, np.zeros(6), np.array([0.01, 0, 0, 0, 0, 0]), np.full(6, 10.0), 0.01)
+    np.testing.assert_allclose(t, [0.01])
+    np.testing.assert_allclose(q[0, 0], 0.01 * (0.01 - 0.01**2 / 0.02))
+    arm = robot_arm("ur5e")
+    kin = arm.kinematics()
+    q0 = kin.joint_trajectory(np.array([0.0]), HOME[None]).q[0]
+    t, p = straight_line(0.0, HOME, HOME + [0.0, 0.0, 0.1], 0.5, arm.period_s, ease=False)
+    t, p = t[: t.size // 2], p[: t.size // 2]  # ends moving
+    firm = joint_plan(kin, t, p, [0.0], [q0], arm.period_s)
+    gentle = joint_plan(kin, t, p, [0.0], [q0], arm.period_s, braking_fraction=0.3)
+    assert firm.history == 1 and gentle.t.size > firm.t.size  # a third of the deceleration: a longer tail
+
+
+def test_join_plan_names_both_times_when_the_plan_is_already_past():
+    from dyndlo_vision.robots.feasibility import join_plan
+
+    arm = robot_arm("gofa").model()
+    with pytest.raises(ValueError, match=r"^the plan ends at t=0\.0080 s, before the target already sent for "
+                                         r"t=0\.0120 s$"):
+        join_plan(arm, [0.0, 0.004, 0.008], np.zeros((3, 6)), [0.012], np.zeros((1, 6)), 0.004)
+
+
+def test_an_unreachable_plan_has_no_usage_and_the_kind_ik():
+    check = PlanFeasibility("gofa")
+    check.start(0.0, np.array([[0.45, 0.0, 0.6]]))  # a (1, 3) position is one point
+    t, p = straight_line(0.0, HOME, [2.0, 0.0, 0.6], 3.0, 0.004)
+    verdict = check.check(t, p)
+    assert (verdict.ok, verdict.kind, verdict.usage) == (False, "IK", {})
+
+
+def test_the_worst_breach_is_the_one_farthest_over_its_own_limit(monkeypatch):
+    from dyndlo_vision.robots import feasibility
+    from dyndlo_vision.robots.kinematics import LimitReport, LimitViolation
+
+    # Axis 1 at 1.8 times its limit, axis 2 at 1.67 times its (larger in value, smaller as a fraction).
+    a = LimitViolation("axis_1", "velocity", 0.1, 0.9, 0.5, 0.1, 1)
+    b = LimitViolation("axis_2", "acceleration", 0.2, 1.5, 0.9, 0.2, 1)
+
+    def refused(kinematics, t, positions, history_t, history_q, period_s):
+        return feasibility.JointPlan(np.asarray(t), np.zeros((len(t), 6)), 2, LimitReport((b, a)))
+
+    monkeypatch.setattr(feasibility, "joint_plan", refused)
+    check = PlanFeasibility("gofa")
+    check.start(0.0, HOME)
+    verdict = check.check(np.array([0.0, 0.004]), np.array([HOME, HOME]))
+    assert verdict.reason == str(a) and verdict.kind == "velocity axis_1"
+
+
+def test_a_tool_offset_reaches_the_arms_kinematics():
+    from dyndlo_vision.robots.kinematics import pose_matrix
+
+    arm = robot_arm("gofa")
+    plain, tool = arm.kinematics(), arm.kinematics(tcp_in_flange=pose_matrix((0.0, 0.0, 0.1)))
+    q = plain.ik(HOME).q
+    np.testing.assert_allclose(tool.fk(q)[0], plain.fk(q)[0] + [0.0, 0.0, -0.1], atol=1e-12)  # tool down
