@@ -312,3 +312,26 @@ def test_scaled_limits_scale_only_what_is_asked() -> None:
     for kwargs in ({"velocity": 0.0}, {"acceleration": 0.0}, {"velocity": -1.0, "acceleration": 1.0}):
         with pytest.raises(ValueError, match=r"^limit scale factors must be > 0, got velocity="):
             gofa.scaled_limits(**kwargs)
+
+
+def test_an_unreachable_sample_between_the_coarse_ones_is_named() -> None:
+    """Samples between the coarse ones (every 40 ms) are solved together afterwards: the first of them that
+    has no solution is named in the error, with its time and position."""
+    arm = abb_gofa_crb15000()
+    kin = ArmKinematics(arm)
+    t = 0.004 * np.arange(21)
+    path = np.tile(TCP_HOME_M, (21, 1))
+    path[[5, 7]] = [[2.0, 0.0, 0.6], [2.5, 0.0, 0.6]]  # 20 ms and 28 ms: neither is a coarse sample
+    named = r"no IK solution at t=0\.0200 s for TCP position \[2\.0, 0\.0, 0\.6\] m \(residual [0-9.e+]+ mm, "
+    with pytest.raises(IKError, match=named):
+        kin.joint_trajectory(t, path, kin.ik(TCP_HOME_M).q)
+
+
+def test_ik_refuses_a_non_finite_target_and_names_a_bad_orientation() -> None:
+    kin = ArmKinematics(ur5e())
+    with pytest.raises(ValueError, match=r"^position must be 3 finite numbers, got \[0\.4, nan, 0\.5\]$"):
+        kin.ik([0.4, np.nan, 0.5])
+    with pytest.raises(ValueError, match=r"^rotation must be a finite 3x3 rotation matrix"):
+        kin.ik(TCP_HOME_M, rotation=np.eye(2))
+    with pytest.raises(ValueError, match=r"^rotation is not a rotation matrix"):
+        kin.ik(TCP_HOME_M, rotation=np.diag([1.0, 1.0, -1.0]))
