@@ -335,3 +335,82 @@ def test_ik_refuses_a_non_finite_target_and_names_a_bad_orientation() -> None:
         kin.ik(TCP_HOME_M, rotation=np.eye(2))
     with pytest.raises(ValueError, match=r"^rotation is not a rotation matrix"):
         kin.ik(TCP_HOME_M, rotation=np.diag([1.0, 1.0, -1.0]))
+
+
+def test_elementary_rotations_turn_the_axes_the_right_way() -> None:
+    from dyndlo_vision.robots.kinematics import rotation_x
+
+    quarter = math.pi / 2
+    np.testing.assert_allclose(rotation_x(quarter) @ [0, 1, 0], [0, 0, 1], atol=1e-15)  # y -> z
+    np.testing.assert_allclose(rotation_y(quarter) @ [0, 0, 1], [1, 0, 0], atol=1e-15)  # z -> x
+    np.testing.assert_allclose(rotation_z(quarter) @ [1, 0, 0], [0, 1, 0], atol=1e-15)  # x -> y
+    np.testing.assert_allclose(rotation_x(0.3), [[1, 0, 0], [0, math.cos(0.3), -math.sin(0.3)],
+                                                 [0, math.sin(0.3), math.cos(0.3)]])
+
+
+def test_rotation_log_small_angles_and_batches() -> None:
+    from dyndlo_vision.robots.kinematics import rotation_x
+
+    axis = np.array([0.0, 0.6, 0.8])
+    small = _axis_angle(tuple(axis), 4e-7)  # under the 1e-6 rad series branch
+    np.testing.assert_allclose(_rotation_log(small), 4e-7 * axis, rtol=1e-6, atol=1e-15)
+    batch = np.stack([np.stack([rotation_x(0.1), rotation_z(-0.2)]), np.stack([small, np.eye(3)])])
+    out = _rotation_log(batch)
+    assert out.shape == (2, 2, 3)
+    np.testing.assert_allclose(out, [[[0.1, 0, 0], [0, 0, -0.2]], [4e-7 * axis, [0, 0, 0]]], atol=1e-12)
+    # Both halves of a batch near pi: each gets its own axis.
+    near = np.stack([rotation_x(math.pi), rotation_z(math.pi)])
+    np.testing.assert_allclose(np.abs(_rotation_log(near)), [[math.pi, 0, 0], [0, 0, math.pi]], atol=1e-7)
+
+
+def test_poses_and_rotations_are_checked_with_their_names() -> None:
+    with pytest.raises(ValueError, match=r"^position must be 3 finite numbers, got \[0\.0, nan, 0\.0\]$"):
+        pose_matrix([0.0, np.nan, 0.0])
+    with pytest.raises(ValueError, match=r"^rotation must be a finite 3x3 rotation matrix, got shape \(3, 3\)"):
+        pose_matrix(rotation=np.full((3, 3), np.nan))
+    with pytest.raises(ValueError, match=r"^rotation is not a rotation matrix"):
+        pose_matrix(rotation=np.eye(3) + 1e-3)
+    arm = ur5e()
+    bad_row = np.eye(4)
+    bad_row[3, 0] = 0.5
+    with pytest.raises(ValueError, match=r"^tcp_in_flange must be a 4x4 homogeneous transform"):
+        ArmKinematics(arm, tcp_in_flange=bad_row)
+    bad_t = np.eye(4)
+    bad_t[1, 3] = np.inf
+    with pytest.raises(ValueError, match=r"^base_in_world translation must be finite, got \[0\.0, inf, 0\.0\]"):
+        ArmKinematics(arm, base_in_world=bad_t)
+    with pytest.raises(ValueError, match=r"^base_in_world rotation is not a rotation matrix"):
+        ArmKinematics(arm, base_in_world=np.diag([1.0, 1.0, -1.0, 1.0]))
+    with pytest.raises(ValueError, match=r"^tool_rotation must be a finite 3x3"):
+        ArmKinematics(arm, tool_rotation=np.eye(2))
+    tool = pose_matrix((0.0, 0.0, 0.05))
+    np.testing.assert_array_equal(ArmKinematics(arm, tcp_in_flange=tool).tcp_in_flange, tool)
+    with pytest.raises(ValueError, match=r"^joint positions must be finite with last dimension 6, got shape"):
+        ArmKinematics(arm).fk([0.0, 0.0, np.nan, 0.0, 0.0, 0.0])
+
+
+def test_arm_models_and_ik_options_are_checked() -> None:
+    from dyndlo_vision.robots.kinematics import IKOptions
+
+    gofa = abb_gofa_crb15000()
+    for name in ("max_velocity_rad_s", "max_acceleration_rad_s2"):
+        for bad in (0.0, np.inf):
+            values = (bad,) + getattr(gofa, name)[1:]
+            with pytest.raises(ValueError, match=rf"^ArmModel '.*': {name} must be positive and finite, got"):
+                ArmModel(**{**gofa.__dict__, name: values})
+    slow = (0.5,) + gofa.max_velocity_rad_s[1:]  # a joint under 1 rad/s is a valid limit
+    assert ArmModel(**{**gofa.__dict__, "max_velocity_rad_s": slow}).max_velocity_rad_s[0] == 0.5
+    with pytest.raises(ValueError, match=r"^ArmModel '.*': joint_names needs 6 entries, got \('a',\)$"):
+        ArmModel(**{**gofa.__dict__, "joint_names": ("a",)})
+    at_bounds = (gofa.lower_rad[0], 0.0, 0.0, 0.0, gofa.upper_rad[4], 0.0)
+    assert ArmModel(**{**gofa.__dict__, "seed_rad": at_bounds}).seed_rad == at_bounds  # on a bound is within
+    with pytest.raises(ValueError, match=r"^flange_rotation is not a rotation matrix"):
+        ArmModel(**{**gofa.__dict__, "flange_rotation": ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, -1.0))})
+    for field in ("position_tolerance_m", "rotation_tolerance_rad", "rotation_weight_m", "coarse_step_s"):
+        with pytest.raises(ValueError, match=rf"^IKOptions\.{field} must be > 0, got 0\.0$"):
+            IKOptions(**{field: 0.0})
+    assert IKOptions(damping_bias=0.0, max_iterations=1).max_iterations == 1
+    with pytest.raises(ValueError, match=r"^IKOptions\.damping_bias must be >= 0, got -1e-09$"):
+        IKOptions(damping_bias=-1e-9)
+    with pytest.raises(ValueError, match=r"^IKOptions\.max_iterations must be >= 1, got 0$"):
+        IKOptions(max_iterations=0)
