@@ -366,7 +366,7 @@ def test_rotation_log_small_angles_and_batches() -> None:
 def test_poses_and_rotations_are_checked_with_their_names() -> None:
     with pytest.raises(ValueError, match=r"^position must be 3 finite numbers, got \[0\.0, nan, 0\.0\]$"):
         pose_matrix([0.0, np.nan, 0.0])
-    with pytest.raises(ValueError, match=r"^rotation must be a finite 3x3 rotation matrix, got shape \(3, 3\)"):
+    with pytest.raises(ValueError, match=r"^rotation must be a finite 3x3 rotation matrix, got shape"):
         pose_matrix(rotation=np.full((3, 3), np.nan))
     with pytest.raises(ValueError, match=r"^rotation is not a rotation matrix"):
         pose_matrix(rotation=np.eye(3) + 1e-3)
@@ -377,7 +377,7 @@ def test_poses_and_rotations_are_checked_with_their_names() -> None:
         ArmKinematics(arm, tcp_in_flange=bad_row)
     bad_t = np.eye(4)
     bad_t[1, 3] = np.inf
-    with pytest.raises(ValueError, match=r"^base_in_world translation must be finite, got \[0\.0, inf, 0\.0\]"):
+    with pytest.raises(ValueError, match=r"^base_in_world translation must be finite, got \[0\.0, inf"):
         ArmKinematics(arm, base_in_world=bad_t)
     with pytest.raises(ValueError, match=r"^base_in_world rotation is not a rotation matrix"):
         ArmKinematics(arm, base_in_world=np.diag([1.0, 1.0, -1.0, 1.0]))
