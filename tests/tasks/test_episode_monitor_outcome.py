@@ -270,3 +270,15 @@ def test_a_single_step_episode_runs_its_plan_then_settles() -> None:
     t_end = env.trajectory.t_end
     # The plan's end plus settle_s, rounded up to whole physics steps (the clock sums steps: rounding).
     assert terminated and t_end + 0.5 - 1e-9 <= info["sim_time_s"] < t_end + 0.5 + env.scene.timestep
+
+
+def test_the_outcome_and_the_early_end_ask_the_task_about_this_scene_and_goal() -> None:
+    env = make_env("tip-control", multi_step=True).unwrapped
+    env.reset(seed=0, options={"goal": GOAL})
+    evaluate, early = _Spy(env.task.evaluate), _Spy(env.task.is_done_early)
+    env.task.evaluate, env.task.is_done_early = evaluate, early
+    env.outcome()
+    env.is_done_early()
+    for scene, goal in evaluate.calls + early.calls:
+        assert scene is env.scene and np.array_equal(goal, GOAL)
+    assert len(evaluate.calls) == 1 and len(early.calls) == 1

@@ -198,3 +198,24 @@ def test_the_outcome_before_any_plan_is_reported_without_a_verdict(env):
     assert not success and "joint_feasible" not in info
     env.step(slow_action(env))
     assert env.unwrapped.outcome()[2]["joint_feasible"] is True
+
+
+def test_a_replan_is_judged_from_its_own_start():
+    env = make_env("tip-control", robot="gofa", multi_step=True)
+    env.reset(seed=3)
+    check = env.unwrapped.arm_check
+    seen = []
+    original = check.check
+
+    def spy(t, positions):
+        seen.append(np.array(t))
+        return original(t, positions)
+
+    check.check = spy
+    slow = slow_action(env)
+    env.step(slow)
+    env.step(slow)
+    t = seen[1]
+    t_end = env.unwrapped.trajectory.t_end
+    assert t[0] == pytest.approx(0.04) and t[-1] >= t_end - 1e-9 and t[-2] < t_end - 1e-9
+    env.close()

@@ -401,6 +401,7 @@ def test_time_oscillation_success_and_terms(target: str) -> None:
     # r_dyn = -2.5 * (0.03 + 0.02) = -0.125; the 0.30 / 0.20 / 0.10 m before arrival cost nothing;
     # r_distance = lambda_2 * t_traj = -3 * 0.16 = -0.48 (eq. r_distance, explicit).
     assert _terms(terms) == pytest.approx((0.0, -0.48, 3.0, -0.125), abs=1e-12)
+    assert set(terms) == set(TERMS)  # the four terms of eq. 4, nothing else
     assert success
     assert info["arrived"] and info["trajectory_time_s"] == pytest.approx(0.16)
     assert info["residual_oscillation_m"] == pytest.approx(0.03)
