@@ -120,3 +120,148 @@ def test_limit_usage_reports_margins_against_the_limits():
 def test_unknown_robot_names_the_known_ones():
     with pytest.raises(ValueError, match=r"unknown robot 'kuka'.*gofa.*ur5e"):
         robot_arm("kuka")
+
+
+def test_braking_tail_hand_computed() -> None:
+    """All joints brake uniformly over the slowest joint's stop time, rounded up to whole periods:
+    q(s) = q_end + (s - s^2 / (2 T)) qd, at s = period, 2 period, ..., T."""
+    qd = np.array([1.0, -0.5, 0.0, 0.2, 0.0, 0.0])
+    amax = np.array([10.0, 2.0, 1.0, 10.0, 1.0, 1.0])  # stop times 0.1, 0.25, 0, 0.02: joint 2 decides
+    q_end = np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+    t, q = braking_tail(7.0, q_end, qd, amax, 0.05)
+    np.testing.assert_allclose(t, 7.0 + 0.05 * np.arange(1, 6))
+    s = 0.05 * np.arange(1, 6)
+    np.testing.assert_allclose(q, q_end + np.outer(s - s * s / (2 * 0.25), qd), atol=1e-12)
+    np.testing.assert_allclose(q[-1], q_end + 0.125 * qd)  # v T / 2
+    # A stop time between periods is rounded up: 0.26 s at 0.05 s is 6 periods (0.30 s).
+    t, q = braking_tail(0.0, q_end, qd * 1.04, amax, 0.05)
+    assert t.size == 6 and t[-1] == pytest.approx(0.30)
+    np.testing.assert_allclose(q[-1], q_end + 0.15 * qd * 1.04)
+    # At rest: nothing to add.
+    t, q = braking_tail(1.0, q_end, np.zeros(6), amax, 0.05)
+    assert t.shape == (0,) and q.shape == (0, 6)
+
+
+def test_join_plan_drops_samples_already_sent_and_brakes_the_rest() -> None:
+    from dyndlo_vision.robots.feasibility import join_plan
+
+    arm = robot_arm("gofa").model()
+    t = 0.004 * np.arange(5)  # 0 and 0.004 are at or before the last target sent: dropped
+    q = np.zeros((5, 6))
+    q[:, 0] = 0.1 * t  # 0.1 rad/s on axis 1
+    hist_t, hist_q = t[:2], q[:2].copy()
+    hist_q[:, 0] -= 1e-9  # the targets sent (a hair off the plan, to tell them apart), moving at 0.1 rad/s
+    plan = join_plan(arm, t, q, hist_t, hist_q, 0.004)
+    np.testing.assert_array_equal(plan.q[:2], hist_q)
+    assert plan.history == 2
+    np.testing.assert_allclose(plan.t[:5], [0.0, 0.004, 0.008, 0.012, 0.016])
+    np.testing.assert_allclose(plan.q[2:5, 0], [0.0008, 0.0012, 0.0016])
+    # Then the braking tail at 0.9 of axis 1's 10 rad/s^2 limit: 0.1 / 9 s, rounded up to 3 periods (T).
+    s_tail, big_t = 0.004 * np.arange(1, 4), 0.012
+    np.testing.assert_allclose(plan.t[5:], 0.016 + s_tail)
+    np.testing.assert_allclose(plan.q[5:, 0], 0.0016 + 0.1 * (s_tail - s_tail**2 / (2 * big_t)))
+    np.testing.assert_array_equal(plan.q[5:, 1:], 0.0)
+    assert plan.report.ok
+    with pytest.raises(ValueError, match=r"the plan ends at t=0\.0040 s, before the target already sent for "
+                                         r"t=0\.0040 s"):
+        join_plan(arm, t[:2], q[:2], hist_t, hist_q, 0.004)
+
+
+def test_limit_usage_hand_computed() -> None:
+    arm = robot_arm("ur5e").model()  # every joint 180 deg/s; elbow +-180 deg; accelerations 15 / 25 rad/s^2
+    t = np.array([0.0, 0.1, 0.2])
+    q = np.zeros((3, 6))
+    q[:, 2] = [np.pi - 0.1, np.pi - 0.1, np.pi - 0.1]  # the elbow 0.1 rad from its upper limit
+    q[:, 3] = [0.0, 0.1 * np.pi, 0.3 * np.pi]  # wrist 1: pi/s then 2 pi/s, accelerating 10 pi rad/s^2
+    usage = limit_usage(arm, t, q)
+    assert usage["position_margin_deg"] == pytest.approx(np.degrees(0.1))
+    assert usage["velocity_fraction"] == pytest.approx(2.0)
+    assert usage["acceleration_fraction"] == pytest.approx(10 * np.pi / 25.0)
+    q[:, 2] = -np.pi + 0.2  # now 0.2 rad from the lower limit
+    assert limit_usage(arm, t, q)["position_margin_deg"] == pytest.approx(np.degrees(0.2))
+    two = limit_usage(arm, t[:2], q[:2])
+    assert two["velocity_fraction"] == pytest.approx(1.0) and two["acceleration_fraction"] == 0.0
+    one = limit_usage(arm, t[:1], q[:1])
+    assert one["velocity_fraction"] == 0.0 and one["acceleration_fraction"] == 0.0
+
+
+def test_plan_feasibility_needs_a_start_and_joins_plans_at_the_arms_cycle():
+    check = PlanFeasibility("gofa")
+    with pytest.raises(RuntimeError, match=r"PlanFeasibility\.start\(\) first"):
+        check.check(np.array([0.0, 0.004]), np.array([HOME, HOME]))
+    assert check.period_s == 0.004 and check.arm is ROBOT_ARMS["gofa"]
+    check.start(2.0, HOME)
+    t, p = straight_line(2.0, HOME, HOME + [0.02, 0.0, 0.0], 1.0, 0.004)
+    verdict = check.check(t, p)
+    assert verdict.ok and verdict.kind is None
+    assert 0.0 < verdict.usage["velocity_fraction"] < 0.2
+
+
+def test_robot_arms_are_placed_with_the_shoulder_at_the_tasks_height():
+    from dyndlo_vision.robots.kinematics import pose_matrix
+
+    for name, shoulder_z in (("gofa", 0.265), ("ur5e", 0.1625)):
+        arm = robot_arm(name)
+        base = arm.kinematics().base_in_world
+        assert base[2, 3] + shoulder_z == pytest.approx(0.265)
+        moved = arm.kinematics(base_in_world=pose_matrix((1.0, 0.0, 0.0)))
+        q = moved.ik(HOME + [1.0, 0.0, 0.0]).q
+        np.testing.assert_allclose(moved.fk(q)[0], HOME + [1.0, 0.0, 0.0], atol=1e-8)
+
+
+def test_a_stop_within_one_period_takes_one_sample_and_joint_plan_brakes_as_asked():
+    t, q = braking_tail(0.0, np.zeros(6), np.array([0.01, 0, 0, 0, 0, 0]), np.full(6, 10.0), 0.01)
+    np.testing.assert_allclose(t, [0.01])
+    np.testing.assert_allclose(q[0, 0], 0.01 * (0.01 - 0.01**2 / 0.02))
+    arm = robot_arm("ur5e")
+    kin = arm.kinematics()
+    q0 = kin.joint_trajectory(np.array([0.0]), HOME[None]).q[0]
+    t, p = straight_line(0.0, HOME, HOME + [0.0, 0.0, 0.1], 0.5, arm.period_s, ease=False)
+    t, p = t[: t.size // 2], p[: t.size // 2]  # ends moving
+    firm = joint_plan(kin, t, p, [0.0], [q0], arm.period_s)
+    gentle = joint_plan(kin, t, p, [0.0], [q0], arm.period_s, braking_fraction=0.3)
+    assert firm.history == 1 and gentle.t.size > firm.t.size  # a third of the deceleration: a longer tail
+
+
+def test_join_plan_names_both_times_when_the_plan_is_already_past():
+    from dyndlo_vision.robots.feasibility import join_plan
+
+    arm = robot_arm("gofa").model()
+    with pytest.raises(ValueError, match=r"^the plan ends at t=0\.0080 s, before the target already sent for "
+                                         r"t=0\.0120 s$"):
+        join_plan(arm, [0.0, 0.004, 0.008], np.zeros((3, 6)), [0.012], np.zeros((1, 6)), 0.004)
+
+
+def test_an_unreachable_plan_has_no_usage_and_the_kind_ik():
+    check = PlanFeasibility("gofa")
+    check.start(0.0, np.array([[0.45, 0.0, 0.6]]))  # a (1, 3) position is one point
+    t, p = straight_line(0.0, HOME, [2.0, 0.0, 0.6], 3.0, 0.004)
+    verdict = check.check(t, p)
+    assert (verdict.ok, verdict.kind, verdict.usage) == (False, "IK", {})
+
+
+def test_the_worst_breach_is_the_one_farthest_over_its_own_limit(monkeypatch):
+    from dyndlo_vision.robots import feasibility
+    from dyndlo_vision.robots.kinematics import LimitReport, LimitViolation
+
+    # Axis 1 at 1.8 times its limit, axis 2 at 1.67 times its (larger in value, smaller as a fraction).
+    a = LimitViolation("axis_1", "velocity", 0.1, 0.9, 0.5, 0.1, 1)
+    b = LimitViolation("axis_2", "acceleration", 0.2, 1.5, 0.9, 0.2, 1)
+
+    def refused(kinematics, t, positions, history_t, history_q, period_s):
+        return feasibility.JointPlan(np.asarray(t), np.zeros((len(t), 6)), 2, LimitReport((b, a)))
+
+    monkeypatch.setattr(feasibility, "joint_plan", refused)
+    check = PlanFeasibility("gofa")
+    check.start(0.0, HOME)
+    verdict = check.check(np.array([0.0, 0.004]), np.array([HOME, HOME]))
+    assert verdict.reason == str(a) and verdict.kind == "velocity axis_1"
+
+
+def test_a_tool_offset_reaches_the_arms_kinematics():
+    from dyndlo_vision.robots.kinematics import pose_matrix
+
+    arm = robot_arm("gofa")
+    plain, tool = arm.kinematics(), arm.kinematics(tcp_in_flange=pose_matrix((0.0, 0.0, 0.1)))
+    q = plain.ik(HOME).q
+    np.testing.assert_allclose(tool.fk(q)[0], plain.fk(q)[0] + [0.0, 0.0, -0.1], atol=1e-12)  # tool down

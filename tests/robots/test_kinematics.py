@@ -266,3 +266,151 @@ def test_arm_model_validation_and_scaling() -> None:
     assert DHLink(0.1, 0.0, 0.2).theta_offset_rad == 0.0
     with pytest.raises(ValueError, match="rotation"):
         ArmKinematics(gofa, tool_rotation=np.ones((3, 3)))
+
+
+@pytest.mark.parametrize("make_arm", ARMS)
+def test_tcp_velocity_is_the_derivative_of_the_tcp_position(make_arm) -> None:
+    kin = ArmKinematics(make_arm())
+    rng = np.random.default_rng(5)
+    for q in _well_conditioned(kin, rng, 5):
+        qd = rng.normal(size=6)
+        h = 1e-6
+        numeric = (kin.fk(q + h * qd)[0] - kin.fk(q - h * qd)[0]) / (2 * h)
+        np.testing.assert_allclose(kin.tcp_velocity(q, qd), numeric, atol=1e-7)
+    qs = np.stack(_well_conditioned(kin, rng, 3))
+    assert kin.tcp_velocity(qs, np.ones((3, 6))).shape == (3, 3)
+
+
+def test_limit_reports_read_as_sentences_with_units() -> None:
+    from dyndlo_vision.robots.kinematics import LimitReport, LimitViolation
+
+    position = LimitViolation("axis_3", "position", 3.0, 1.6, 1.4835, 2.5, 2)
+    velocity = LimitViolation("wrist_3", "velocity", 0.02, -4.7124, 3.1416, 0.004, 5)
+    acceleration = LimitViolation("elbow", "acceleration", 0.1, 30.0, 15.0, 0.05, 12)
+    assert str(position) == ("joint axis_3 position +1.6 rad at t=3.0000 s breaks the limit 1.484 rad "
+                             "(first at t=2.5000 s, 2 samples over)")
+    assert str(velocity).startswith("joint wrist_3 velocity -4.712 rad/s at t=0.0200 s breaks the limit")
+    assert "limit 3.142 rad/s (first" in str(velocity)
+    assert "+30 rad/s^2" in str(acceleration) and "limit 15 rad/s^2" in str(acceleration)
+    assert str(LimitReport()) == "joint trajectory within all position, velocity and acceleration limits"
+    report = LimitReport((position, velocity))
+    assert str(report) == f"joint limits broken:\n  {position}\n  {velocity}"
+    error = JointLimitError(report)
+    assert str(error) == str(report) and error.report is report and error.at_join is False
+    joined = JointLimitError(report, "\n  (a hint)", at_join=1)  # type: ignore[arg-type]
+    assert str(joined).endswith("(a hint)") and joined.at_join is True
+
+
+def test_scaled_limits_scale_only_what_is_asked() -> None:
+    gofa = abb_gofa_crb15000()
+    assert gofa.scaled_limits() == gofa
+    slower = gofa.scaled_limits(velocity=0.5)
+    assert slower.max_velocity_rad_s == tuple(0.5 * v for v in gofa.max_velocity_rad_s)
+    assert slower.max_acceleration_rad_s2 == gofa.max_acceleration_rad_s2
+    gentler = gofa.scaled_limits(acceleration=0.5)
+    assert gentler.max_velocity_rad_s == gofa.max_velocity_rad_s
+    for kwargs in ({"velocity": 0.0}, {"acceleration": 0.0}, {"velocity": -1.0, "acceleration": 1.0}):
+        with pytest.raises(ValueError, match=r"^limit scale factors must be > 0, got velocity="):
+            gofa.scaled_limits(**kwargs)
+
+
+def test_an_unreachable_sample_between_the_coarse_ones_is_named() -> None:
+    """Samples between the coarse ones (every 40 ms) are solved together afterwards: the first of them that
+    has no solution is named in the error, with its time and position."""
+    arm = abb_gofa_crb15000()
+    kin = ArmKinematics(arm)
+    t = 0.004 * np.arange(21)
+    path = np.tile(TCP_HOME_M, (21, 1))
+    path[[5, 7]] = [[2.0, 0.0, 0.6], [2.5, 0.0, 0.6]]  # 20 ms and 28 ms: neither is a coarse sample
+    named = r"no IK solution at t=0\.0200 s for TCP position \[2\.0, 0\.0, 0\.6\] m \(residual [0-9.e+]+ mm, "
+    with pytest.raises(IKError, match=named):
+        kin.joint_trajectory(t, path, kin.ik(TCP_HOME_M).q)
+
+
+def test_ik_refuses_a_non_finite_target_and_names_a_bad_orientation() -> None:
+    kin = ArmKinematics(ur5e())
+    with pytest.raises(ValueError, match=r"^position must be 3 finite numbers, got \[0\.4, nan, 0\.5\]$"):
+        kin.ik([0.4, np.nan, 0.5])
+    with pytest.raises(ValueError, match=r"^rotation must be a finite 3x3 rotation matrix"):
+        kin.ik(TCP_HOME_M, rotation=np.eye(2))
+    with pytest.raises(ValueError, match=r"^rotation is not a rotation matrix"):
+        kin.ik(TCP_HOME_M, rotation=np.diag([1.0, 1.0, -1.0]))
+
+
+def test_elementary_rotations_turn_the_axes_the_right_way() -> None:
+    from dyndlo_vision.robots.kinematics import rotation_x
+
+    quarter = math.pi / 2
+    np.testing.assert_allclose(rotation_x(quarter) @ [0, 1, 0], [0, 0, 1], atol=1e-15)  # y -> z
+    np.testing.assert_allclose(rotation_y(quarter) @ [0, 0, 1], [1, 0, 0], atol=1e-15)  # z -> x
+    np.testing.assert_allclose(rotation_z(quarter) @ [1, 0, 0], [0, 1, 0], atol=1e-15)  # x -> y
+    np.testing.assert_allclose(rotation_x(0.3), [[1, 0, 0], [0, math.cos(0.3), -math.sin(0.3)],
+                                                 [0, math.sin(0.3), math.cos(0.3)]])
+
+
+def test_rotation_log_small_angles_and_batches() -> None:
+    from dyndlo_vision.robots.kinematics import rotation_x
+
+    axis = np.array([0.0, 0.6, 0.8])
+    small = _axis_angle(tuple(axis), 4e-7)  # under the 1e-6 rad series branch
+    np.testing.assert_allclose(_rotation_log(small), 4e-7 * axis, rtol=1e-6, atol=1e-15)
+    batch = np.stack([np.stack([rotation_x(0.1), rotation_z(-0.2)]), np.stack([small, np.eye(3)])])
+    out = _rotation_log(batch)
+    assert out.shape == (2, 2, 3)
+    np.testing.assert_allclose(out, [[[0.1, 0, 0], [0, 0, -0.2]], [4e-7 * axis, [0, 0, 0]]], atol=1e-12)
+    # Both halves of a batch near pi: each gets its own axis.
+    near = np.stack([rotation_x(math.pi), rotation_z(math.pi)])
+    np.testing.assert_allclose(np.abs(_rotation_log(near)), [[math.pi, 0, 0], [0, 0, math.pi]], atol=1e-7)
+
+
+def test_poses_and_rotations_are_checked_with_their_names() -> None:
+    with pytest.raises(ValueError, match=r"^position must be 3 finite numbers, got \[0\.0, nan, 0\.0\]$"):
+        pose_matrix([0.0, np.nan, 0.0])
+    with pytest.raises(ValueError, match=r"^rotation must be a finite 3x3 rotation matrix, got shape"):
+        pose_matrix(rotation=np.full((3, 3), np.nan))
+    with pytest.raises(ValueError, match=r"^rotation is not a rotation matrix"):
+        pose_matrix(rotation=np.eye(3) + 1e-3)
+    arm = ur5e()
+    bad_row = np.eye(4)
+    bad_row[3, 0] = 0.5
+    with pytest.raises(ValueError, match=r"^tcp_in_flange must be a 4x4 homogeneous transform"):
+        ArmKinematics(arm, tcp_in_flange=bad_row)
+    bad_t = np.eye(4)
+    bad_t[1, 3] = np.inf
+    with pytest.raises(ValueError, match=r"^base_in_world translation must be finite, got \[0\.0, inf"):
+        ArmKinematics(arm, base_in_world=bad_t)
+    with pytest.raises(ValueError, match=r"^base_in_world rotation is not a rotation matrix"):
+        ArmKinematics(arm, base_in_world=np.diag([1.0, 1.0, -1.0, 1.0]))
+    with pytest.raises(ValueError, match=r"^tool_rotation must be a finite 3x3"):
+        ArmKinematics(arm, tool_rotation=np.eye(2))
+    tool = pose_matrix((0.0, 0.0, 0.05))
+    np.testing.assert_array_equal(ArmKinematics(arm, tcp_in_flange=tool).tcp_in_flange, tool)
+    with pytest.raises(ValueError, match=r"^joint positions must be finite with last dimension 6, got shape"):
+        ArmKinematics(arm).fk([0.0, 0.0, np.nan, 0.0, 0.0, 0.0])
+
+
+def test_arm_models_and_ik_options_are_checked() -> None:
+    from dyndlo_vision.robots.kinematics import IKOptions
+
+    gofa = abb_gofa_crb15000()
+    for name in ("max_velocity_rad_s", "max_acceleration_rad_s2"):
+        for bad in (0.0, np.inf):
+            values = (bad,) + getattr(gofa, name)[1:]
+            with pytest.raises(ValueError, match=rf"^ArmModel '.*': {name} must be positive and finite, got"):
+                ArmModel(**{**gofa.__dict__, name: values})
+    slow = (0.5,) + gofa.max_velocity_rad_s[1:]  # a joint under 1 rad/s is a valid limit
+    assert ArmModel(**{**gofa.__dict__, "max_velocity_rad_s": slow}).max_velocity_rad_s[0] == 0.5
+    with pytest.raises(ValueError, match=r"^ArmModel '.*': joint_names needs 6 entries, got \('a',\)$"):
+        ArmModel(**{**gofa.__dict__, "joint_names": ("a",)})
+    at_bounds = (gofa.lower_rad[0], 0.0, 0.0, 0.0, gofa.upper_rad[4], 0.0)
+    assert ArmModel(**{**gofa.__dict__, "seed_rad": at_bounds}).seed_rad == at_bounds  # on a bound is within
+    with pytest.raises(ValueError, match=r"^flange_rotation is not a rotation matrix"):
+        ArmModel(**{**gofa.__dict__, "flange_rotation": ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, -1.0))})
+    for field in ("position_tolerance_m", "rotation_tolerance_rad", "rotation_weight_m", "coarse_step_s"):
+        with pytest.raises(ValueError, match=rf"^IKOptions\.{field} must be > 0, got 0\.0$"):
+            IKOptions(**{field: 0.0})
+    assert IKOptions(damping_bias=0.0, max_iterations=1).max_iterations == 1
+    with pytest.raises(ValueError, match=r"^IKOptions\.damping_bias must be >= 0, got -1e-09$"):
+        IKOptions(damping_bias=-1e-9)
+    with pytest.raises(ValueError, match=r"^IKOptions\.max_iterations must be >= 1, got 0$"):
+        IKOptions(max_iterations=0)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from dyndlo_vision.robots.protocol import Robot, Setpoints, TcpState
-from dyndlo_vision.robots.safety import ClampedRobot, Watchdog, WorkspaceBox, clamp_setpoints
+from dyndlo_vision.robots.safety import ClampedRobot, ClampReport, Watchdog, WorkspaceBox, clamp_setpoints
 
 BOX = WorkspaceBox((0.2, -0.4, 0.1), (0.9, 0.4, 0.9))
 
@@ -169,3 +169,81 @@ def test_watchdog_thread_stops_the_robot_when_feeding_ends() -> None:
             dog.feed("robot state")
         assert fired.wait(timeout=10.0)  # generous: the thread polls every 12.5 ms
     assert robot.stopped == 1 and dog.fired is not None
+
+
+# Boxes built inside the tests (a box built at import, as BOX above, is made before any code under test runs).
+def test_a_box_is_normalised_and_checked_when_built() -> None:
+    box = WorkspaceBox([0, -1, 0], [1, 1, 2])  # type: ignore[arg-type]
+    assert box.lower_m == (0.0, -1.0, 0.0) and box.upper_m == (1.0, 1.0, 2.0)
+    assert all(type(v) is float for v in box.lower_m + box.upper_m)
+    for lower, upper in (((0.0, 0.0), (1.0, 1.0, 1.0)), ((0.0, 0.0, 0.0), (1.0, 1.0)),
+                         ((0.0, np.nan, 0.0), (1.0, 1.0, 1.0)), ((0.0, 0.0, 0.0), (1.0, np.inf, 1.0))):
+        with pytest.raises(ValueError, match=r"^WorkspaceBox corners must be 3 finite numbers each, got"):
+            WorkspaceBox(lower, upper)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=r"^WorkspaceBox lower_m must be below upper_m on every axis, got"):
+        WorkspaceBox((0.0, 0.5, 0.0), (1.0, 0.5, 1.0))  # an empty (flat) box
+
+
+def test_a_box_contains_its_boundary_point_by_point() -> None:
+    box = WorkspaceBox((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
+    pts = np.array([[0.0, 0.5, 1.0], [1.0, 1.0, 1.0], [1.0, 1.0, 1.0 + 1e-9], [-1e-9, 0.5, 0.5]])
+    np.testing.assert_array_equal(box.contains(pts), [True, True, False, False])
+    assert box.contains([0, 0, 0]) and box.contains(pts[None]).shape == (1, 4)
+
+
+def test_a_velocity_exactly_at_the_limit_is_not_clipped_and_one_over_is_scaled_to_it() -> None:
+    box = WorkspaceBox((-1.0, -1.0, -1.0), (2.0, 2.0, 2.0))
+    t = np.array([0.0, 0.1])
+    p = np.zeros((2, 1, 3))
+    v = np.array([[[0.3, 0.4, 0.0]], [[0.6, 0.8, 0.0]]])  # 0.5 m/s, then 1.0 m/s
+    out, report = clamp_setpoints(Setpoints(t=t, position=p, velocity=v), box, 0.5)
+    np.testing.assert_array_equal(out.velocity[0], v[0])
+    np.testing.assert_allclose(out.velocity[1, 0], [0.3, 0.4, 0.0])
+    assert report.velocities_clipped == 1 and report.max_speed_m_s == pytest.approx(1.0)
+    out, report = clamp_setpoints(Setpoints(t=t, position=p, velocity=v[:1].repeat(2, axis=0)), box, 0.5)
+    assert out.velocity is not None and not report.changed and report.max_speed_m_s == pytest.approx(0.5)
+
+
+def test_the_current_state_is_clamped_into_the_box_from_above_too() -> None:
+    box = WorkspaceBox((0.0, -0.5, 0.1), (0.9, 0.5, 0.9))
+    start = TcpState(position=np.array([[0.45, 0.0, 1.2]]), velocity=np.zeros((1, 3)), t=0.0)
+    sp = Setpoints(t=np.array([0.01]), position=np.array([[[0.45, 0.0, 0.9]]]), velocity=np.zeros((1, 1, 3)))
+    out, report = clamp_setpoints(sp, box, 1.0, start)
+    # From the box's top (where the TCP is taken to be), the setpoint on the top is reached at once.
+    np.testing.assert_allclose(out.position[0, 0], [0.45, 0.0, 0.9])
+    with pytest.raises(ValueError, match=r"^start\.position must have shape \(1, 3\), got \(2, 3\)$"):
+        clamp_setpoints(sp, box, 1.0, TcpState(np.zeros((2, 3)), np.zeros((2, 3)), 0.0))
+
+
+def test_without_a_start_the_first_setpoint_is_the_ramps_start() -> None:
+    box = WorkspaceBox((-1.0, -1.0, -1.0), (2.0, 2.0, 2.0))
+    t = np.array([5.0, 5.1, 5.2])
+    p = np.array([[[0.0, 0.0, 0.0]], [[0.05, 0.0, 0.0]], [[0.5, 0.0, 0.0]]])  # 0.5 m/s, then 4.5 m/s
+    v = np.array([[[0.1, 0.2, 0.0]], [[0.0, 0.0, 0.0]], [[0.0, 0.0, 0.0]]])
+    out, report = clamp_setpoints(Setpoints(t=t, position=p, velocity=v), box, 1.0)
+    np.testing.assert_allclose(out.position[:, 0, 0], [0.0, 0.05, 0.15])
+    assert report.steps_rate_limited == 1 and report.max_speed_m_s == pytest.approx(4.5)
+    # The moved setpoint's velocity is the ramp's; the others keep their feed-forward (the first one too).
+    np.testing.assert_allclose(out.velocity[:, 0], [[0.1, 0.2, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+
+
+def test_a_moved_first_setpoint_gets_the_velocity_from_the_current_state() -> None:
+    box = WorkspaceBox((-1.0, -1.0, -1.0), (2.0, 2.0, 2.0))
+    start = TcpState(position=np.array([[0.0, 0.0, 0.0]]), velocity=np.zeros((1, 3)), t=3.0)
+    sp = Setpoints(t=np.array([3.1, 3.2]), position=np.array([[[0.5, 0.0, 0.0]], [[0.5, 0.0, 0.0]]]),
+                   velocity=np.zeros((2, 1, 3)))
+    out, report = clamp_setpoints(sp, box, 1.0, start)
+    np.testing.assert_allclose(out.position[:, 0, 0], [0.1, 0.2])
+    np.testing.assert_allclose(out.velocity[:, 0, 0], [1.0, 1.0])  # (0.1 - 0) / (3.1 - 3.0) for the first
+    # A setpoint at the state's own time may not move, and no speed is made up for it.
+    sp0 = Setpoints(t=np.array([3.0]), position=np.array([[[0.5, 0.0, 0.0]]]), velocity=np.zeros((1, 1, 3)))
+    out, report = clamp_setpoints(sp0, box, 1.0, start)
+    np.testing.assert_allclose(out.position[0, 0], [0.0, 0.0, 0.0])
+    assert report.max_speed_m_s == 0.0 and report.steps_rate_limited == 1
+
+
+def test_a_clamped_robot_needs_a_positive_speed_limit_and_starts_with_an_empty_report() -> None:
+    with pytest.raises(ValueError, match=r"^max_speed_m_s must be > 0, got 0\.0$"):
+        ClampedRobot(_RecordingRobot(), BOX, 0.0)
+    robot = ClampedRobot(_RecordingRobot(), BOX, 1.8)
+    assert robot.last_report == ClampReport() and not robot.last_report.changed

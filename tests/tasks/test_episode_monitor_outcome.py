@@ -163,3 +163,122 @@ def test_a_diverged_episode_ends_as_an_avoid_and_never_as_a_success(task: str, m
         assert clean["is_success"] and clean["r_avoid"] == 0.0 and clean["r_success"] > 0
         assert broken["r_avoid"] == lam1 < 0 and broken["r_success"] == 0.0
     assert broken["is_success"] is False
+
+
+def test_a_hit_between_two_batches_of_samples_counts() -> None:
+    """The swept segment joins the last sample of one batch to the first of the next (the C rollout hands
+    the monitor one batch per stretch of simulation)."""
+    env = make_env("tip-control").unwrapped
+    env.reset(seed=0, options={"goal": GOAL})
+    _feed(env, [GOAL + [-0.10, 0.0, 0.0], GOAL + [-0.05, 0.0, 0.001]])
+    _feed(env, [GOAL + [0.05, 0.0, 0.001], GOAL + [0.10, 0.0, 0.0]])
+    assert env.monitor.min_goal_distance_m == pytest.approx(0.001, abs=1e-9)
+    assert env.outcome()[1] and env.is_done_early()
+
+
+def test_the_monitor_keeps_the_highest_mean_height_and_counts_its_samples() -> None:
+    env = make_env("tip-control").unwrapped
+    env.reset(seed=0, options={"goal": GOAL})
+    assert env.monitor.samples == 1  # the reset's own sample
+    tip = env.p_dlo()
+    _feed(env, [tip, tip, tip], tcp=np.array([[[0.45, 0.0, 0.2]], [[0.45, 0.0, 0.8]], [[0.45, 0.0, 0.3]]]))
+    assert env.monitor.samples == 4
+    assert env.monitor.max_mean_height_m == pytest.approx(0.8)  # the highest sample, not the batch's mean
+    reward, success, info = env.outcome()
+    assert info["r_dyn"] == -1.0  # M = 0.75 m reached (task I)
+    assert info["avoid"] == env.monitor.avoid and info["sim_time_s"] == env.scene.time
+    assert reward == pytest.approx(sum(info[k] for k in ("r_avoid", "r_distance", "r_success", "r_dyn")))
+
+
+def test_the_observation_is_table_ii_as_float32() -> None:
+    from dyndlo_vision.tasks.base import observation_vector
+
+    obs = observation_vector(np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]), np.array([[7.0, 8.0, 9.0]] * 2),
+                             np.array([0.1, 0.2, 0.3]), np.array([0.4, 0.5, 0.6]))
+    assert obs.dtype == np.float32
+    np.testing.assert_array_equal(
+        obs, np.array([1, 2, 3, 4, 5, 6, 7, 8, 9, 7, 8, 9, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6], np.float32)
+    )
+
+
+def test_segment_point_distances_hand_computed() -> None:
+    from dyndlo_vision.tasks.base import _segment_point_distances
+
+    a = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
+    b = np.array([[1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 1.0]])  # the last: a point
+    c = np.array([0.5, 0.3, 0.4])
+    got = _segment_point_distances(a, b, c)
+    np.testing.assert_allclose(got[:1], [0.5])  # beside the segment
+    c2 = np.array([-0.3, 0.4, 0.0])
+    np.testing.assert_allclose(_segment_point_distances(a[:1], b[:1], c2), [0.5])  # before its start
+    np.testing.assert_allclose(_segment_point_distances(a[3:], b[3:], c), [np.linalg.norm(c - 1.0)])
+
+
+def test_the_default_goal_distance_is_p_dlos() -> None:
+    from dyndlo_vision.tasks import TipControl
+
+    p_dlo = np.array([[0.8, 0.0, 0.43], [0.8, 0.04, 0.4]])
+    np.testing.assert_allclose(TipControl().goal_distances(np.zeros((2, 1, 3)), p_dlo, GOAL), [0.03, 0.04])
+
+
+class _Spy:
+    """Wraps a task's method, recording the scene and goal it is called with."""
+
+    def __init__(self, method, answer=None) -> None:
+        self.method, self.answer, self.calls = method, answer, []
+
+    def __call__(self, scene, goal, *args):
+        self.calls.append((scene, np.array(goal)))
+        result = self.method(scene, goal, *args)
+        return result if self.answer is None else self.answer(result)
+
+
+def test_a_multi_step_episode_ends_at_its_length_after_settling() -> None:
+    env = make_env("tip-control", multi_step=True).unwrapped
+    env.reset(seed=0, options={"goal": GOAL})
+    spy = _Spy(env.task.is_done_early)
+    env.task.is_done_early = spy
+    evaluate = _Spy(env.task.evaluate)
+    env.task.evaluate = evaluate
+    action = np.zeros(env.action_space.shape, np.float32)
+    for decisions in range(1, 61):  # bounded: an episode that never ends fails here, it does not hang
+        _, reward, terminated, truncated, info = env.step(action)
+        assert not truncated
+        assert reward == pytest.approx(sum(info[k] for k in ("r_avoid", "r_distance", "r_success", "r_dyn")))
+        if terminated:
+            break
+        assert info["sim_time_s"] == pytest.approx(0.04 * decisions)  # no settling before the end
+    assert decisions == 40  # 1.6 s of 40 ms decisions
+    assert info["sim_time_s"] == pytest.approx(1.6 + 0.5)  # then the cable settles for settle_s
+    calls = spy.calls + evaluate.calls
+    assert all(scene is env.scene and np.array_equal(goal, GOAL) for scene, goal in calls)
+
+
+def test_an_early_end_is_final_without_settling() -> None:
+    env = make_env("tip-control", multi_step=True).unwrapped
+    env.reset(seed=0, options={"goal": GOAL})
+    env.task.is_done_early = _Spy(env.task.is_done_early, answer=lambda _: env.scene.time > 0.1)
+    action = np.zeros(env.action_space.shape, np.float32)
+    ends = [env.step(action)[2] for _ in range(3)]
+    assert ends == [False, False, True] and env.scene.time == pytest.approx(0.12)
+
+
+def test_a_single_step_episode_runs_its_plan_then_settles() -> None:
+    env = make_env("tip-control").unwrapped
+    env.reset(seed=0, options={"goal": GOAL})
+    _, _, terminated, _, info = env.step(np.zeros(env.action_space.shape, np.float32))
+    t_end = env.trajectory.t_end
+    # The plan's end plus settle_s, rounded up to whole physics steps (the clock sums steps: rounding).
+    assert terminated and t_end + 0.5 - 1e-9 <= info["sim_time_s"] < t_end + 0.5 + env.scene.timestep
+
+
+def test_the_outcome_and_the_early_end_ask_the_task_about_this_scene_and_goal() -> None:
+    env = make_env("tip-control", multi_step=True).unwrapped
+    env.reset(seed=0, options={"goal": GOAL})
+    evaluate, early = _Spy(env.task.evaluate), _Spy(env.task.is_done_early)
+    env.task.evaluate, env.task.is_done_early = evaluate, early
+    env.outcome()
+    env.is_done_early()
+    for scene, goal in evaluate.calls + early.calls:
+        assert scene is env.scene and np.array_equal(goal, GOAL)
+    assert len(evaluate.calls) == 1 and len(early.calls) == 1

@@ -64,7 +64,12 @@ def test_table_v_shared_thresholds() -> None:
 
 @pytest.mark.parametrize(
     "coeffs",
-    [(1.0, -1.0, 10.0, -1.0), (-1.0, 1.0, 10.0, -1.0), (-1.0, -1.0, -10.0, -1.0), (-1.0, -1.0, 10.0, 1.0)],
+    [
+        (1.0, -1.0, 10.0, -1.0), (-1.0, 1.0, 10.0, -1.0), (-1.0, -1.0, -10.0, -1.0), (-1.0, -1.0, 10.0, 1.0),
+        # Zero is no sign, and the signs are about 0, not 1.
+        (0.0, -1.0, 10.0, -1.0), (-1.0, 0.0, 10.0, -1.0), (-1.0, -1.0, 0.0, -1.0), (-1.0, -1.0, 10.0, 0.0),
+        (0.5, -1.0, 10.0, -1.0), (-1.0, 0.5, 10.0, -1.0), (-1.0, -1.0, 10.0, 0.5),
+    ],
 )
 def test_coefficient_signs_are_enforced(coeffs: tuple[float, float, float, float]) -> None:
     # Eq. 5-7: lambda_1, lambda_2, lambda_4 < 0 < lambda_3.
@@ -148,6 +153,18 @@ def test_avoid_flags_over_instants_and_grippers() -> None:
     low = p_dlo.copy()
     low[0, 2] = 0.01
     assert avoid_flags(p, v, low, LIMITS) == _only("collision")
+
+
+def test_outreach_and_speed_are_3d_norms_over_instants_too() -> None:
+    """(K, n_g, 3) samples: the 3-D distance and speed decide, not a single coordinate."""
+    p = np.tile([[0.45, 0.0, 0.60]], (3, 1, 1))
+    p[1, 0] = [0.5, 0.5, 0.9]  # 0.95 m from the shoulder, every coordinate of the offset under 0.9 m
+    v = np.zeros_like(p)
+    p_dlo = np.tile(HIGH_DLO, (3, 1))
+    assert avoid_flags(p, v, p_dlo, LIMITS) == _only("outreach")
+    p[1, 0] = [0.45, 0.0, 0.60]
+    v[2, 0] = [1.3, 1.3, 0.0]  # 1.84 m/s, each component under 1.8 m/s
+    assert avoid_flags(p, v, p_dlo, LIMITS) == _only("velocity")
 
 
 # ------------------------------------------------------------------------------------------------ implicit

@@ -123,3 +123,99 @@ def test_a_two_gripper_task_refuses_an_arm():
 def test_an_unknown_robot_is_refused():
     with pytest.raises(ValueError, match="unknown robot 'ur10'"):
         make_env("tip-control", robot="ur10")
+
+
+def test_a_plan_is_judged_on_the_arms_cycle_from_now_to_its_end(env):
+    env.reset(seed=1)
+    check = env.unwrapped.arm_check
+    seen = []
+    original = check.check
+
+    def spy(t, positions):
+        seen.append(np.array(t))
+        return original(t, positions)
+
+    check.check = spy
+    try:
+        env.step(slow_action(env))
+    finally:
+        check.check = original
+    (t,) = seen
+    t_end = env.unwrapped.trajectory.t_end
+    assert t[0] == 0.0 and np.allclose(np.diff(t), check.period_s)
+    assert t[-1] >= t_end - 1e-9 and t[-2] < t_end - 1e-9  # the last sample at or just past the plan's end
+
+
+def test_a_refused_plan_reports_the_verdict_and_what_the_task_evaluates(env):
+    env.reset(seed=1)
+    task = env.unwrapped.task
+    calls = []
+    original = task.evaluate
+
+    def succeeding(scene, goal, monitor, final):
+        calls.append((scene, np.array(goal), final))
+        terms, _, extra = original(scene, goal, monitor, final)
+        return terms, True, extra
+
+    task.evaluate = succeeding
+    try:
+        _, _, terminated, truncated, info = env.step(fast_action(env))
+    finally:
+        task.evaluate = original
+    assert terminated and not truncated
+    assert info["is_success"] is True  # the task's own verdict on the state reached, reported as it is
+    ((scene, goal, final),) = calls
+    assert scene is env.unwrapped.scene and np.array_equal(goal, env.unwrapped.goal) and final
+    kind = info["joint_limit_kind"]
+    assert kind == "IK" or kind.split()[0] in ("position", "velocity", "acceleration")
+
+
+def test_just_over_the_limits_costs_lambda_1_and_no_verdict_costs_the_cap() -> None:
+    """The refusal's avoid term: lambda_1 (1 + excess), excess = max(speed, acceleration fraction) - 1 in
+    [0, JOINT_EXCESS_CAP]; a plan without IK solution (no usage) costs the cap."""
+    from dyndlo_vision.robots.feasibility import Feasibility
+
+    env = make_env("tip-control", robot="gofa")
+    base = env.unwrapped
+    avoid = TABLE_V["tip_control"].avoid
+    for usage, expected in (
+        ({"velocity_fraction": 1.2, "acceleration_fraction": 0.5}, avoid * 1.2),
+        ({"velocity_fraction": 0.5, "acceleration_fraction": 1.3}, avoid * 1.3),
+        ({"velocity_fraction": 0.5, "acceleration_fraction": 9.0}, avoid * (1 + JOINT_EXCESS_CAP)),
+        ({}, avoid * (1 + JOINT_EXCESS_CAP)),
+    ):
+        base.reset(seed=1)
+        base.arm_check.check = lambda t, p, u=usage: Feasibility("limit broken", u, "velocity axis_1")
+        info = base.step(slow_action(env))[4]
+        assert info["r_avoid"] == pytest.approx(expected), usage
+        assert info["joint_limit_kind"] == "velocity axis_1" and info["joint_usage"] == usage
+    env.close()
+
+
+def test_the_outcome_before_any_plan_is_reported_without_a_verdict(env):
+    env.reset(seed=1)
+    _, success, info = env.unwrapped.outcome()
+    assert not success and "joint_feasible" not in info
+    env.step(slow_action(env))
+    assert env.unwrapped.outcome()[2]["joint_feasible"] is True
+
+
+def test_a_replan_is_judged_from_its_own_start():
+    env = make_env("tip-control", robot="gofa", multi_step=True)
+    env.reset(seed=3)
+    check = env.unwrapped.arm_check
+    seen = []
+    original = check.check
+
+    def spy(t, positions):
+        seen.append(np.array(t))
+        return original(t, positions)
+
+    check.check = spy
+    slow = slow_action(env)
+    env.step(slow)
+    env.step(slow)
+    t = seen[1]
+    t_end = env.unwrapped.trajectory.t_end
+    assert t[0] == pytest.approx(0.04) and t[-1] >= t_end - 1e-9 and t[-2] < t_end - 1e-9
+    env.close()

@@ -401,6 +401,7 @@ def test_time_oscillation_success_and_terms(target: str) -> None:
     # r_dyn = -2.5 * (0.03 + 0.02) = -0.125; the 0.30 / 0.20 / 0.10 m before arrival cost nothing;
     # r_distance = lambda_2 * t_traj = -3 * 0.16 = -0.48 (eq. r_distance, explicit).
     assert _terms(terms) == pytest.approx((0.0, -0.48, 3.0, -0.125), abs=1e-12)
+    assert set(terms) == set(TERMS)  # the four terms of eq. 4, nothing else
     assert success
     assert info["arrived"] and info["trajectory_time_s"] == pytest.approx(0.16)
     assert info["residual_oscillation_m"] == pytest.approx(0.03)
@@ -479,3 +480,184 @@ def test_time_oscillation_pending_terms_are_paid_once() -> None:
     task.begin_episode()
     again, success, info = task.evaluate(scene, np.zeros(3), EpisodeMonitor(), True)
     assert not info["arrived"] and not success and again["r_distance"] == pytest.approx(-3.0)
+
+
+# ---------------------------------------------------------------------------- boundaries and edges, all tasks
+def test_each_task_reads_its_own_cable_node() -> None:
+    """P_DLO: the tip (last node) for tasks I and IV, the middle node for tasks II and III."""
+    scene = _Scene(np.zeros((31, 3)))  # 30 segments, 31 nodes
+    assert TipControl().p_dlo_node(scene) == 30 and TimeOscillation().p_dlo_node(scene) == 30
+    assert Vaulting().p_dlo_node(scene) == 15 and Hooking().p_dlo_node(scene) == 15
+
+
+def test_tip_control_exactly_at_the_success_radius_is_a_miss() -> None:
+    """Success is the closest approach strictly below D_target / 2 + eps_goal."""
+    task = TipControl()
+    assert task.success_radius_m == 0.025 + 0.01
+    at = _monitor(min_goal_distance_m=task.success_radius_m)
+    at.max_tcp_speed_m_s = 1.25
+    terms, hit, info = task.evaluate(_Scene(np.zeros((21, 3))), np.zeros(3), at, True)
+    assert not hit and not task.is_done_early(None, np.zeros(3), at)  # type: ignore[arg-type]
+    assert info == {"min_distance_m": task.success_radius_m, "max_tcp_speed_m_s": 1.25}
+    terms, _, _ = task.evaluate(_Scene(np.zeros((21, 3))), np.zeros(3), at, False)
+    assert terms == {"r_avoid": 0.0, "r_distance": 0.0, "r_success": 0.0, "r_dyn": 0.0}
+
+
+def test_hooking_segment_distance_hand_computed() -> None:
+    from dyndlo_vision.tasks.hooking import _segment_distance
+
+    a, b = (0.0, 0.0, 0.0), (1.0, 0.0, 0.0)
+    assert _segment_distance(np.array([0.5, 0.3, 0.4]), a, b) == pytest.approx(0.5)  # beside: to the axis
+    assert _segment_distance(np.array([-0.3, 0.4, 0.0]), a, b) == pytest.approx(0.5)  # before a: to a
+    assert _segment_distance(np.array([1.6, 0.0, 0.8]), a, b) == pytest.approx(1.0)  # beyond b: to b
+
+
+def test_hooking_above_the_prong_is_strictly_above_its_axis_and_within_its_length() -> None:
+    task = Hooking()
+    # At the prong's root, on its axis: not above it.
+    assert not task.hooked(_Scene(_hook_nodes(10, PRONG_A.copy())))
+    assert task.hooked(_Scene(_hook_nodes(10, PRONG_A + [0.0, 0.0, 1e-6])))
+    # Just behind the root (x > 0.72), a hair under the root's height: under the prong, however the axis
+    # would continue behind it.
+    assert not task.hooked(_Scene(_hook_nodes(10, PRONG_A + [0.005, 0.0, -0.0001])))
+    # Just beyond the tip (x < 0.60), a hair over the tip's height: carried at the tip.
+    assert task.hooked(_Scene(_hook_nodes(10, PRONG_B + [-0.005, 0.0, 0.0005])))
+
+
+def test_hooking_pays_nothing_before_the_end() -> None:
+    mon = _monitor(min_goal_distance_m=0.2, avoid="velocity", height=0.5)
+    terms, ok, info = Hooking().evaluate(_Scene(_hook_nodes(10, _on_prong(0.01))), np.zeros(3), mon, False)
+    assert terms == {"r_avoid": 0.0, "r_distance": 0.0, "r_success": 0.0, "r_dyn": 0.0}
+    assert ok is False and info == {"min_distance_m": 0.2}
+
+
+def test_time_oscillation_oscillation_is_the_tips() -> None:
+    task = TimeOscillation()
+    goal = np.array(task.goal_m)
+    nodes = np.array([goal, goal + [0.3, 0.0, -0.2], goal + [0.03, 0.04, -0.5]])  # the tip: 5 cm aside
+    _, _, info = task.evaluate(_Scene(nodes, tcp=goal), goal, EpisodeMonitor(), False)
+    assert info["oscillation_m"] == pytest.approx(0.05)
+
+
+def test_time_oscillation_arrival_is_strictly_within_one_centimetre() -> None:
+    task = TimeOscillation()
+    _run_task_iv(task, [0.3, 0.01, 0.01], [0.0, 0.0, 0.0])
+    _, _, info = task.evaluate(_Scene(np.zeros((21, 3))), np.zeros(3), EpisodeMonitor(), False)
+    assert not info["arrived"]
+
+
+def test_time_oscillation_success_needs_the_residual_strictly_under_the_threshold() -> None:
+    task = TimeOscillation()
+    tcp = np.zeros((3, 1, 3))
+    tip = np.array([[0.3, 0.0, -0.5], [0.05, 0.0, -0.5], [0.0, 0.0, -0.5]])  # eps_oscill exactly, arrived
+    task.on_samples(0.04 * np.arange(3), tcp, tcp, tip, np.array([0.2, 0.0, 0.0]), EpisodeMonitor())
+    _, ok, info = task.evaluate(_Scene(np.zeros((21, 3))), np.zeros(3), EpisodeMonitor(), True)
+    assert info["residual_oscillation_m"] == 0.05 and not ok
+
+
+def test_time_oscillation_samples_a_hair_before_each_period_are_evaluated() -> None:
+    """Monitor sample times carry rounding: one 1e-12 s before a multiple of 40 ms still counts as that
+    instant (every 25 Hz instant is evaluated once)."""
+    task = TimeOscillation()
+    times = 0.04 * np.arange(5) - 1e-12
+    times[0] = 0.0
+    k = len(times)
+    goal = np.array(task.goal_m)
+    tcp = np.repeat(goal[None, None], k, axis=0)
+    tip = tcp[:, 0] + [0.01, 0.0, -0.5]
+    task.on_samples(times, tcp, np.zeros_like(tcp), tip, np.zeros(k), EpisodeMonitor())
+    terms, _, _ = task.evaluate(_Scene(np.zeros((21, 3))), goal, EpisodeMonitor(), False)
+    assert terms["r_success"] == pytest.approx(5 * 1.5) and terms["r_dyn"] == pytest.approx(5 * -2.5 * 0.01)
+
+
+@pytest.mark.parametrize("where", ["outreach", "shoulder", "collision"])
+def test_time_oscillation_charges_every_avoid_condition_per_sample(where: str) -> None:
+    task = TimeOscillation()
+    goal = np.array(task.goal_m)
+    tcp = np.repeat(goal[None, None], 2, axis=0)
+    tip = tcp[:, 0] + [0.0, 0.0, -0.5]
+    if where == "outreach":
+        tcp[1, 0] = [1.0, 0.0, 0.6]  # 1.06 m from the shoulder, over 0.9 m
+    elif where == "shoulder":
+        tcp[1, 0] = [0.1, 0.1, 1.0]  # 0.14 m from the base axis, under 0.25 m
+    else:
+        tip[1] = [goal[0], 0.0, 0.01]  # the tip on the floor (under 1.25 cm)
+    far = np.array([0.5, 0.5])
+    task.on_samples(np.array([0.0, 0.04]), tcp, np.zeros_like(tcp), tip, far, EpisodeMonitor())
+    terms, _, _ = task.evaluate(_Scene(np.zeros((21, 3))), goal, EpisodeMonitor(), False)
+    assert terms["r_avoid"] == pytest.approx(-50.0)  # lambda_1 of task IV, once
+
+
+def test_vaulting_exact_edges_of_the_box() -> None:
+    from dyndlo_vision.tasks.vaulting import OBSTACLE_SIZE_M, crossings, within_box_width
+
+    half = OBSTACLE_SIZE_M[1] / 2
+    assert within_box_width(half) and within_box_width(-half) and within_box_width(0.0)
+    assert not within_box_width(half + 1e-9) and not within_box_width(-0.05)
+    assert within_box_width(0.035)
+    # A crossing exactly at the top less the tolerance counts as over the box.
+    top = OBSTACLE_CENTRE_M[2] + OBSTACLE_SIZE_M[2] / 2
+    z = top - 0.01
+    nodes = np.array([[0.40, 0.0, 0.2], [0.54, 0.0, z], [0.56, 0.0, z], [1.0, 0.0, 0.01]])
+    assert crosses_over_obstacle(nodes)
+    # Exactly at the far face is not beyond it; exactly at the top is not below it.
+    far, top_z = OBSTACLE_CENTRE_M[0] + OBSTACLE_SIZE_M[0] / 2, top
+    assert not middle_landed_beyond(np.array([far, 0.0, 0.01]))
+    assert not middle_landed_beyond(np.array([0.65, 0.0, top_z]))
+    # The crossing's lateral position is interpolated too: 1/4 of the way from y = 0.02 to y = -0.06.
+    ((y, zc),) = crossings(np.array([[0.54, 0.02, 0.2], [0.58, -0.06, 0.3]]))
+    assert (y, zc) == (pytest.approx(0.0), pytest.approx(0.225))
+    # Nodes exactly on the mid-plane: the crossing is there, at the first of them.
+    on_plane = np.array([[0.40, 0.0, 0.2], [0.55, 0.01, 0.15], [0.55, 0.02, 0.16], [1.0, 0.0, 0.01]])
+    assert crossings(on_plane)[1] == (pytest.approx(0.01), pytest.approx(0.15))
+    assert crosses_over_obstacle(on_plane)
+
+
+def test_vaulting_torn_is_exactly_beyond_the_cables_length() -> None:
+    support = np.array(SUPPORT_M)
+    assert not beyond_cable_reach(support - [0.5, 0.0, 0.0], 0.5)  # exactly the length away: reachable
+    assert beyond_cable_reach(support - [0.5 + 1e-9, 0.0, 0.0], 0.5)
+    assert not Vaulting().is_done_early(None, np.zeros(3), EpisodeMonitor())  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    ("middle_x", "crossing", "progress"),
+    [
+        # progress = 0.5 * reach + 0.5 * 0.999 * over; reach = (x - 0.40) / (0.57 - 0.40) in [0, 1],
+        # over = lowest crossing height over the box / its top (0.14 m) in [0, 1], 0 beside the box or none.
+        (0.485, (0.0, 0.07), 0.5 * 0.5 + 0.5 * 0.999 * 0.5),
+        (0.30, (0.0, 0.07), 0.5 * 0.0 + 0.5 * 0.999 * 0.5),  # middle behind the TCP's home: no reach
+        (0.70, (0.0, 0.28), 0.5 * 1.0 + 0.5 * 0.999 * 1.0),  # beyond the far face, high: both full
+        (0.485, (0.10, 0.07), 0.5 * 0.5),  # crossing beside the box: no height
+        (0.485, (0.0, -0.014), 0.5 * 0.5),  # crossing under the floor: none
+        (0.485, None, 0.5 * 0.5),  # never crossing
+    ],
+)
+def test_vault_progress_hand_computed(middle_x: float, crossing: tuple | None, progress: float) -> None:
+    from dyndlo_vision.tasks.vaulting import vault_progress
+
+    # The middle node at an end of the polyline, where it adds no crossing of its own.
+    middle = [middle_x, 0.0, 0.01]
+    if crossing is None:
+        path = [[0.40, 0.0, 0.2], [0.50, 0.0, 0.01]]
+    else:
+        y, z = crossing
+        path = [[0.40, 0.0, 0.2], [0.54, y, z], [0.56, y, z], [1.0, 0.0, 0.01]]
+    nodes = np.array([middle, *path] if middle_x < 0.55 else [*path, middle])
+    index = 0 if middle_x < 0.55 else len(nodes) - 1
+    assert vault_progress(nodes, index) == pytest.approx(progress, abs=1e-12)
+
+
+def test_vaulting_shaped_distance_reward_slopes_with_progress_on_failures_only() -> None:
+    from dyndlo_vision.tasks.vaulting import SHAPED_DISTANCE_SCALE, vault_progress
+
+    task = Vaulting(distance_reward="shaped")
+    failed = _Scene(_vault_nodes((0.56, 0.0, 0.01), 0.07))  # middle short of the far face, crossing low
+    progress = vault_progress(failed.cable_nodes(), 30)
+    assert 0.3 < progress < 0.9
+    terms, ok, info = task.evaluate(failed, np.zeros(3), _monitor(height=0.25), True)
+    assert not ok and info["vault_progress"] == progress
+    assert terms["r_distance"] == pytest.approx(-1.0 * SHAPED_DISTANCE_SCALE * (1.0 - progress))
+    vault = _Scene(_vault_nodes((0.65, 0.0, 0.01), 0.15))
+    terms, ok, info = task.evaluate(vault, np.zeros(3), _monitor(height=0.25), True)
+    assert ok and terms["r_distance"] == 0.0 and "vault_progress" not in info

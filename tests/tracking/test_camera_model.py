@@ -248,3 +248,72 @@ def test_from_mujoco_against_rendered_image() -> None:
     # A half-pixel convention error would show as a 0.5 px bias.
     assert np.abs(errors.mean(axis=0)).max() < 0.1
     assert np.abs(errors).max() < 0.25
+
+
+# ----------------------------------------------------------------------------- fields, by hand
+def test_fields_are_normalised_and_checked() -> None:
+    base = look_at_camera()
+    kw = {"width": np.int64(640), "height": 480, "K": base.K.tolist(), "dist": [[0.0, 0.0, 0.0, 0.0, 0.0]],
+          "R": base.R.tolist(), "t": base.t.reshape(3, 1).tolist(), "fps": 30}
+    cam = PinholeCamera(**kw)
+    assert type(cam.width) is int and cam.dist.shape == (5,) and cam.t.shape == (3,)
+    assert cam.fps == 30.0 and type(cam.fps) is float and not cam.has_distortion
+    assert not PinholeCamera(**{**kw, "dist": []}).has_distortion
+    assert PinholeCamera(**{**kw, "dist": [0.0, 0.0, 0.0, 1e-9]}).has_distortion
+    for field, value, match in (
+        ("width", True, r"^width must be a positive int, got True$"),
+        ("dist", [[0.1, 0.2], [0.3, 0.4]], r"^dist must be a flat list, got shape \(2, 2\)$"),
+        ("dist", ["a", 0, 0, 0], r"^dist must be a list of numbers"),
+        ("fps", True, r"^fps must be a positive number or null, got True$"),
+        ("fps", float("inf"), r"^fps must be a positive finite number, got inf$"),
+        ("fps", 0, r"^fps must be a positive finite number, got 0"),
+        ("K", [[500.0, 0, 320], [0, 500.0, 240], [0, 0, 2.0]], r"no skew"),
+        ("K", [[500.0, 0, 320], [1.0, 500.0, 240], [0, 0, 1.0]], r"no skew"),
+        ("R", (np.asarray(base.R) * (1 + 2e-6)).tolist(), r"^R is not a rotation matrix: R @ R\.T deviates"),
+    ):
+        with pytest.raises(CalibrationError, match=match):
+            PinholeCamera(**{**kw, field: value})
+    # Within the rotation tolerance is a rotation.
+    assert PinholeCamera(**{**kw, "R": (np.asarray(base.R) * (1 + 1e-7)).tolist()}).R.shape == (3, 3)
+
+
+def test_the_camera_centre_and_frames_by_hand() -> None:
+    # Camera 2 m above the origin looking straight down: x_cam = x_world, y_cam = -y_world, z_cam = 2 - z.
+    R = np.diag([1.0, -1.0, -1.0])
+    K = np.array([[100.0, 0.0, 50.0], [0.0, 100.0, 40.0], [0.0, 0.0, 1.0]])
+    cam = PinholeCamera(101, 81, K, np.zeros(0), R, np.array([0.0, 0.0, 2.0]))
+    np.testing.assert_allclose(cam.center, [0.0, 0.0, 2.0])
+    np.testing.assert_allclose(cam.world_to_camera([0.1, 0.2, 0.5]), [[0.1, -0.2, 1.5]])
+    np.testing.assert_allclose(cam.camera_to_world([[0.1, -0.2, 1.5]]), [[0.1, 0.2, 0.5]])
+    np.testing.assert_allclose(cam.project([[0.2, 0.4, 0.0]]), [[60.0, 20.0]])  # 100 * 0.2 / 2 + 50, ...
+    np.testing.assert_allclose(cam.normalized_coords([[60.0, 20.0]]), [[0.1, -0.2]])
+    origins, dirs = cam.pixel_rays([60.0, 20.0])
+    np.testing.assert_allclose(origins, [[0.0, 0.0, 2.0]])
+    np.testing.assert_allclose(dirs, [np.array([0.1, 0.2, -1.0]) / np.linalg.norm([0.1, 0.2, -1.0])])
+    np.testing.assert_allclose(cam.intersect_plane([[60.0, 20.0]], [0.0, 0.0, 2.0], 0.0), [[0.2, 0.4, 0.0]])
+    assert np.isnan(cam.project([[0.0, 0.0, 3.0], [0.0, 0.0, 2.0]])).all()  # behind and in the camera plane
+
+
+def test_bad_planes_and_dicts_are_refused() -> None:
+    cam = look_at_camera()
+    for normal in ([0.0, 0.0, 0.0], [0.0, np.nan, 1.0], [0.0, 1.0]):
+        with pytest.raises(ValueError, match=r"^plane normal must be a finite non-zero 3-vector, got"):
+            cam.intersect_plane([[320.0, 240.0]], normal, 0.0)
+    with pytest.raises(CalibrationError, match=r"^cam\.json: expected a JSON object, got list$"):
+        PinholeCamera.from_dict([1, 2], source="cam.json")
+    with pytest.raises(CalibrationError, match=r"^calibration: K must have shape \(3, 3\)"):
+        PinholeCamera.from_dict({**cam.to_dict(), "K": [1, 2]})
+    no_fps = {k: v for k, v in cam.to_dict().items() if k != "fps"}
+    assert "fps" not in PinholeCamera.from_dict(no_fps).to_dict()
+
+
+@pytest.mark.parametrize("fovy", [0.0, 180.0, -10.0])
+def test_from_mujoco_needs_a_field_of_view_between_0_and_180_degrees(fovy: float) -> None:
+    with pytest.raises(CalibrationError, match=r"^fovy_deg must be in \(0, 180\), got"):
+        PinholeCamera.from_mujoco(fovy, 64, 48, np.zeros(3), np.eye(3).ravel())
+
+
+def test_distorted_pixels_that_are_nan_stay_nan(distorted_camera: PinholeCamera) -> None:
+    xn = distorted_camera.normalized_coords([[320.0, 240.0], [np.nan, 10.0]])
+    assert np.isfinite(xn[0]).all() and np.isnan(xn[1]).all()
+    assert distorted_camera.normalized_coords(np.zeros((0, 2))).shape == (0, 2)

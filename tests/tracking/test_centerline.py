@@ -247,3 +247,98 @@ def test_a_hook_into_a_blob_before_a_crack_is_cut_and_the_walk_goes_on() -> None
     cv2.circle(m2, (150, 157), 5, 1, -1)
     assert np.hypot(*(extract_centerline(m2, 21, anchor_uv=np.array([40.0, 40.0])).nodes_uv[-1]
                       - [150.0, 157.0])) < 4.0
+
+
+# ------------------------------------------------------------------ the path's ends and its nodes, by hand
+def _straight(x0: float, x1: float, y: float = 50.0, m: int = 101) -> np.ndarray:
+    return np.column_stack([np.linspace(x0, x1, m), np.full(m, y)])
+
+
+def test_nodes_are_spread_over_the_path_or_the_expected_length() -> None:
+    from dyndlo_vision.tracking.centerline import nodes_from_path
+
+    path = _straight(10.0, 110.0)  # 100 px
+    vis = np.ones(100, dtype=bool)
+    cl = nodes_from_path(path, vis, 11, None, (100, 200), 2.0)
+    np.testing.assert_allclose(cl.nodes_uv[:, 0], 10.0 + 10.0 * np.arange(11))
+    assert cl.visible.all() and cl.length_px == pytest.approx(100.0) and cl.width_px == 2.0
+    # A known cable of 120 px: nodes every 12 px, those past the 100 px seen are invisible and NaN.
+    cl = nodes_from_path(path, vis, 11, 120.0, (100, 200), 2.0)
+    np.testing.assert_allclose(cl.nodes_uv[:9, 0], 10.0 + 12.0 * np.arange(9))
+    assert np.isnan(cl.nodes_uv[9:]).all() and cl.visible.tolist() == [True] * 9 + [False] * 2
+    # Within 3.5 % of the known length the path is the whole cable: nodes spread over it.
+    cl = nodes_from_path(path, vis, 11, 103.0, (100, 200), 2.0)
+    np.testing.assert_allclose(cl.nodes_uv[-1], [110.0, 50.0]) and cl.visible.all()
+    cl = nodes_from_path(path, vis, 11, 104.0, (100, 200), 2.0)  # 3.8 % short: the tip is not seen
+    assert not cl.visible[-1]
+    # A node on a segment marked invisible (a bridged gap) is invisible.
+    gap = vis.copy()
+    gap[45:55] = False
+    cl = nodes_from_path(path, gap, 11, None, (100, 200), 2.0)
+    assert cl.visible.tolist() == [True] * 5 + [False] + [True] * 5
+    # Fewer than two points, or no length: nothing seen.
+    assert not nodes_from_path(path[:1], vis[:0], 5, None, (100, 200), 2.0).any_visible
+    assert not nodes_from_path(np.zeros((3, 2)), vis[:2], 5, None, (100, 200), 2.0).any_visible
+
+
+@pytest.mark.parametrize(
+    ("x0", "x1", "start", "end"),
+    [
+        # Width 2 px: the margin is 2 px + half a width = 3 px from the first/last pixel centre (0 and 199).
+        (3.0, 196.0, False, False),
+        (2.9, 196.1, True, True),
+        (50.0, 150.0, False, False),
+    ],
+)
+def test_the_path_ends_touch_the_border_within_the_margin(x0: float, x1: float, start: bool, end: bool):
+    from dyndlo_vision.tracking.centerline import nodes_from_path
+
+    cl = nodes_from_path(_straight(x0, x1), np.ones(100, dtype=bool), 5, None, (100, 200), 2.0)
+    assert (cl.start_at_border, cl.end_at_border) == (start, end)
+    # Rows too: a vertical path from v = 3 to v = 96 in a 100-row image keeps clear of both borders.
+    vertical = np.column_stack([np.full(101, 100.0), np.linspace(3.0, 96.0, 101)])
+    cl = nodes_from_path(vertical, np.ones(100, dtype=bool), 5, None, (100, 200), 2.0)
+    assert not cl.start_at_border and not cl.end_at_border
+    cl = nodes_from_path(vertical + [0.0, 0.5], np.ones(100, dtype=bool), 5, None, (100, 200), 2.0)
+    assert cl.end_at_border and not cl.start_at_border
+
+
+def test_a_reversed_centerline_starts_at_the_other_end() -> None:
+    from dyndlo_vision.tracking.centerline import nodes_from_path
+
+    path = _straight(1.0, 101.0)
+    vis = np.ones(100, dtype=bool)
+    vis[:10] = False
+    cl = nodes_from_path(path, vis, 11, None, (100, 200), 2.0)
+    assert cl.start_at_border and not cl.end_at_border
+    back = cl.reversed()
+    np.testing.assert_allclose(back.nodes_uv[:, 0], 101.0 - 10.0 * np.arange(11))
+    assert cl.visible.tolist() == [False] + [True] * 10  # a node takes the segment starting at it
+    assert back.visible.tolist() == [True] * 9 + [False] * 2
+    assert (back.start_at_border, back.end_at_border) == (False, True)  # the flags swap with the ends
+    assert back.width_px == 2.0 and back.length_px == pytest.approx(100.0)
+    longer = cl.reversed(expected_length_px=200.0, image_shape=(100, 200))
+    assert np.isnan(longer.nodes_uv[-1]).all() and not longer.start_at_border and longer.end_at_border
+    single = Centerline(np.zeros((3, 2)), np.ones(3, dtype=bool), 0.0)
+    assert single.reversed() is single
+
+
+def test_turn_angles_and_directions_by_hand() -> None:
+    from dyndlo_vision.tracking.centerline import _angle_deg, _Branch, _direction, _perfect_matchings
+
+    assert _angle_deg(np.array([1.0, 0.0]), np.array([0.0, 2.0])) == pytest.approx(90.0)
+    assert _angle_deg(np.array([1.0, 1.0]), np.array([-3.0, -3.0])) == pytest.approx(180.0)
+    assert _angle_deg(np.array([1.0, 0.0]), np.array([1.0, 1e-9])) == pytest.approx(0.0, abs=1e-6)
+    assert _angle_deg(np.zeros(2), np.array([1.0, 0.0])) == 180.0
+    assert _angle_deg(np.array([1.0, 0.0]), np.zeros(2)) == 180.0
+    # A branch along +u, then turning to +v after 10 px: leaving end 0 it heads along +u, end 1 along -v.
+    pts = np.vstack([np.column_stack([np.arange(11.0), np.zeros(11)]),
+                     np.column_stack([np.full(10, 10.0), np.arange(1.0, 11.0)])])
+    b = _Branch(pts, [0, 1])
+    np.testing.assert_allclose(_direction(b, 0, 0.0, 6.0), [1.0, 0.0])
+    np.testing.assert_allclose(_direction(b, 1, 0.0, 6.0), [0.0, -1.0])
+    # Skipping 2 px at the far end still measures along the last leg; a zero-length branch has no direction.
+    np.testing.assert_allclose(_direction(b, 1, 2.0, 4.0), [0.0, -1.0])
+    np.testing.assert_array_equal(_direction(_Branch(np.zeros((2, 2)), [0, 0]), 0, 0.0, 6.0), [0.0, 0.0])
+    assert _perfect_matchings([0, 1, 2, 3]) == [[(0, 1), (2, 3)], [(0, 2), (1, 3)], [(0, 3), (1, 2)]]
+    assert _perfect_matchings([]) == [[]]

@@ -113,6 +113,8 @@ def test_decode_rejects_bad_actions(action: np.ndarray, match: str) -> None:
 def test_decode_rejects_bad_start() -> None:
     with pytest.raises(ValueError, match=r"start_position must have shape \(3,\)"):
         ActionSpec().decode(np.zeros(12), np.zeros(2), 0.0)
+    with pytest.raises(ValueError, match=r"^start_position must be finite, got \[0\.0, nan, 1\.0\]$"):
+        ActionSpec().decode(np.zeros(12), [0.0, np.nan, 1.0], 0.0)
     with pytest.raises(ValueError, match=r"start_time must be finite"):
         ActionSpec().decode(np.zeros(12), np.zeros(3), float("nan"))
 
@@ -162,3 +164,34 @@ def test_decoded_actions_build_valid_trajectories() -> None:
         traj = BSplineTrajectory(points, times)
         t = np.linspace(traj.t_start, traj.t_end, 200)
         np.testing.assert_allclose(traj.position(t)[:, 1], 0.0, atol=1e-12)  # planar stays planar
+
+
+def test_encode_checks_points_and_times_shapes_each() -> None:
+    spec = ActionSpec(num_points=1)
+    with pytest.raises(ValueError, match=r"got shapes \(3, 3\)/\(2,\)$"):
+        spec.encode(np.zeros((3, 3)), [0.0, 0.2])
+    with pytest.raises(ValueError, match=r"got shapes \(2, 3\)/\(3,\)$"):
+        spec.encode(np.zeros((2, 3)), [0.0, 0.2, 0.4])
+
+
+def test_encode_accepts_rounding_up_to_its_tolerance_and_clips_into_the_box() -> None:
+    """Round trips through floats land a hair outside the ranges: up to 1e-9 (the tolerance) is accepted and
+    clipped to exactly -1 or 1; more is refused. The same for a planar spec's dy."""
+    tol = 1e-9
+    spec = ActionSpec(num_points=1, dx_m=(-0.3, 0.3), dt_s=(0.1, 0.6))
+    lo_dt, hi_dx = 0.1 - tol, 0.3 + tol  # the comparison's own bounds, computed as the code does
+    a = spec.encode([[0.0, 0.0, 0.0], [hi_dx, 0.0, 0.0]], [0.0, lo_dt])
+    assert a[0] == 1.0 and a[3] == -1.0  # exactly: clipped, not 1 + 3e-9
+    assert np.all(np.abs(a) <= 1.0)
+    a = spec.encode([[0.0, 0.0, 0.0], [-0.3 - 0.5 * tol, 0.0, 0.0]], [0.0, 0.6 + 0.5 * tol])
+    assert a[0] == -1.0 and a[3] == 1.0
+    with pytest.raises(ValueError, match="action entry 0"):
+        spec.encode([[0.0, 0.0, 0.0], [0.3 + 3 * tol, 0.0, 0.0]], [0.0, 0.2])
+    with pytest.raises(ValueError, match="action entry 3"):
+        spec.encode([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]], [0.0, 0.1 - 3 * tol])
+    planar = ActionSpec(num_points=2, planar=True)
+    ok = planar.encode([[0.0, 0.0, 0.0], [0.1, tol, 0.0], [0.2, tol, 0.0]], [0.0, 0.2, 0.4])
+    flat = planar.encode([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.2, 0.0, 0.0]], [0.0, 0.2, 0.4])
+    np.testing.assert_allclose(ok, flat)
+    with pytest.raises(ValueError, match=r"planar ActionSpec needs dy = 0, got dy = \[0\.0, 0\.05\]"):
+        planar.encode([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.2, 0.05, 0.1]], [0.0, 0.2, 0.4])
