@@ -131,13 +131,16 @@ def main() -> int:
     parser.add_argument("--args", default="", help="more track arguments, e.g. \"--segmenter learned\"; "
                         "{tcp} stands for the video's TCP log")
     parser.add_argument("--out", help="JSON file of the results")
-    parser.add_argument("--quick", action="store_true", help="two short development videos, 3 s of seeds 3 and 9 (a smoke test)")
+    parser.add_argument("--quick", action="store_true",
+                        help="two short development videos, 3 s of seeds 3 and 9 (a smoke test)")
     args = parser.parse_args()
     seeds = _seeds(args.seeds)
     allowed = SEALED_SEEDS if args.sealed else DEV_SEEDS
     if seeds.start not in allowed or seeds.stop - 1 not in allowed:
-        raise SystemExit(f"--seeds {args.seeds} is outside the {'sealed' if args.sealed else 'development'} "
-                         f"range {allowed.start}:{allowed.stop}")
+        raise SystemExit(
+            f"--seeds {args.seeds} is outside the {'sealed' if args.sealed else 'development'} "
+            f"range {allowed.start}:{allowed.stop}"
+        )
     max_seconds = None
     if args.quick:
         seeds, max_seconds = [3, 9], 3.0  # two scenes the cable is seen in, long enough to learn its length
@@ -178,16 +181,32 @@ def main() -> int:
     accel = np.concatenate(accelerations)
     total["tip_accel_p99_m_s2"] = round(float(np.percentile(accel, 99)), 1)
     total["tip_accel_max_m_s2"] = round(float(accel.max()), 1)
-    breakdown = {name: {value: summarise({k: np.concatenate(v) for k, v in group.items()})
-                        for value, group in sorted(groups.items())} for name, groups in by_factor.items()}
+    breakdown = {
+        name: {
+            value: summarise({k: np.concatenate(v) for k, v in group.items()})
+            for value, group in sorted(groups.items())
+        }
+        for name, groups in by_factor.items()
+    }
     print(_table("all videos", {"all": total}))
     for name, groups in breakdown.items():
         print(_table(name, groups))
     if args.out:
-        Path(args.out).write_text(json.dumps({
-            "command": " ".join(sys.argv), "machine": platform.platform(), "sealed": args.sealed,
-            "seeds": f"{seeds.start}:{seeds.stop}" if isinstance(seeds, range) else list(seeds),
-            "track_args": args.args, "all": total, "breakdown": breakdown, "videos": per_video}, indent=1))
+        Path(args.out).write_text(
+            json.dumps(
+                {
+                    "command": " ".join(sys.argv),
+                    "machine": platform.platform(),
+                    "sealed": args.sealed,
+                    "seeds": f"{seeds.start}:{seeds.stop}" if isinstance(seeds, range) else list(seeds),
+                    "track_args": args.args,
+                    "all": total,
+                    "breakdown": breakdown,
+                    "videos": per_video,
+                },
+                indent=1,
+            )
+        )
     ok = total["frames"] > 0 and not math.isnan(float(total["measured_share"] or 0))
     return 0 if ok else 1
 

@@ -34,16 +34,17 @@ PERCEPTION = {
 #: Benchmarks other people own right now (the batched environment's throughput): listed in
 #: benchmarks/README.md, not yet held to the rules above.
 OWNED_ELSEWHERE = {"chain_speed.py", "sim_speed.py", "training_speed.py", "paper_model_speed.py"}
-#: The batched environment's throughput: tests/benchmarks/test_throughput_benchmarks.py runs their quick modes;
-#: the mutation runner: tests/test_mutation.py.
+#: The batched environment's throughput: tests/benchmarks/test_throughput_benchmarks.py runs their quick
+#: modes; the mutation runner: tests/test_mutation.py.
 THROUGHPUT = {"env_throughput.py", "env_profile.py", "time_to_tip_control.py", "warp_backend.py"}
 TOOLS = {"mutation.py"}
 
 
 def test_every_benchmark_is_maintained_or_owned_elsewhere_and_listed() -> None:
     scripts = {p.name for p in BENCHMARKS.glob("*.py")}
-    assert scripts - set(MAINTAINED) - PERCEPTION - OWNED_ELSEWHERE - THROUGHPUT - TOOLS == set(), \
+    assert scripts - set(MAINTAINED) - PERCEPTION - OWNED_ELSEWHERE - THROUGHPUT - TOOLS == set(), (
         "a new benchmark needs --quick and a row here"
+    )
     readme = (BENCHMARKS / "README.md").read_text()
     for name in scripts:
         assert f"`{name}`" in readme, f"benchmarks/README.md does not list {name}"
@@ -74,7 +75,11 @@ def test_a_maintained_benchmark_runs_in_its_quick_mode(name: str, tmp_path: Path
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     done = subprocess.run(
         [sys.executable, str(BENCHMARKS / name), *(a.format(tmp=tmp_path) for a in args)],
-        capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+        cwd=tmp_path,
     )
     assert done.returncode == 0, done.stderr[-3000:]
     assert re.search(expected, done.stdout), done.stdout[-3000:]

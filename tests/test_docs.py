@@ -1,5 +1,6 @@
-"""The user docs: every relative link and anchor resolves, the README stays short, and the docs and the package
-say what is true now (no session or issue journal; nothing in the package points into the dated history)."""
+"""The user docs: every relative link and anchor resolves, the README stays short, and the docs and the
+package say what is true now (no session or issue journal; nothing in the package points into the dated
+history)."""
 
 from __future__ import annotations
 
@@ -53,8 +54,10 @@ def test_relative_links_resolve(doc: Path) -> None:
 
 
 def test_the_checker_finds_a_broken_link_and_a_broken_anchor(tmp_path: Path) -> None:
-    (tmp_path / "a.md").write_text("# Title\n\n## A section\n\n[ok](#a-section) [bad](b.md) [anchor](#nope)\n"
-                                   "```\n[in code](ignored.md)\n```\n")
+    (tmp_path / "a.md").write_text(
+        "# Title\n\n## A section\n\n[ok](#a-section) [bad](b.md) [anchor](#nope)\n"
+        "```\n[in code](ignored.md)\n```\n"
+    )
     found = links(tmp_path / "a.md")
     assert found == ["#a-section", "b.md", "#nope"]
     assert anchors(tmp_path / "a.md") == {"title", "a-section"}

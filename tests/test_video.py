@@ -10,7 +10,6 @@ import cv2
 import numpy as np
 import pytest
 
-from dyndlo_vision import _video
 from dyndlo_vision._video import VideoWriter, write_video_atomic
 
 

@@ -16,12 +16,13 @@ across the video (any static background, a moving cable), or one colour per fram
 it.
 
 CSV columns ``frame,time_s,visible,u,v,x,y,z,x_meas,y_meas,z_meas,status``: ``status`` is ``measured`` (this
-frame's measurement of the point, accepted by the filter), ``continued`` (this frame's cable continued straight
-to a hidden tip by the missing length, with ``--cable-length``), ``predicted`` (the filter's prediction: no
-accepted measurement this frame) or ``lost`` (no estimate); ``visible`` is 1 exactly when the status is
-measured or continued. ``u,v`` is the measured pixel (empty when not measured); ``x,y,z`` is the filtered world
-position (m) at the frame's time, empty without ``--calib`` and while lost; ``x_meas,y_meas,z_meas`` is this
-frame's measured world position, unfiltered (empty when not measured or without ``--calib``).
+frame's measurement of the point, accepted by the filter), ``continued`` (this frame's cable continued
+straight to a hidden tip by the missing length, with ``--cable-length``), ``predicted`` (the filter's
+prediction: no accepted measurement this frame) or ``lost`` (no estimate); ``visible`` is 1 exactly when the
+status is measured or continued. ``u,v`` is the measured pixel (empty when not measured); ``x,y,z`` is the
+filtered world position (m) at the frame's time, empty without ``--calib`` and while lost;
+``x_meas,y_meas,z_meas`` is this frame's measured world position, unfiltered (empty when not measured or
+without ``--calib``).
 
 **Two cameras** (``--second-video`` with ``--second-calib``): a cable that leaves any one plane (thrown,
 vaulted, whipped out of plane) cannot be placed by one camera. With a second camera's video of the same
@@ -71,7 +72,8 @@ T = TypeVar("T")
 HELP = "track a cable in a video or image folder and write the tracked point per frame to CSV"
 
 #: Pixel-mode filter settings are the world ones times this scale (a cable filling a 640 px wide image from
-#: about a metre away spans roughly 500 px per metre; :data:`~dyndlo_vision.tracking.pipeline.NOMINAL_PX_PER_M`).
+#: about a metre away spans roughly 500 px per metre;
+#: :data:`~dyndlo_vision.tracking.pipeline.NOMINAL_PX_PER_M`).
 _PX_PER_M_NOMINAL = 500.0
 #: Frames sampled across the video for ``--background median`` (and ``auto``).
 _MEDIAN_FRAMES = 64
@@ -90,8 +92,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("video", metavar="VIDEO", help="video file OpenCV can read, or a folder of images")
     p.add_argument("--out", required=True, metavar="TRACK.csv", help="CSV to write (folder must exist)")
     p.add_argument(
-        "--calib", metavar="CALIB.json",
-        help="camera calibration (PinholeCamera JSON); needs --plane, or a second camera (--second-video)"
+        "--calib",
+        metavar="CALIB.json",
+        help="camera calibration (PinholeCamera JSON); needs --plane, or a second camera (--second-video)",
     )
     p.add_argument(
         "--plane",
@@ -105,9 +108,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "both at the same time, at the same frame rate. The cable is tracked in both and triangulated, so it "
         "may move in 3D; needs --calib and --second-calib, and replaces --plane",
     )
-    p.add_argument("--second-calib", metavar="CALIB2.json",
-                   help="the second camera's calibration, in the same world frame as --calib (e.g. both from "
-                   "`dyndlo-vision calibrate --extrinsic` with one board lying at one pose)")
+    p.add_argument(
+        "--second-calib",
+        metavar="CALIB2.json",
+        help="the second camera's calibration, in the same world frame as --calib (e.g. both from "
+        "`dyndlo-vision calibrate --extrinsic` with one board lying at one pose)",
+    )
     p.add_argument("--second-anchor", metavar="U,V", help="--anchor for the second video")
     p.add_argument(
         "--segmenter",
@@ -123,7 +129,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="learned: each frame's shorter side is resized to this before the network (default: the "
         "network's own: 240 for cable-segmenter, 480 for the other two). For a cable 1-3 px wide, enlarge: "
-        "720 for a 640x480 video (docs/RESULTS.md, \"The loop network at 1.5x\")",
+        '720 for a 640x480 video (docs/RESULTS.md, "The loop network at 1.5x")',
     )
     p.add_argument(
         "--segmenter-model",
@@ -172,7 +178,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "tip is measured from the first frame (without it, once the length is learned from the video). With "
         "--point tip and the held end placed by --tcp-log or the clicked gripper's appearance, a polyline "
         "shorter than that is continued straight by the missing length (status continued) when at least 80%% "
-        "of it is seen; otherwise a short one is not measured (visible=0). With two cameras, --point FRACTION "
+        "of it is seen; otherwise a short one is not measured (visible=0). With two cameras, --point "
+        "FRACTION "
         "is that share of the length along the triangulated cable",
     )
     p.add_argument(
@@ -215,8 +222,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--sigma-accel",
         type=float,
         help=f"the filter's acceleration noise, m/s^2, in pixel mode px/s^2 (default: a continuous white "
-        f"acceleration of {TRACK_FILTER.sigma_accel:g} m/s^2 per 40 ms, what a whipped tip does; in pixel mode "
-        f"{TRACK_FILTER.sigma_accel * _PX_PER_M_NOMINAL:g} px/s^2). A value given here is a piecewise-constant "
+        f"acceleration of {TRACK_FILTER.sigma_accel:g} m/s^2 per 40 ms, what a whipped tip does; in pixel "
+        f"mode "
+        f"{TRACK_FILTER.sigma_accel * _PX_PER_M_NOMINAL:g} px/s^2). A value given here is a "
+        f"piecewise-constant "
         "acceleration of that deviation: lower values smooth more and lag a fast tip",
     )
     p.add_argument(
@@ -319,8 +328,9 @@ def read_tcp_log(path: Path) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     return table[:, 0], table[:, 1:]
 
 
-def tcp_at(times: NDArray[np.float64], positions: NDArray[np.float64], t: float,
-           tolerance_s: float) -> NDArray[np.float64] | None:
+def tcp_at(
+    times: NDArray[np.float64], positions: NDArray[np.float64], t: float, tolerance_s: float
+) -> NDArray[np.float64] | None:
     """The TCP at time ``t``, linear between log rows; None more than ``tolerance_s`` outside the log."""
     if t < times[0] - tolerance_s or t > times[-1] + tolerance_s:
         return None
@@ -486,14 +496,17 @@ def _settings(args: argparse.Namespace) -> _Settings:
     from dyndlo_vision.tracking.tracker import Plane
 
     if hsv is not None:
-        segmenter = SegmenterConfig("hsv", hsv_lower=tuple(int(c) for c in hsv[0]),
-                                    hsv_upper=tuple(int(c) for c in hsv[1]))
+        segmenter = SegmenterConfig(
+            "hsv", hsv_lower=tuple(int(c) for c in hsv[0]), hsv_upper=tuple(int(c) for c in hsv[1])
+        )
     elif args.segmenter == "learned":
-        segmenter = SegmenterConfig("learned", model=None if model is None else str(model),
-                                    short_side=args.short_side)
+        segmenter = SegmenterConfig(
+            "learned", model=None if model is None else str(model), short_side=args.short_side
+        )
     else:
-        segmenter = SegmenterConfig("background", background=str(args.background or "auto"),
-                                    open_radius=int(args.open_radius))
+        segmenter = SegmenterConfig(
+            "background", background=str(args.background or "auto"), open_radius=int(args.open_radius)
+        )
     pipeline = PipelineConfig(
         segmenter=segmenter,
         nodes=int(args.nodes),
@@ -513,8 +526,9 @@ def _settings(args: argparse.Namespace) -> _Settings:
         second_video=second_video,
         second_calib=None if args.second_calib is None else Path(args.second_calib),
         anchor=None if args.anchor is None else parse_floats(args.anchor, 2, "--anchor"),
-        second_anchor=None if args.second_anchor is None else parse_floats(
-            args.second_anchor, 2, "--second-anchor"),
+        second_anchor=None
+        if args.second_anchor is None
+        else parse_floats(args.second_anchor, 2, "--second-anchor"),
         tcp_log=tcp_log,
         fps=_positive(args.fps, "--fps"),
         quiet=bool(args.quiet),
@@ -657,8 +671,9 @@ def _frame_pairs(first: Any, second: Any, cfg: _Settings) -> Iterable[list[Frame
         )
 
 
-
-def _build_pipeline(cfg: _Settings, cameras: list[Any], sources: list[Any]) -> tuple[CablePipeline, list[str]]:
+def _build_pipeline(
+    cfg: _Settings, cameras: list[Any], sources: list[Any]
+) -> tuple[CablePipeline, list[str]]:
     """The pipeline of the run and each view's background kind; a median background is learned from frames
     sampled across each video (read once more)."""
     from dyndlo_vision.cameras.files import VideoFileCamera
@@ -675,7 +690,8 @@ def _build_pipeline(cfg: _Settings, cameras: list[Any], sources: list[Any]) -> t
             if seg.background == "auto" and 0 < len(frames) < MIN_BACKGROUND_FRAMES:
                 print(
                     f"note: {video} has {len(frames)} frames, too few to learn its background from "
-                    f"(--background auto needs {MIN_BACKGROUND_FRAMES}); estimating one background colour per "
+                    f"(--background auto needs {MIN_BACKGROUND_FRAMES}); estimating one background colour "
+                    f"per "
                     "frame",
                     file=sys.stderr,
                 )
@@ -684,11 +700,18 @@ def _build_pipeline(cfg: _Settings, cameras: list[Any], sources: list[Any]) -> t
         if frames is None and seg.kind == "background" and seg.background == "median":
             base, kind = build_segmenter(replace(seg, background="frame"))
         else:
-            base, kind = build_segmenter(seg, frame_size=(source.width, source.height), background_frames=frames)
+            base, kind = build_segmenter(
+                seg, frame_size=(source.width, source.height), background_frames=frames
+            )
         gripper = 0.0 if cfg.tcp_log is not None else None  # its radius follows the gripper's depth
-        segmenters.append(build_view_segmenter(base, gripper_radius_px=gripper,
-                                               max_width_share=cfg.pipeline.max_width_share,
-                                               max_width_ratio=cfg.pipeline.max_width_ratio))
+        segmenters.append(
+            build_view_segmenter(
+                base,
+                gripper_radius_px=gripper,
+                max_width_share=cfg.pipeline.max_width_share,
+                max_width_ratio=cfg.pipeline.max_width_ratio,
+            )
+        )
         kinds.append(kind)
     anchors = [cfg.anchor, cfg.second_anchor][: len(cameras)]
     return CablePipeline(cfg.pipeline, cameras, segmenters, anchors), kinds
@@ -701,8 +724,12 @@ def _csv_row(frame: Frame, result: FrameResult, world: bool) -> list[object]:
     uv = result.point_uv if seen and result.point_uv is not None else np.full(2, np.nan)
     xyz = est.position if (world and not est.lost) else np.full(3, np.nan)
     meas = result.point if (seen and world) else np.full(3, np.nan)
-    return ([frame.index, f"{frame.t_capture:.6f}", int(seen)] + [_fmt(float(c), 3) for c in uv]
-            + [_fmt(float(c), 6) for c in (*xyz, *meas)] + [result.status.value])
+    return (
+        [frame.index, f"{frame.t_capture:.6f}", int(seen)]
+        + [_fmt(float(c), 3) for c in uv]
+        + [_fmt(float(c), 6) for c in (*xyz, *meas)]
+        + [result.status.value]
+    )
 
 
 def _node_rows(frame: Frame, result: FrameResult, world: bool) -> list[list[object]]:
@@ -713,8 +740,11 @@ def _node_rows(frame: Frame, result: FrameResult, world: bool) -> list[list[obje
         seen = bool(meas.visible[k])
         uv = meas.nodes_uv[k] if seen else np.full(2, np.nan)
         xyz = meas.nodes_xyz[k] if seen and world else np.full(3, np.nan)
-        rows.append([frame.index, f"{frame.t_capture:.6f}", k, int(seen and np.all(np.isfinite(uv)))]
-                    + [_fmt(float(c), 3) for c in uv] + [_fmt(float(c), 6) for c in xyz])
+        rows.append(
+            [frame.index, f"{frame.t_capture:.6f}", k, int(seen and np.all(np.isfinite(uv)))]
+            + [_fmt(float(c), 3) for c in uv]
+            + [_fmt(float(c), 6) for c in xyz]
+        )
     return rows
 
 
@@ -735,8 +765,14 @@ def _annotated(frames: list[Frame], result: FrameResult, pipeline: CablePipeline
         gripper = view.segmenter.gripper
         if gripper is not None and gripper.center_uv is not None:  # the masked gripper, outlined
             u, v = gripper.center_uv
-            rgb = cv2.circle(rgb.copy(), (int(round(u)), int(round(v))), int(round(gripper.radius_px)),
-                             (0, 0, 255), 1, cv2.LINE_AA)
+            rgb = cv2.circle(
+                rgb.copy(),
+                (int(round(u)), int(round(v))),
+                int(round(gripper.radius_px)),
+                (0, 0, 255),
+                1,
+                cv2.LINE_AA,
+            )
         point_uv = cov_uv = None
         if not est.lost:
             if view.camera is not None:
@@ -750,11 +786,26 @@ def _annotated(frames: list[Frame], result: FrameResult, pipeline: CablePipeline
         else:
             nodes = visible = None
         why = f" ({result.reason})" if result.reason else ""
-        status = (f"frame {frame.index}  point {result.status.value}{why}  nodes "
-                  f"{int(result.measurement.visible.sum())}/{len(result.measurement.visible)}") if k == 0 else ""
-        images.append(annotate_frame(rgb, nodes, visible, point_uv=point_uv, point_cov_uv=cov_uv,
-                                     point_measured=result.status.seen, t=frame.t_capture if k == 0 else None,
-                                     status=status))
+        status = (
+            (
+                f"frame {frame.index}  point {result.status.value}{why}  nodes "
+                f"{int(result.measurement.visible.sum())}/{len(result.measurement.visible)}"
+            )
+            if k == 0
+            else ""
+        )
+        images.append(
+            annotate_frame(
+                rgb,
+                nodes,
+                visible,
+                point_uv=point_uv,
+                point_cov_uv=cov_uv,
+                point_measured=result.status.seen,
+                t=frame.t_capture if k == 0 else None,
+                status=status,
+            )
+        )
     return images[0] if len(images) == 1 else inset_view(images[0], images[1])
 
 
@@ -816,8 +867,11 @@ def _run(args: argparse.Namespace) -> int:
             try:
                 with (
                     open(temps[0], "w", newline="", encoding="utf-8") as f,
-                    (open(temps[-1], "w", newline="", encoding="utf-8") if cfg.nodes_out is not None
-                     else contextlib.nullcontext()) as nodes_file,
+                    (
+                        open(temps[-1], "w", newline="", encoding="utf-8")
+                        if cfg.nodes_out is not None
+                        else contextlib.nullcontext()
+                    ) as nodes_file,
                     tqdm(
                         total=source.frame_count,
                         unit="frame",
@@ -841,14 +895,19 @@ def _run(args: argparse.Namespace) -> int:
                             result = pipeline.step([f.rgb for f in frames], frame.t_capture, held_world=tcp)
                         except ValueError as exc:
                             raise ValueError(f"{cfg.video} frame {frame.index}: {exc}") from exc
-                        if pipeline.n_frames == 1 or (pipeline.first_view_rule and not getattr(
-                                pipeline, "_rule_printed", False) and result.views[0].centerline is not None):
+                        if pipeline.n_frames == 1 or (
+                            pipeline.first_view_rule
+                            and not getattr(pipeline, "_rule_printed", False)
+                            and result.views[0].centerline is not None
+                        ):
                             _note_first_rule(pipeline, result, frame, cfg)
                         rows.writerow(_csv_row(frame, result, world))
                         if node_rows is not None:
                             node_rows.writerows(_node_rows(frame, result, world))
                         if writer is not None:
-                            writer.write(cv2.cvtColor(_annotated(frames, result, pipeline), cv2.COLOR_RGB2BGR))
+                            writer.write(
+                                cv2.cvtColor(_annotated(frames, result, pipeline), cv2.COLOR_RGB2BGR)
+                            )
                         progress.update(1)
             finally:
                 if writer is not None:
@@ -868,35 +927,54 @@ def _note_first_rule(pipeline: CablePipeline, result: FrameResult, frame: Frame,
     if cl is None:
         return
     u0, v0 = cl.path_uv[0]
-    print(f"note: no --anchor; took {pipeline.first_view_rule}, at pixel ({u0:.0f}, {v0:.0f}) in frame "
-          f"{frame.index} of {cfg.video}, as the held end", file=sys.stderr)
+    print(
+        f"note: no --anchor; took {pipeline.first_view_rule}, at pixel ({u0:.0f}, {v0:.0f}) in frame "
+        f"{frame.index} of {cfg.video}, as the held end",
+        file=sys.stderr,
+    )
     pipeline._rule_printed = True  # type: ignore[attr-defined]
 
 
-def _print_summary(cfg: _Settings, pipeline: CablePipeline, kinds: list[str], n_without_tcp: int,
-                   destinations: list[Path], world: bool) -> None:
+def _print_summary(
+    cfg: _Settings,
+    pipeline: CablePipeline,
+    kinds: list[str],
+    n_without_tcp: int,
+    destinations: list[Path],
+    world: bool,
+) -> None:
     """What the run did, and why frames were not measured."""
     n = pipeline.n_frames
-    zone_frames = max((v.segmenter.shape.frames_with_zone for v in pipeline.views if v.segmenter.shape), default=0)
+    zone_frames = max(
+        (v.segmenter.shape.frames_with_zone for v in pipeline.views if v.segmenter.shape), default=0
+    )
     if zone_frames:
-        shape_rule = ("" if cfg.pipeline.max_width_ratio is None
-                      else f", or than {cfg.pipeline.max_width_ratio:g} times the cable's width (--max-width-ratio)")
+        shape_rule = (
+            ""
+            if cfg.pipeline.max_width_ratio is None
+            else f", or than {cfg.pipeline.max_width_ratio:g} times the cable's width (--max-width-ratio)"
+        )
         hint = "; if the background is static, try --background median" if kinds[0] == "frame" else ""
         print(
-            f"note: in {zone_frames} of {n} frames the segmentation ({kinds[0]}) found regions too thick to be "
+            f"note: in {zone_frames} of {n} frames the segmentation ({kinds[0]}) found regions too thick to "
+            f"be "
             f"cable (wider than {100 * _MAX_CABLE_WIDTH_SHARE:g}% of the image's shorter side{shape_rule}), "
             f"which were ignored{hint}",
             file=sys.stderr,
         )
     if cfg.tcp_log is not None:
         print(
-            f"note: --tcp-log: the gripper was masked and taken as the held end in {n - n_without_tcp} of {n} "
+            f"note: --tcp-log: the gripper was masked and taken as the held end in {n - n_without_tcp} of "
+            f"{n} "
             "frames" + (f"; {n_without_tcp} frames lie outside the log's time span" if n_without_tcp else ""),
             file=sys.stderr,
         )
     if cfg.pipeline.cable_length_m is not None:
-        print(f"note: --cable-length {cfg.pipeline.cable_length_m:g} m: the tip was continued past the "
-              f"polyline's end in {pipeline.n_continued} frames", file=sys.stderr)
+        print(
+            f"note: --cable-length {cfg.pipeline.cable_length_m:g} m: the tip was continued past the "
+            f"polyline's end in {pipeline.n_continued} frames",
+            file=sys.stderr,
+        )
     if pipeline.reasons:
         why = "; ".join(f"{reason} ({count})" for reason, count in pipeline.reasons.most_common())
         print(f"note: not measured in {sum(pipeline.reasons.values())} frames: {why}", file=sys.stderr)

@@ -96,7 +96,9 @@ class LoopPerception:
         if self.segmenter is not None and not isinstance(self.segmenter, SegmenterConfig):
             raise ValueError(f"segmenter must be a SegmenterConfig (or None), got {self.segmenter!r}")
         if self.segmenter is not None and self.segmenter.kind not in LOOP_SEGMENTERS:
-            raise ValueError(f"the loop's segmenter {self.segmenter.kind!r}; expected one of {list(LOOP_SEGMENTERS)}")
+            raise ValueError(
+                f"the loop's segmenter {self.segmenter.kind!r}; expected one of {list(LOOP_SEGMENTERS)}"
+            )
         if self.views not in (None, 1, 2):
             raise ValueError(f"views={self.views!r}; expected 1 or 2 (or None)")
         if checked_latency_s(self.latency_s) > MAX_LATENCY_S:
@@ -114,8 +116,9 @@ def loop_segmenter(kind: str, model: str | None = None, scale: float | None = No
     if kind not in LOOP_SEGMENTERS:
         raise ValueError(f"segmenter={kind!r}; expected one of {list(LOOP_SEGMENTERS)}")
     if kind == "learned":
-        return SegmenterConfig("learned", model=model or LOOP_NAME,
-                               scale=LOOP_NETWORK_SCALE if scale is None else scale)
+        return SegmenterConfig(
+            "learned", model=model or LOOP_NAME, scale=LOOP_NETWORK_SCALE if scale is None else scale
+        )
     return SegmenterConfig("background", model=model, scale=scale)
 
 
@@ -160,11 +163,15 @@ def scene_views(env: Any) -> int:
     return 2 if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, SECOND_TRACKING_CAMERA_NAME) >= 0 else 1
 
 
-def loop_pipeline_config(scene: Any, point: float, segmenter: SegmenterConfig, filter_params: FilterParams,
-                         ) -> PipelineConfig:
-    """What the loop's pipeline does in ``scene`` (a :class:`~dyndlo_vision.sim.Scene`): the cable's length and
-    nodes, the motion plane and the floor (raised by the cable's radius: where the cable lies on it, off the
-    motion plane, a lift onto the plane would put it under the floor), the gripper masked around the TCP,
+def loop_pipeline_config(
+    scene: Any,
+    point: float,
+    segmenter: SegmenterConfig,
+    filter_params: FilterParams,
+) -> PipelineConfig:
+    """What the loop's pipeline does in ``scene`` (a :class:`~dyndlo_vision.sim.Scene`): the cable's length
+    and nodes, the motion plane and the floor (raised by the cable's radius: where the cable lies on it, off
+    the motion plane, a lift onto the plane would put it under the floor), the gripper masked around the TCP,
     the learned segmenter looking only within the cable's reach, and no shape test (the gripper is masked)."""
     cable = scene.config.cable
     learned = segmenter.kind == "learned"
@@ -190,17 +197,30 @@ def view_segmenter(config: PipelineConfig, camera: Any, calibration: Any, backgr
     that render: a camera's first render and a process's first network pass at the frame's size take 3-5x
     their usual time, up to 52 ms together, which would overrun cycle 0's deadline)."""
     seg = config.segmenter
-    base, _ = build_segmenter(seg, frame_size=(calibration.width, calibration.height), background_image=background)
+    base, _ = build_segmenter(
+        seg, frame_size=(calibration.width, calibration.height), background_image=background
+    )
     if seg.kind == "learned":
         base.segment(camera.read().rgb)
     reach = None if config.reach_margin_m is None else config.cable_length_m + config.reach_margin_m
-    return build_view_segmenter(base, camera=calibration, reach_m=reach, follow_px=config.follow_px,
-                                gripper_radius_px=0.0, max_width_share=config.max_width_share,
-                                max_width_ratio=config.max_width_ratio)
+    return build_view_segmenter(
+        base,
+        camera=calibration,
+        reach_m=reach,
+        follow_px=config.follow_px,
+        gripper_radius_px=0.0,
+        max_width_share=config.max_width_share,
+        max_width_ratio=config.max_width_ratio,
+    )
 
 
-def tracked_state(env: Any, camera_name: str = "tracking", perception: LoopPerception | None = None,
-                  width: int = 640, height: int = 480) -> tuple[TrackedState, MujocoCamera]:
+def tracked_state(
+    env: Any,
+    camera_name: str = "tracking",
+    perception: LoopPerception | None = None,
+    width: int = 640,
+    height: int = 480,
+) -> tuple[TrackedState, MujocoCamera]:
     """A :class:`TrackedState` on the MuJoCo cameras of ``env`` (call after ``env.reset``).
 
     ``perception`` (default :class:`LoopPerception()`) names the segmenter, the views, the camera's latency
@@ -217,8 +237,10 @@ def tracked_state(env: Any, camera_name: str = "tracking", perception: LoopPerce
     available = scene_views(env)
     views = available if perception.views is None else perception.views
     if views > available:
-        raise ValueError(f"views=2 needs a scene with a {SECOND_TRACKING_CAMERA_NAME!r} camera; this one has "
-                         "only one loop camera")
+        raise ValueError(
+            f"views=2 needs a scene with a {SECOND_TRACKING_CAMERA_NAME!r} camera; this one has "
+            "only one loop camera"
+        )
     segmenter = perception.segmenter or loop_segmenter(DEFAULT_LOOP_SEGMENTER[available])
     latency_s = perception.latency_s
     base = as_sim_env(env)
@@ -233,9 +255,10 @@ def tracked_state(env: Any, camera_name: str = "tracking", perception: LoopPerce
     names = ["tracking" if camera_name is None else camera_name, SECOND_TRACKING_CAMERA_NAME][:views]
     cameras = [MujocoCamera(base.model, base.data, name, width=width, height=height) for name in names]
     calibrations = [c.calibration for c in cameras]
-    segmenters = [view_segmenter(config, cam, calib, None if segmenter.kind == "learned"
-                                 else render_without_cable(cam))
-                  for cam, calib in zip(cameras, calibrations, strict=True)]
+    segmenters = [
+        view_segmenter(config, cam, calib, None if segmenter.kind == "learned" else render_without_cable(cam))
+        for cam, calib in zip(cameras, calibrations, strict=True)
+    ]
     pipeline = CablePipeline(config, calibrations, segmenters)
     frames = [DelayedCamera(c, latency_s) if latency_s > 0 else c for c in cameras]
     not_yet_arrived = math.ceil(latency_s / CONTROL_PERIOD_S - 1e-9)

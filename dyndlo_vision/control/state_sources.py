@@ -133,7 +133,8 @@ class NoisyState:
 
 
 class TrackedState:
-    """P_DLO from camera frames: the perception pipeline run on each frame, predicted to the controller's time.
+    """P_DLO from camera frames: the perception pipeline run on each frame, predicted to the controller's
+    time.
 
     Each :meth:`read` grabs a frame from every camera, runs :class:`~dyndlo_vision.tracking.pipeline.
     CablePipeline` on them at their capture time with the held end where the robot says the gripper was then
@@ -257,12 +258,18 @@ class TrackedState:
             gap = max(abs(float(f.t_capture) - float(frames[0].t_capture)) for f in frames)
             if gap > self.max_sync_s:
                 self.unsynchronised_pairs += 1
-                log.warning("the cameras' frames are %.1f ms apart (at most %.1f ms): not matched",
-                            1e3 * gap, 1e3 * self.max_sync_s)
-                self.last_result = result = self.pipeline.skip(t_capture, "the cameras' frames are not in sync")
+                log.warning(
+                    "the cameras' frames are %.1f ms apart (at most %.1f ms): not matched",
+                    1e3 * gap,
+                    1e3 * self.max_sync_s,
+                )
+                self.last_result = result = self.pipeline.skip(
+                    t_capture, "the cameras' frames are not in sync"
+                )
             else:
-                self.last_result = result = self.pipeline.step([f.rgb for f in frames], t_capture,
-                                                               held_world=held, depth=frames[0].depth)
+                self.last_result = result = self.pipeline.step(
+                    [f.rgb for f in frames], t_capture, held_world=held, depth=frames[0].depth
+                )
             stage.update(result.stage_ms)
             measured = result.status.seen
             continued = result.status is Status.CONTINUED
@@ -273,5 +280,6 @@ class TrackedState:
         est = self.pipeline.estimate(t_now)
         stage["filter"] += 1e3 * (time.perf_counter() - t3)
         lost = bool(est.lost or self.missing_frames > self.max_missing_frames)
-        return PDloReading(est.position, t_now, measured, lost, stage, pixel, polyline, frames[0],
-                           continued=continued)
+        return PDloReading(
+            est.position, t_now, measured, lost, stage, pixel, polyline, frames[0], continued=continued
+        )

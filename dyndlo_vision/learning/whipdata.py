@@ -230,14 +230,21 @@ def sample_spec(seed: int, duration_s: float = 6.0) -> WhipSpec:
     distance = half_h / math.tan(math.radians(fovy / 2))
     look_at = (home[0] + float(rng.uniform(-0.05, 0.05)), 0.0, home[1] - 0.55 * length)
     cable_colour = _choice(rng, list(_PALETTE))
-    cable_rgb = tuple(float(c) for c in np.clip(np.array(_PALETTE[cable_colour]) * rng.uniform(0.85, 1.1), 0, 1))
+    shade = rng.uniform(0.85, 1.1)
+    cable_rgb = tuple(float(c) for c in np.clip(np.array(_PALETTE[cable_colour]) * shade, 0, 1))
     f_px = 0.5 * height / math.tan(math.radians(fovy / 2))
     width_px = float(np.exp(rng.uniform(math.log(1.5), math.log(12.0))))
     radius = width_px * distance / (2 * f_px)
-    gripper_colour = _choice(rng, ["same-as-cable", "black", "dark-grey", "grey", "white", "orange", "blue",
-                                   "metal"])
-    gripper_rgb = (cable_rgb if gripper_colour == "same-as-cable" else (0.6, 0.62, 0.65) if gripper_colour ==
-                   "metal" else _PALETTE[gripper_colour])
+    gripper_colour = _choice(
+        rng, ["same-as-cable", "black", "dark-grey", "grey", "white", "orange", "blue", "metal"]
+    )
+    gripper_rgb = (
+        cable_rgb
+        if gripper_colour == "same-as-cable"
+        else (0.6, 0.62, 0.65)
+        if gripper_colour == "metal"
+        else _PALETTE[gripper_colour]
+    )
     wall_kind = _choice(rng, ["plain", "textured", "cluttered"], [0.3, 0.35, 0.35])
     wall_rgb = tuple(float(c) for c in rng.uniform(0.25, 0.9, 3))
     if rng.random() < 0.15:  # a wall in the cable's own colour
@@ -252,26 +259,47 @@ def sample_spec(seed: int, duration_s: float = 6.0) -> WhipSpec:
     light[2] = -abs(light[2]) - 0.3  # from above
     light /= np.linalg.norm(light)
     return WhipSpec(
-        seed=int(seed), fps=fps, width=int(width), height=int(height), camera_distance_m=float(distance),
+        seed=int(seed),
+        fps=fps,
+        width=int(width),
+        height=int(height),
+        camera_distance_m=float(distance),
         camera_yaw_deg=float(rng.uniform(-35, 35) if rng.random() < 0.6 else rng.uniform(-8, 8)),
         camera_pitch_deg=float(rng.uniform(-20, 20) if rng.random() < 0.5 else rng.uniform(-5, 5)),
-        fovy_deg=fovy, look_at_m=look_at, wall_kind=wall_kind, wall_distance_m=float(rng.uniform(0.25, 1.2)),
-        wall_rgb=wall_rgb, cable_length_m=length, cable_radius_m=float(radius),
-        cable_segments=int(rng.integers(16, 31)), cable_rgb=cable_rgb, cable_colour=cable_colour,
-        cable_specular=float(rng.uniform(0.0, 0.8)), cable_stiffness=float(np.exp(rng.uniform(-1.5, 1.5))),
+        fovy_deg=fovy,
+        look_at_m=look_at,
+        wall_kind=wall_kind,
+        wall_distance_m=float(rng.uniform(0.25, 1.2)),
+        wall_rgb=wall_rgb,
+        cable_length_m=length,
+        cable_radius_m=float(radius),
+        cable_segments=int(rng.integers(16, 31)),
+        cable_rgb=cable_rgb,
+        cable_colour=cable_colour,
+        cable_specular=float(rng.uniform(0.0, 0.8)),
+        cable_stiffness=float(np.exp(rng.uniform(-1.5, 1.5))),
         cable_damping=float(np.exp(rng.uniform(math.log(0.004), math.log(0.04)))),
         gripper_shape=_choice(rng, ["sphere", "block", "fingers", "flange"]),
-        gripper_size_m=float(rng.uniform(0.02, 0.05)), gripper_rgb=tuple(float(c) for c in gripper_rgb),
-        arm=bool(rng.random() < 0.5), home_m=home, light_dir=tuple(float(c) for c in light),
-        light_diffuse=float(rng.uniform(0.4, 1.0)), ambient=float(rng.uniform(0.15, 0.5)),
-        shadows=bool(rng.random() < 0.7), exposure_fraction=exposure, gain=float(rng.uniform(0.75, 1.3)),
-        gamma=float(rng.uniform(0.8, 1.25)), noise_sigma=float(rng.uniform(0.0, 6.0)),
+        gripper_size_m=float(rng.uniform(0.02, 0.05)),
+        gripper_rgb=tuple(float(c) for c in gripper_rgb),
+        arm=bool(rng.random() < 0.5),
+        home_m=home,
+        light_dir=tuple(float(c) for c in light),
+        light_diffuse=float(rng.uniform(0.4, 1.0)),
+        ambient=float(rng.uniform(0.15, 0.5)),
+        shadows=bool(rng.random() < 0.7),
+        exposure_fraction=exposure,
+        gain=float(rng.uniform(0.75, 1.3)),
+        gamma=float(rng.uniform(0.8, 1.25)),
+        noise_sigma=float(rng.uniform(0.0, 6.0)),
         defocus_px=float(0.0 if rng.random() < 0.6 else rng.uniform(0.5, 1.5)),
-        jpeg_quality=int(rng.integers(35, 96)), occluder=occluder,
+        jpeg_quality=int(rng.integers(35, 96)),
+        occluder=occluder,
         occluder_x_m=float(home[0] + rng.uniform(-0.6, 0.6) * length),
         occluder_width_m=float(rng.uniform(0.02, 0.08) if occluder == "post" else rng.uniform(0.1, 0.25)),
         occluder_rgb=tuple(float(c) for c in rng.uniform(0.1, 0.9, 3)),
-        occluder_window_s=(t_in, t_in + float(rng.uniform(0.2, 0.5)) * total), motion=motion,
+        occluder_window_s=(t_in, t_in + float(rng.uniform(0.2, 0.5)) * total),
+        motion=motion,
     )
 
 
@@ -288,7 +316,9 @@ def _wall_texture(spec: WhipSpec, rng: np.random.Generator, size: int = 1024) ->
     if spec.wall_kind in ("textured", "cluttered"):
         texture = _choice(rng, ["wood", "brick", "fabric", "noise"])
         if texture == "wood":
-            grain = 0.5 + 0.5 * np.sin(xx / rng.uniform(3, 9) + rng.uniform(2, 5) * np.sin(yy / rng.uniform(30, 90)))
+            grain = 0.5 + 0.5 * np.sin(
+                xx / rng.uniform(3, 9) + rng.uniform(2, 5) * np.sin(yy / rng.uniform(30, 90))
+            )
             planks = ((xx // rng.uniform(90, 200)) % 2).astype(np.float32)
             img *= (0.75 + 0.25 * grain + 0.08 * planks)[..., None]
         elif texture == "brick":
@@ -300,15 +330,22 @@ def _wall_texture(spec: WhipSpec, rng: np.random.Generator, size: int = 1024) ->
             img *= tint[row, (shifted // bw).astype(int)][..., None]
             img[mortar] = 0.5 * img[mortar] + 0.5 * 200
         elif texture == "fabric":
-            weave = 0.5 + 0.25 * np.sin(xx * rng.uniform(0.8, 1.6)) + 0.25 * np.sin(yy * rng.uniform(0.8, 1.6))
+            weave = (
+                0.5 + 0.25 * np.sin(xx * rng.uniform(0.8, 1.6)) + 0.25 * np.sin(yy * rng.uniform(0.8, 1.6))
+            )
             img *= (0.8 + 0.25 * weave)[..., None]
         else:
-            noise = cv2.resize(rng.uniform(0.7, 1.2, (size // 16, size // 16)).astype(np.float32), (size, size),
-                               interpolation=cv2.INTER_CUBIC)
+            noise = cv2.resize(
+                rng.uniform(0.7, 1.2, (size // 16, size // 16)).astype(np.float32),
+                (size, size),
+                interpolation=cv2.INTER_CUBIC,
+            )
             img *= noise[..., None]
     if spec.wall_kind == "cluttered":
         for _ in range(int(rng.integers(8, 30))):
-            colour = (rng.uniform(0, 255, 3) if rng.random() < 0.8 else np.array(spec.cable_rgb) * 255).tolist()
+            colour = (
+                rng.uniform(0, 255, 3) if rng.random() < 0.8 else np.array(spec.cable_rgb) * 255
+            ).tolist()
             x0, y0 = (float(v) for v in rng.uniform(0, size, 2))
             shape = _choice(rng, ["rect", "circle", "line", "shelf", "poster"])
             if shape == "rect":
@@ -318,7 +355,9 @@ def _wall_texture(spec: WhipSpec, rng: np.random.Generator, size: int = 1024) ->
                 cv2.circle(img, (int(x0), int(y0)), int(rng.uniform(8, 80)), colour, -1, cv2.LINE_AA)
             elif shape == "line":  # a thin curve: a cable-like distractor on the wall
                 pts = np.cumsum(rng.normal(0, 25, (8, 2)), axis=0) + (x0, y0)
-                cv2.polylines(img, [pts.astype(np.int32)], False, colour, int(rng.integers(1, 6)), cv2.LINE_AA)
+                cv2.polylines(
+                    img, [pts.astype(np.int32)], False, colour, int(rng.integers(1, 6)), cv2.LINE_AA
+                )
             elif shape == "shelf":
                 cv2.rectangle(img, (0, int(y0)), (size, int(y0 + rng.uniform(6, 20))), colour, -1)
             else:
@@ -326,8 +365,8 @@ def _wall_texture(spec: WhipSpec, rng: np.random.Generator, size: int = 1024) ->
                 poster = rng.uniform(0, 255, (4, 4, 3)).astype(np.float32)
                 patch = cv2.resize(poster, (int(w), int(h)), interpolation=cv2.INTER_NEAREST)
                 ys, xs = int(y0), int(x0)
-                ph, pw = img[ys:ys + patch.shape[0], xs:xs + patch.shape[1]].shape[:2]
-                img[ys:ys + ph, xs:xs + pw] = patch[:ph, :pw]
+                ph, pw = img[ys : ys + patch.shape[0], xs : xs + patch.shape[1]].shape[:2]
+                img[ys : ys + ph, xs : xs + pw] = patch[:ph, :pw]
     return np.clip(img, 0, 255).astype(np.uint8)
 
 
@@ -356,20 +395,27 @@ def _gripper_geoms(spec: WhipSpec) -> str:
     if spec.gripper_shape == "sphere":
         geoms = f'<geom name="grip_0" type="sphere" size="{s:.5g}" {common}/>'
     elif spec.gripper_shape == "block":
-        geoms = f'<geom name="grip_0" type="box" size="{_fmt([s, s * 0.8, s * 1.2])}" pos="0 0 {s * 0.6:.5g}" {common}/>'
+        size = _fmt([s, s * 0.8, s * 1.2])
+        geoms = f'<geom name="grip_0" type="box" size="{size}" pos="0 0 {s * 0.6:.5g}" {common}/>'
     elif spec.gripper_shape == "fingers":
-        geoms = (f'<geom name="grip_0" type="box" size="{_fmt([s * 1.3, s * 0.7, s * 0.5])}" pos="0 0 {s:.5g}" '
-                 f'{common}/>'
-                 f'<geom name="grip_1" type="box" size="{_fmt([s * 0.25, s * 0.5, s * 0.9])}" '
-                 f'pos="{_fmt([-s * 0.6, 0, 0])}" {common}/>'
-                 f'<geom name="grip_2" type="box" size="{_fmt([s * 0.25, s * 0.5, s * 0.9])}" '
-                 f'pos="{_fmt([s * 0.6, 0, 0])}" {common}/>')
+        geoms = (
+            f'<geom name="grip_0" type="box" size="{_fmt([s * 1.3, s * 0.7, s * 0.5])}" pos="0 0 {s:.5g}" '
+            f"{common}/>"
+            f'<geom name="grip_1" type="box" size="{_fmt([s * 0.25, s * 0.5, s * 0.9])}" '
+            f'pos="{_fmt([-s * 0.6, 0, 0])}" {common}/>'
+            f'<geom name="grip_2" type="box" size="{_fmt([s * 0.25, s * 0.5, s * 0.9])}" '
+            f'pos="{_fmt([s * 0.6, 0, 0])}" {common}/>'
+        )
     else:  # a flange: a short thick cylinder across the view
-        geoms = (f'<geom name="grip_0" type="cylinder" size="{_fmt([s * 1.1, s * 0.5])}" pos="0 0 {s * 0.5:.5g}" '
-                 f'{common}/>')
+        geoms = (
+            f'<geom name="grip_0" type="cylinder" size="{_fmt([s * 1.1, s * 0.5])}" pos="0 0 {s * 0.5:.5g}" '
+            f"{common}/>"
+        )
     if spec.arm:
-        geoms += (f'<geom name="grip_arm" type="capsule" fromto="0 0 {s:.5g} {_fmt([0.25, 0.05, 1.2])}" '
-                  f'size="{s * 0.9:.5g}" {common}/>')
+        geoms += (
+            f'<geom name="grip_arm" type="capsule" fromto="0 0 {s:.5g} {_fmt([0.25, 0.05, 1.2])}" '
+            f'size="{s * 0.9:.5g}" {common}/>'
+        )
     return geoms
 
 
@@ -383,13 +429,19 @@ def _chain(spec: WhipSpec) -> tuple[str, float]:
     ei = 2e-3 * spec.cable_stiffness * (spec.cable_length_m / 0.5) ** 2
     k = ei / seg
     damping = spec.cable_damping * k + 2e-5
-    geom = (f'type="capsule" fromto="0 0 0 0 0 {-seg:.6g}" size="{r:.6g}" mass="{mass:.6g}" material="cable" '
-            'contype="0" conaffinity="0" group="0"')
+    geom = (
+        f'type="capsule" fromto="0 0 0 0 0 {-seg:.6g}" size="{r:.6g}" mass="{mass:.6g}" material="cable" '
+        'contype="0" conaffinity="0" group="0"'
+    )
     opening, closing = [], []
     for i in range(n):
         pos = f'pos="0 0 {-seg:.6g}"' if i else 'pos="0 0 0"'
-        joint = (f'<joint name="hinge_{i}" type="hinge" axis="0 1 0" stiffness="{k:.6g}" damping="{damping:.6g}" '
-                 f'armature="1e-7"/>' if i else "")
+        joint = (
+            f'<joint name="hinge_{i}" type="hinge" axis="0 1 0" stiffness="{k:.6g}" damping="{damping:.6g}" '
+            f'armature="1e-7"/>'
+            if i
+            else ""
+        )
         opening.append(f'<body name="cable_{i}" {pos}>{joint}<geom name="cable_{i}" {geom}/>')
         closing.append("</body>")
     opening.append(f'<body name="tip" pos="0 0 {-seg:.6g}"><site name="tip"/></body>')
@@ -407,24 +459,29 @@ def build_model(spec: WhipSpec) -> Any:
     light = np.array(spec.light_dir)
     occ = ""
     if spec.occluder == "post":
-        occ = (f'<geom name="occ" type="capsule" fromto="{_fmt([spec.occluder_x_m, -0.12, -1])} '
-               f'{_fmt([spec.occluder_x_m + 0.1, -0.12, 3])}" size="{spec.occluder_width_m / 2:.5g}" '
-               f'rgba="{_fmt((*spec.occluder_rgb, 1))}" contype="0" conaffinity="0" group="0"/>')
+        occ = (
+            f'<geom name="occ" type="capsule" fromto="{_fmt([spec.occluder_x_m, -0.12, -1])} '
+            f'{_fmt([spec.occluder_x_m + 0.1, -0.12, 3])}" size="{spec.occluder_width_m / 2:.5g}" '
+            f'rgba="{_fmt((*spec.occluder_rgb, 1))}" contype="0" conaffinity="0" group="0"/>'
+        )
     elif spec.occluder == "board":
-        occ = (f'<body name="board" mocap="true" pos="-9 -0.15 {hz:.4g}"><geom name="occ" type="box" '
-               f'size="{_fmt([spec.occluder_width_m / 2, 0.01, 1.5])}" rgba="{_fmt((*spec.occluder_rgb, 1))}" '
-               f'contype="0" conaffinity="0" group="0"/></body>')
+        occ = (
+            f'<body name="board" mocap="true" pos="-9 -0.15 {hz:.4g}"><geom name="occ" type="box" '
+            f'size="{_fmt([spec.occluder_width_m / 2, 0.01, 1.5])}" rgba="{_fmt((*spec.occluder_rgb, 1))}" '
+            f'contype="0" conaffinity="0" group="0"/></body>'
+        )
     xml = f"""<mujoco model="whip">
   <option timestep="{_DT}" integrator="implicitfast" gravity="0 0 -9.81"><flag contact="disable"/></option>
   <asset>
-    <material name="cable" rgba="{_fmt((*spec.cable_rgb, 1))}" specular="{spec.cable_specular:.3g}" shininess="0.7"/>
+    <material name="cable" rgba="{_fmt((*spec.cable_rgb, 1))}" specular="{spec.cable_specular:.3g}"
+              shininess="0.7"/>
     <material name="gripper" rgba="{_fmt((*spec.gripper_rgb, 1))}" specular="0.6" shininess="0.6"/>
   </asset>
   <visual><global offwidth="{spec.width}" offheight="{spec.height}"/><quality shadowsize="1024"/>
     <headlight ambient="{_fmt([spec.ambient] * 3)}" diffuse="0.15 0.15 0.15" specular="0 0 0"/></visual>
   <worldbody>
     <light name="key" directional="true" dir="{_fmt(light)}" diffuse="{_fmt([spec.light_diffuse] * 3)}"
-           specular="0.3 0.3 0.3" castshadow="{'true' if spec.shadows else 'false'}"/>
+           specular="0.3 0.3 0.3" castshadow="{"true" if spec.shadows else "false"}"/>
     <camera name="cam" pos="{_fmt(cam_pos)}" xyaxes="{_fmt(xyaxes)}" fovy="{spec.fovy_deg:.6g}"/>
     <geom name="wall" type="box" size="4 0.01 3" pos="0 {spec.wall_distance_m:.4g} 0.6" material="wall"
           contype="0" conaffinity="0"/>
@@ -444,8 +501,13 @@ def build_model(spec: WhipSpec) -> Any:
 </mujoco>"""
     mspec = mujoco.MjSpec.from_string(xml)
     tex_img = _wall_texture(spec, rng)
-    tex = mspec.add_texture(name="wall", type=mujoco.mjtTexture.mjTEXTURE_2D, width=tex_img.shape[1],
-                            height=tex_img.shape[0], nchannel=3)
+    tex = mspec.add_texture(
+        name="wall",
+        type=mujoco.mjtTexture.mjTEXTURE_2D,
+        width=tex_img.shape[1],
+        height=tex_img.shape[0],
+        nchannel=3,
+    )
     tex.data = np.ascontiguousarray(tex_img[::-1]).tobytes()
     mat = mspec.add_material(name="wall")
     mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "wall"
@@ -578,8 +640,9 @@ def _camera_effects(spec: WhipSpec, img: NDArray[np.float32], rng: np.random.Gen
     return cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1].copy() if ok else out
 
 
-def render_video(spec: WhipSpec, max_frames: int | None = None) -> tuple[list[NDArray[np.uint8]], WhipTruth,
-                                                                             Any]:
+def render_video(
+    spec: WhipSpec, max_frames: int | None = None
+) -> tuple[list[NDArray[np.uint8]], WhipTruth, Any]:
     """Simulates and renders ``spec``: the frames (RGB uint8), their truth, and the camera's
     :class:`~dyndlo_vision.tracking.camera_model.PinholeCamera`."""
     import mujoco
@@ -593,8 +656,9 @@ def render_video(spec: WhipSpec, max_frames: int | None = None) -> tuple[list[ND
     seg_renderer.enable_segmentation_rendering()
     cam_id = m.camera("cam").id
     mujoco.mj_forward(m, d)
-    calib = PinholeCamera.from_mujoco(spec.fovy_deg, spec.width, spec.height, d.cam_xpos[cam_id],
-                                      d.cam_xmat[cam_id], fps=spec.fps)
+    calib = PinholeCamera.from_mujoco(
+        spec.fovy_deg, spec.width, spec.height, d.cam_xpos[cam_id], d.cam_xmat[cam_id], fps=spec.fps
+    )
     rng = np.random.default_rng([spec.seed, 23])
     period = 1.0 / spec.fps
     exposure = spec.exposure_fraction * period
@@ -609,8 +673,8 @@ def render_video(spec: WhipSpec, max_frames: int | None = None) -> tuple[list[ND
         times, blur = [t_mid], 0.0
         if exposure > 0:
             # The tip's path on the image during the exposure, every physics step, sets how many instants the
-            # frame averages: about one per 3 px of travel (odd, so that the middle one is the time stamp), so a
-            # fast tip leaves a continuous smear rather than separate copies.
+            # frame averages: about one per 3 px of travel (odd, so that the middle one is the time stamp), so
+            # a fast tip leaves a continuous smear rather than separate copies.
             sim.step_to(max(0.0, t_mid - exposure / 2))
             state = sim.save()
             path = [calib.project(sim.nodes()[-1][None])[0]]
@@ -635,16 +699,29 @@ def render_video(spec: WhipSpec, max_frames: int | None = None) -> tuple[list[ND
     renderer.close()
     seg_renderer.close()
     truth = WhipTruth(
-        t=np.array([r[0] for r in rows]), tip=np.array([r[1] for r in rows]), tcp=np.array([r[2] for r in rows]),
-        nodes=np.array([r[3] for r in rows]), tip_uv=np.array([r[4] for r in rows]),
-        tcp_uv=np.array([r[5] for r in rows]), tip_in_view=np.array([r[6] for r in rows], dtype=bool),
-        blur_px=np.array([r[7] for r in rows]), cable_mask=np.array([r[8] for r in rows], dtype=bool),
+        t=np.array([r[0] for r in rows]),
+        tip=np.array([r[1] for r in rows]),
+        tcp=np.array([r[2] for r in rows]),
+        nodes=np.array([r[3] for r in rows]),
+        tip_uv=np.array([r[4] for r in rows]),
+        tcp_uv=np.array([r[5] for r in rows]),
+        tip_in_view=np.array([r[6] for r in rows], dtype=bool),
+        blur_px=np.array([r[7] for r in rows]),
+        cable_mask=np.array([r[8] for r in rows], dtype=bool),
     )
     return frames, truth, calib
 
 
-def _truth_row(sim: _Sim, calib: Any, seg_renderer: Any, cam_id: int, spec: WhipSpec, occ_geoms: set[int],
-               cable_geoms: NDArray[np.int64], t: float) -> tuple[Any, ...]:
+def _truth_row(
+    sim: _Sim,
+    calib: Any,
+    seg_renderer: Any,
+    cam_id: int,
+    spec: WhipSpec,
+    occ_geoms: set[int],
+    cable_geoms: NDArray[np.int64],
+    t: float,
+) -> tuple[Any, ...]:
     import mujoco
 
     nodes = sim.nodes()
@@ -668,14 +745,18 @@ def _truth_row(sim: _Sim, calib: Any, seg_renderer: Any, cam_id: int, spec: Whip
 
 def write_video(spec: WhipSpec, out_dir: Path, max_frames: int | None = None) -> dict[str, Path]:
     """Renders ``spec`` into ``out_dir``: ``video.mp4``, ``camera.json``, ``tcp.csv`` (``time_s,x,y,z`` at the
-    frame times), ``truth.npz`` (:class:`WhipTruth`), ``spec.json``, and ``frame0.png``. Returns their paths."""
+    frame times), ``truth.npz`` (:class:`WhipTruth`), ``spec.json``, and ``frame0.png``. Returns their
+    paths."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     frames, truth, calib = render_video(spec, max_frames)
-    paths = {name: out_dir / name for name in ("video.mp4", "camera.json", "tcp.csv", "truth.npz", "spec.json",
-                                               "frame0.png")}
-    writer = cv2.VideoWriter(str(paths["video.mp4"]), cv2.VideoWriter.fourcc(*"mp4v"), spec.fps,
-                             (spec.width, spec.height))
+    paths = {
+        name: out_dir / name
+        for name in ("video.mp4", "camera.json", "tcp.csv", "truth.npz", "spec.json", "frame0.png")
+    }
+    writer = cv2.VideoWriter(
+        str(paths["video.mp4"]), cv2.VideoWriter.fourcc(*"mp4v"), spec.fps, (spec.width, spec.height)
+    )
     if not writer.isOpened():
         raise OSError(f"OpenCV cannot write {paths['video.mp4']}")
     try:
@@ -704,8 +785,9 @@ def load_truth(path: Path) -> WhipTruth:
     with np.load(path) as z:
         fields = {k: z[k] for k in WhipTruth.__dataclass_fields__ if k in z}
         if "cable_mask_bits" in z:
-            fields["cable_mask"] = np.unpackbits(z["cable_mask_bits"], axis=-1,
-                                                 count=int(z["mask_width"])).astype(bool)
+            fields["cable_mask"] = np.unpackbits(
+                z["cable_mask_bits"], axis=-1, count=int(z["mask_width"])
+            ).astype(bool)
         return WhipTruth(**fields)
 
 
@@ -731,8 +813,9 @@ def motion_kind(spec: WhipSpec, t: NDArray[np.float64]) -> NDArray[np.str_]:
     return kinds.astype(str)
 
 
-def score_frames(truth: WhipTruth, calib: Any, reported_xyz: NDArray[np.float64],
-                 measured: NDArray[np.bool_]) -> dict[str, NDArray[Any]]:
+def score_frames(
+    truth: WhipTruth, calib: Any, reported_xyz: NDArray[np.float64], measured: NDArray[np.bool_]
+) -> dict[str, NDArray[Any]]:
     """Per-frame scores of a tracked tip against the truth.
 
     Args:
@@ -761,8 +844,12 @@ def score_frames(truth: WhipTruth, calib: Any, reported_xyz: NDArray[np.float64]
     tip_far = np.linalg.norm(truth.tip - truth.tcp, axis=1) >= FAR_FROM_GRIPPER_M
     ok = measured & finite
     return {
-        "err_m": err, "err_px": err_px, "measured": ok, "wrong": ok & (err > WRONG_M),
-        "gripper": ok & (to_gripper < ON_GRIPPER_M) & tip_far, "blurred": truth.blur_px > BLURRED_PX,
+        "err_m": err,
+        "err_px": err_px,
+        "measured": ok,
+        "wrong": ok & (err > WRONG_M),
+        "gripper": ok & (to_gripper < ON_GRIPPER_M) & tip_far,
+        "blurred": truth.blur_px > BLURRED_PX,
         "in_view": truth.tip_in_view.copy(),
     }
 
@@ -790,6 +877,7 @@ def summarise(frames: dict[str, NDArray[Any]]) -> dict[str, float | int | None]:
         "median_mm_blurred": median_mm(measured & blurred),
         "p90_mm_sharp": p90_mm(measured & ~blurred),
         "p90_mm_blurred": p90_mm(measured & blurred),
-        "median_px_measured": (round(float(np.median(frames["err_px"][measured])), 2) if measured.any()
-                               else None),
+        "median_px_measured": (
+            round(float(np.median(frames["err_px"][measured])), 2) if measured.any() else None
+        ),
     }

@@ -47,8 +47,8 @@ class IdentityParams:
             (p99), 4.1 m/s at most.
         min_gate_px: The held end's gate is at least this wide (and at least three cable widths).
         separation: Continuity decides when the other end is farther from the held end's prediction than
-            ``sqrt(d_near^2 + separation * gate^2)``: with the gate at three sigma, 1.5 is a Gaussian likelihood
-            ratio of 1000. Nearer, the registration (or the gripper's blob) decides.
+            ``sqrt(d_near^2 + separation * gate^2)``: with the gate at three sigma, 1.5 is a Gaussian
+            likelihood ratio of 1000. Nearer, the registration (or the gripper's blob) decides.
         min_order: Registration decides (or vetoes continuity) when the rank correlation of the registered
             nodes is at least this strong ...
         min_registered: ... and at least this many nodes registered.
@@ -73,8 +73,17 @@ class IdentityParams:
     coast_s: float = 0.06
 
     def __post_init__(self) -> None:
-        for name in ("max_accel_m_s2", "max_speed_m_s", "min_gate_px", "separation", "min_order", "register_widths", "lost_s",
-                     "max_gate_share", "coast_s"):
+        for name in (
+            "max_accel_m_s2",
+            "max_speed_m_s",
+            "min_gate_px",
+            "separation",
+            "min_order",
+            "register_widths",
+            "lost_s",
+            "max_gate_share",
+            "coast_s",
+        ):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number, got {value!r}")
@@ -97,8 +106,9 @@ def _ranks(x: NDArray[np.float64]) -> NDArray[np.float64]:
     return ranks
 
 
-def order_correlation(prev_nodes: NDArray[np.float64], path_uv: NDArray[np.float64],
-                      max_dist_px: float) -> tuple[float, int]:
+def order_correlation(
+    prev_nodes: NDArray[np.float64], path_uv: NDArray[np.float64], max_dist_px: float
+) -> tuple[float, int]:
     """How the last frame's nodes (ordered from the held end) lie along a new centreline path.
 
     Each finite node registers to its nearest point of ``path_uv`` when it lies within ``max_dist_px`` of it;
@@ -131,14 +141,16 @@ class HeldEnd:
 
     Args:
         params: The tuning.
-        px_per_m: The image scale near the cable (pixels per metre), which turns the gripper's acceleration and
+        px_per_m: The image scale near the cable (pixels per metre), which turns the gripper's acceleration
+        and
             speed into pixels.
     """
 
     def __init__(self, params: IdentityParams, px_per_m: float) -> None:
         self.params = params
         self.px_per_m = float(px_per_m)
-        #: Spectral density of the white acceleration (px^2/s^3): the gripper's largest acceleration per 40 ms.
+        #: Spectral density of the white acceleration (px^2/s^3): the gripper's largest acceleration per 40
+        #: ms.
         self.q = (params.max_accel_m_s2 * self.px_per_m) ** 2 * 0.04
         self.reset()
 
@@ -187,8 +199,13 @@ class HeldEnd:
         _, P = self._predicted(t)
         sigma = math.sqrt(float(np.linalg.eigvalsh(P[:2, :2])[-1]) + noise_px**2)
         dt = abs(t - self.t)
-        return float(min(max(3.0 * sigma, base), base + p.max_speed_m_s * dt * self.px_per_m,
-                         max(base, p.max_gate_share * cable_px)))
+        return float(
+            min(
+                max(3.0 * sigma, base),
+                base + p.max_speed_m_s * dt * self.px_per_m,
+                max(base, p.max_gate_share * cable_px),
+            )
+        )
 
     def update(self, uv: NDArray[np.float64], t: float, noise_px: float = 2.0) -> None:
         """The held end identified at ``uv`` at ``t`` (a lost track starts again there, at rest)."""
@@ -218,9 +235,15 @@ class Orientation:
     correlation: float = 0.0
 
 
-def orient(path_uv: NDArray[np.float64], held_uv: NDArray[np.float64] | None, gate_px: float,
-           prev_nodes: NDArray[np.float64] | None, register_px: float, params: IdentityParams,
-           held_shift: NDArray[np.float64] | None = None) -> Orientation:
+def orient(
+    path_uv: NDArray[np.float64],
+    held_uv: NDArray[np.float64] | None,
+    gate_px: float,
+    prev_nodes: NDArray[np.float64] | None,
+    register_px: float,
+    params: IdentityParams,
+    held_shift: NDArray[np.float64] | None = None,
+) -> Orientation:
     """Which end of ``path_uv`` is the held one.
 
     Args:
@@ -283,8 +306,15 @@ class GripperTemplate:
             distinctive.
     """
 
-    def __init__(self, rgb: NDArray[np.uint8], uv: NDArray[np.float64], size_px: int,
-                 min_score: float = 0.8, max_other_score: float = 0.6, min_margin: float = 0.1) -> None:
+    def __init__(
+        self,
+        rgb: NDArray[np.uint8],
+        uv: NDArray[np.float64],
+        size_px: int,
+        min_score: float = 0.8,
+        max_other_score: float = 0.6,
+        min_margin: float = 0.1,
+    ) -> None:
         import cv2
 
         self.size = int(size_px) | 1
@@ -302,7 +332,9 @@ class GripperTemplate:
             h, w = rgb.shape[:2]
             u, v = int(round(self.uv[0])), int(round(self.uv[1]))
             u0, v0, u1, v1 = max(0, u - s), max(0, v - s), min(w, u + s + 1), min(h, v + s + 1)
-            scores = cv2.matchTemplate(rgb[v0:v1, u0:u1].astype(np.float32), self.template, cv2.TM_CCOEFF_NORMED)
+            scores = cv2.matchTemplate(
+                rgb[v0:v1, u0:u1].astype(np.float32), self.template, cv2.TM_CCOEFF_NORMED
+            )
             vv, uu = np.mgrid[0 : scores.shape[0], 0 : scores.shape[1]]
             away = np.hypot(uu + u0 + r - u, vv + v0 + r - v) > self.size / 3
             if away.any() and float(scores[away].max()) > max_other_score:

@@ -96,7 +96,7 @@ LOOP_FILTER = FilterParams(sigma_accel=2000.0, accel_psd=2000.0**2 * 0.04)
 #: 2000 the estimate's p95 error per episode is 168 mm (40 ms) and 551 mm (80 ms), at 20 it is 93 and 160 mm
 #: with the lowest medians too (benchmarks/camera_latency.py, 20 episodes per row).
 LATENT_LOOP_FILTER = FilterParams(sigma_accel=20.0)
-#: ``dyndlo-vision track``'s filter (and :class:`~dyndlo_vision.tracking.pipeline.PipelineConfig`'s default): a
-#: whipped tip's acceleration at the frame rate, measured on the simulator's whips, with a continuous white
+#: ``dyndlo-vision track``'s filter (and :class:`~dyndlo_vision.tracking.pipeline.PipelineConfig`'s default):
+#: a whipped tip's acceleration at the frame rate, measured on the simulator's whips, with a continuous white
 #: acceleration so that a missed frame is bridged with a damped velocity (see :data:`LOOP_FILTER`).
 TRACK_FILTER = FilterParams(sigma_accel=2000.0, accel_psd=2000.0**2 * 0.04, reinit_speed=30.0)

@@ -39,7 +39,7 @@ import time
 from collections import Counter, deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from enum import Enum
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
@@ -62,7 +62,7 @@ __all__ = ["CablePipeline", "FrameResult", "PipelineConfig", "Status", "point_on
 NOMINAL_PX_PER_M = 500.0
 
 
-class Status(str, Enum):
+class Status(StrEnum):
     """What an estimate rests on (see the module docstring)."""
 
     MEASURED = "measured"
@@ -106,9 +106,10 @@ class PipelineConfig:
             from the cable alone, a shortfall may as well be at the held end (a cable cut below the gripper)
             as at the tip.
         min_seen_given: With a given length (``cable_length_m``) and the held end placed by the robot's pose
-            or the gripper's template, a shorter polyline is continued straight to the tip by the missing length when at least this share
-            of the cable is seen, else the tip is not measured: the hidden part bends, and in a whip a
-            straight continuation of a quarter of the cable missed the tip by up to 98 mm.
+            or the gripper's template, a shorter polyline is continued straight to the tip by the missing
+            length when at least this share of the cable is seen, else the tip is not measured: the hidden
+            part bends, and in a whip a straight continuation of a quarter of the cable missed the tip by up
+            to 98 mm.
         identity: The held end's identification (:class:`~dyndlo_vision.tracking.identity.IdentityParams`).
         learn_length_frames: The learned length is the longest length that at least ``min_length_frames``,
             and ``min_length_share``, of the last this many clean frames (both ends seen free, no gap bridged,
@@ -158,10 +159,14 @@ class PipelineConfig:
         if isinstance(self.nodes, bool) or not isinstance(self.nodes, int) or self.nodes < 2:
             raise ValueError(f"nodes must be an int of at least 2, got {self.nodes!r}")
         if not (isinstance(self.point, int | float) and 0.0 <= self.point <= 1.0):
-            raise ValueError(f"point must be a fraction of the cable in [0, 1] (1: the tip), got {self.point!r}")
+            raise ValueError(
+                f"point must be a fraction of the cable in [0, 1] (1: the tip), got {self.point!r}"
+            )
         for name in ("cable_length_m", "gripper_radius_m", "reach_margin_m"):
             value = getattr(self, name)
-            if value is not None and not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+            if value is not None and not (
+                isinstance(value, int | float) and math.isfinite(value) and value > 0
+            ):
                 raise ValueError(f"{name} must be a positive length in metres (or None), got {value!r}")
         if self.max_width_share is not None and not 0 < self.max_width_share <= 1:
             raise ValueError(f"max_width_share must be in (0, 1] (or None), got {self.max_width_share!r}")
@@ -174,8 +179,10 @@ class PipelineConfig:
             if not 0 < value < 1:
                 raise ValueError(f"{name} must be in (0, 1), got {value!r}")
         if self.min_length_frames < 1 or self.learn_length_frames < self.min_length_frames:
-            raise ValueError(f"need 1 <= min_length_frames <= learn_length_frames, got {self.min_length_frames}, "
-                             f"{self.learn_length_frames}")
+            raise ValueError(
+                f"need 1 <= min_length_frames <= learn_length_frames, got {self.min_length_frames}, "
+                f"{self.learn_length_frames}"
+            )
         if not 0.0 <= self.min_length_share <= 1.0:
             raise ValueError(f"min_length_share must be in [0, 1], got {self.min_length_share}")
         if self.min_length_poses < 1:
@@ -189,8 +196,9 @@ class PipelineConfig:
         return self.point == 1.0
 
 
-def point_on_nodes(nodes: NDArray[np.float64], visible: NDArray[np.bool_],
-                   fraction: float) -> NDArray[np.float64] | None:
+def point_on_nodes(
+    nodes: NDArray[np.float64], visible: NDArray[np.bool_], fraction: float
+) -> NDArray[np.float64] | None:
     """The point at ``fraction`` of the node chain (linear between the two nearest nodes), or None.
 
     Nodes are equally spaced along the cable, so node ``i`` of ``N`` is at fraction ``i / (N - 1)``. The point
@@ -206,8 +214,9 @@ def point_on_nodes(nodes: NDArray[np.float64], visible: NDArray[np.bool_],
     return (1.0 - w) * nodes[i0] + w * nodes[i0 + 1]
 
 
-def bridged_point(nodes: NDArray[np.float64], visible: NDArray[np.bool_],
-                  fraction: float) -> NDArray[np.float64] | None:
+def bridged_point(
+    nodes: NDArray[np.float64], visible: NDArray[np.bool_], fraction: float
+) -> NDArray[np.float64] | None:
     """An inner point on a bridged gap (nodes unseen there, seen on both sides), interpolated between the
     nearest seen nodes along the node index (the nodes are evenly spaced along the cable); None for a point
     at either end or without seen nodes on both sides."""
@@ -278,11 +287,13 @@ class _View:
     #: top of a throw, so a slow one upside down is not measured (its ends may be swapped).
     SLOW_LENGTHS_PER_S = 1.5
     #: A lost held end is found again at the upper end of a cable that is still (two frames), or slow for this
-    #: long: an upside-down cable falls, or is thrown, faster (it drops a third of a metre in a quarter second).
+    #: long: an upside-down cable falls, or is thrown, faster (it drops a third of a metre in a quarter
+    #: second).
     REACQUIRE_SLOW_S = 0.25
 
-    def __init__(self, camera: Any, segmenter: ViewSegmenter, anchor_uv: Any, config: PipelineConfig,
-                 px_per_m: float) -> None:
+    def __init__(
+        self, camera: Any, segmenter: ViewSegmenter, anchor_uv: Any, config: PipelineConfig, px_per_m: float
+    ) -> None:
         self.camera = camera
         self.segmenter = segmenter
         self.anchor = None if anchor_uv is None else np.asarray(anchor_uv, dtype=np.float64).reshape(2)
@@ -314,15 +325,19 @@ class _View:
         points at a quarter, half and three quarters of it, from either end: a flickering tip moves its ends
         and little else)."""
         s = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(cl.path_uv, axis=0).T))))
-        marks = np.array([np.interp(f * s[-1], s, cl.path_uv[:, k]) for f in (0.25, 0.5, 0.75) for k in (0, 1)])
+        marks = np.array(
+            [np.interp(f * s[-1], s, cl.path_uv[:, k]) for f in (0.25, 0.5, 0.75) for k in (0, 1)]
+        )
         marks = marks.reshape(3, 2)
         dt = t - self.still_t
         if self.prev_ends is None or len(self.prev_ends) != 3 or not 0 < dt <= 0.1:
             self.still_frames = self.slow_frames = 0
             self.slow_s = 0.0
         else:
-            moved = min(np.max(np.hypot(*(marks - self.prev_ends).T)),
-                        np.max(np.hypot(*(marks[::-1] - self.prev_ends).T)))
+            moved = min(
+                np.max(np.hypot(*(marks - self.prev_ends).T)),
+                np.max(np.hypot(*(marks[::-1] - self.prev_ends).T)),
+            )
             self.still_frames = self.still_frames + 1 if moved <= self.STILL_SHARE * cl.length_px else 0
             slow = moved <= self.SLOW_LENGTHS_PER_S * dt * cl.length_px
             self.slow_frames = self.slow_frames + 1 if slow else 0
@@ -357,8 +372,13 @@ class _View:
             return None
         return upper[0]
 
-    def measure(self, rgb: NDArray[np.uint8], t: float, held_world: NDArray[np.float64] | None,
-                first_view_held: tuple[Any, NDArray[np.float64]] | None = None) -> ViewResult:
+    def measure(
+        self,
+        rgb: NDArray[np.uint8],
+        t: float,
+        held_world: NDArray[np.float64] | None,
+        first_view_held: tuple[Any, NDArray[np.float64]] | None = None,
+    ) -> ViewResult:
         """Segment, centreline, and which end is held."""
         from dyndlo_vision.tracking.centerline import extract_centerline
 
@@ -371,8 +391,10 @@ class _View:
             held3 = np.asarray(held_world, dtype=np.float64).reshape(1, 3)
             depth = float(self.camera.world_to_camera(held3)[0, 2])
             if depth <= 0:
-                raise ValueError(f"the held end at {np.round(held3[0], 3).tolist()} m is behind the camera; is it "
-                                 "in the calibration's world frame?")
+                raise ValueError(
+                    f"the held end at {np.round(held3[0], 3).tolist()} m is behind the camera; is it "
+                    "in the calibration's world frame?"
+                )
             known_uv = self.camera.project(held3)[0]
             if cfg.gripper_radius_m is not None:
                 radius_px = cfg.gripper_radius_m * float(self.camera.K[0, 0]) / depth
@@ -394,7 +416,8 @@ class _View:
                     # The template's word only where the held end's own track allows it (a gripper that looks
                     # like something else nearby, a blurred one).
                     if not lost and np.hypot(*(gripper_uv - self.held.predict(t))) > self.held.gate(
-                            t, 2.0, math.inf, noise_px=0.5 * self.gripper.size):
+                        t, 2.0, math.inf, noise_px=0.5 * self.gripper.size
+                    ):
                         gripper_uv = centre = None
         if known_uv is not None:
             hint = known_uv
@@ -430,10 +453,12 @@ class _View:
             # Lost: found again only where the cable hangs still, at its upper end.
             upper = self._at_rest_upper(cl)
             if upper is None:
-                return ViewResult(None, None, hint, float("nan"), "held end lost: waiting for the cable to hang "
-                                  "still")
-            return self._oriented(cl, upper == 0, Orientation(upper == 0, "gravity"), mask.shape, t, hint,
-                                  float("nan"))
+                return ViewResult(
+                    None, None, hint, float("nan"), "held end lost: waiting for the cable to hang still"
+                )
+            return self._oriented(
+                cl, upper == 0, Orientation(upper == 0, "gravity"), mask.shape, t, hint, float("nan")
+            )
         elif self.anchor is not None:
             # First found from the user's click: the end nearest it, the other end well apart.
             gate = max(ident.min_gate_px * 3, 0.25 * cl.length_px)
@@ -454,11 +479,17 @@ class _View:
         # below the gripper starts lower down; followed, the track would creep along the cable to its tip.
         start = cl.path_uv[0] if decision.held_at_start else cl.path_uv[-1]
         dist = float(np.hypot(*(start - hint)))
-        pinned = (known_uv is not None or gripper_uv is not None or decision.reason == "registration"
-                  or dist <= max(ident.min_gate_px, 3.0 * width))
+        pinned = (
+            known_uv is not None
+            or gripper_uv is not None
+            or decision.reason == "registration"
+            or dist <= max(ident.min_gate_px, 3.0 * width)
+        )
         anchored: bool | None = True if pinned else (None if dist <= 0.5 * gate else False)
-        return replace(self._oriented(cl, decision.held_at_start, decision, mask.shape, t, hint, gate, anchored),
-                       gripper_uv=centre)
+        return replace(
+            self._oriented(cl, decision.held_at_start, decision, mask.shape, t, hint, gate, anchored),
+            gripper_uv=centre,
+        )
 
     def settle(self, explained: bool) -> None:
         """Moves the held end's track to this frame's cable start, when it waited for the frame's outcome:
@@ -469,14 +500,25 @@ class _View:
             self.held.update(uv, t, noise_px=noise)
         self.pending = None
 
-    def _oriented(self, cl: Any, held_at_start: bool, decision: Orientation, shape: tuple[int, ...], t: float,
-                  hint: Any, gate: float, anchored: bool | None = True) -> ViewResult:
+    def _oriented(
+        self,
+        cl: Any,
+        held_at_start: bool,
+        decision: Orientation,
+        shape: tuple[int, ...],
+        t: float,
+        hint: Any,
+        gate: float,
+        anchored: bool | None = True,
+    ) -> ViewResult:
         if not held_at_start:
             cl = cl.reversed(None, shape)
         self._identified(cl, t, anchored)
         return ViewResult(cl, decision, hint, gate)
 
-    def _first_without_hint(self, cl: Any, shape: tuple[int, ...], first_view_held: Any, t: float) -> ViewResult:
+    def _first_without_hint(
+        self, cl: Any, shape: tuple[int, ...], first_view_held: Any, t: float
+    ) -> ViewResult:
         """No click, no robot pose, never identified: the held end is the cable end on the first view's held
         end's epipolar line (a second view), else the upper end (a hanging cable's held end)."""
         flip = bool(cl.path_uv[-1, 1] < cl.path_uv[0, 1])
@@ -493,8 +535,9 @@ class _View:
             if abs(gaps[0] - gaps[1]) > 1e-3:  # normalised units: about half a pixel at f = 500
                 flip = bool(gaps[1] < gaps[0])
                 self.first_rule = "the cable end on the epipolar line of the first view's held end"
-        return self._oriented(cl, not flip, Orientation(not flip, "first frame, no anchor"), shape, t, None,
-                              float("nan"))
+        return self._oriented(
+            cl, not flip, Orientation(not flip, "first frame, no anchor"), shape, t, None, float("nan")
+        )
 
     @staticmethod
     def _template_size(rgb: NDArray[np.uint8]) -> int:
@@ -509,8 +552,11 @@ class _View:
             self.pending = (cl.path_uv[0].copy(), t, noise)
         if not cl.start_at_border and anchored:
             self.held.update(cl.path_uv[0], t, noise_px=noise)
-            if self.gripper is not None and abs(self.gripper.t - t) < 1e-9 or (
-                    self.gripper is not None and not self.offsets):
+            if (
+                self.gripper is not None
+                and abs(self.gripper.t - t) < 1e-9
+                or (self.gripper is not None and not self.offsets)
+            ):
                 self.offsets.append(cl.path_uv[0] - self.gripper.uv)
         self.prev_nodes = np.where(cl.visible[:, None], cl.nodes_uv, np.nan)
         self.prev_t = t
@@ -533,24 +579,35 @@ class CablePipeline:
         anchors: Each view's held end clicked in the first frame with a cable (pixels), or None.
     """
 
-    def __init__(self, config: PipelineConfig, cameras: Sequence[Any], segmenters: Sequence[ViewSegmenter],
-                 anchors: Sequence[Any] | None = None) -> None:
+    def __init__(
+        self,
+        config: PipelineConfig,
+        cameras: Sequence[Any],
+        segmenters: Sequence[ViewSegmenter],
+        anchors: Sequence[Any] | None = None,
+    ) -> None:
         from dyndlo_vision.tracking.filter import PointFilter
 
         if len(cameras) not in (1, 2) or len(segmenters) != len(cameras):
-            raise ValueError(f"expected one or two views with a segmenter each, got {len(cameras)} cameras and "
-                             f"{len(segmenters)} segmenters")
+            raise ValueError(
+                f"expected one or two views with a segmenter each, got {len(cameras)} cameras and "
+                f"{len(segmenters)} segmenters"
+            )
         if len(cameras) == 2 and any(c is None for c in cameras):
             raise ValueError("two views need both calibrations")
         if len(cameras) == 1 and cameras[0] is not None and config.plane is None:
-            raise ValueError("one calibrated view needs the motion plane (or a depth image per frame: give the "
-                             "plane anyway, depth replaces it)")
+            raise ValueError(
+                "one calibrated view needs the motion plane (or a depth image per frame: give the "
+                "plane anyway, depth replaces it)"
+            )
         anchors = list(anchors) if anchors is not None else [None] * len(cameras)
         self.config = config
         self.world = cameras[0] is not None
         self.stereo = len(cameras) == 2
-        self.views = [_View(cam, seg, anchor, config, self._px_per_m(cam, anchor))
-                      for cam, seg, anchor in zip(cameras, segmenters, anchors, strict=True)]
+        self.views = [
+            _View(cam, seg, anchor, config, self._px_per_m(cam, anchor))
+            for cam, seg, anchor in zip(cameras, segmenters, anchors, strict=True)
+        ]
         params = config.filter if self.world else config.filter.scaled(NOMINAL_PX_PER_M)
         self.filter = PointFilter(params)
         self._lengths: deque[tuple[float, bool]] = deque(maxlen=config.learn_length_frames)
@@ -566,8 +623,10 @@ class CablePipeline:
     def _px_per_m(self, camera: Any, anchor: Any) -> float:
         if camera is None or self.config.plane is None:
             return NOMINAL_PX_PER_M if camera is None else float(camera.K[0, 0])
-        uv = np.asarray(anchor if anchor is not None else [(camera.width - 1) / 2, (camera.height - 1) / 2],
-                        dtype=np.float64).reshape(1, 2)
+        uv = np.asarray(
+            anchor if anchor is not None else [(camera.width - 1) / 2, (camera.height - 1) / 2],
+            dtype=np.float64,
+        ).reshape(1, 2)
         try:
             p = camera.intersect_plane(uv, self.config.plane.normal, self.config.plane.d)[0]
         except ValueError:
@@ -633,14 +692,18 @@ class CablePipeline:
         return self.views[0].first_rule
 
     def estimate(self, t: float) -> Any:
-        """The filtered point predicted to ``t`` (the filter's :class:`~dyndlo_vision.tracking.filter.Estimate`;
-        ``lost`` when it has no estimate)."""
+        """The filtered point predicted to ``t`` (the filter's
+        :class:`~dyndlo_vision.tracking.filter.Estimate`; ``lost`` when it has no estimate)."""
         return self.filter.estimate(t)
 
     # ------------------------------------------------------------------ one frame
-    def step(self, images: Sequence[NDArray[np.uint8]], t_capture: float,
-             held_world: NDArray[np.float64] | None = None,
-             depth: NDArray[np.floating] | None = None) -> FrameResult:
+    def step(
+        self,
+        images: Sequence[NDArray[np.uint8]],
+        t_capture: float,
+        held_world: NDArray[np.float64] | None = None,
+        depth: NDArray[np.floating] | None = None,
+    ) -> FrameResult:
         """Tracks one frame (one image per view, taken at ``t_capture``).
 
         Args:
@@ -671,12 +734,30 @@ class CablePipeline:
 
     def skip(self, t_capture: float, reason: str) -> FrameResult:
         """A frame that cannot be measured (``reason``): the filter predicts."""
-        return self._filtered(float(t_capture), None, None, False, reason, self._empty(float(t_capture)), (),
-                              float("nan"), time.perf_counter())
+        return self._filtered(
+            float(t_capture),
+            None,
+            None,
+            False,
+            reason,
+            self._empty(float(t_capture)),
+            (),
+            float("nan"),
+            time.perf_counter(),
+        )
 
-    def _filtered(self, t: float, point: Any, point_uv: Any, continued: bool, reason: str,
-                  measurement: Measurement, results: tuple[ViewResult, ...], length: float,
-                  t0: float) -> FrameResult:
+    def _filtered(
+        self,
+        t: float,
+        point: Any,
+        point_uv: Any,
+        continued: bool,
+        reason: str,
+        measurement: Measurement,
+        results: tuple[ViewResult, ...],
+        length: float,
+        t0: float,
+    ) -> FrameResult:
         """Updates the filter with the frame's point (None: not measured) and says what it rests on."""
         t1 = time.perf_counter()
         self.n_frames += 1
@@ -692,15 +773,26 @@ class CablePipeline:
             status = Status.LOST if estimate.lost else Status.PREDICTED
             self.reasons[reason] += 1
         stage = {"track": 1e3 * (t1 - t0), "filter": 1e3 * (time.perf_counter() - t1)}
-        return FrameResult(t, status, point if accepted else None, point_uv if accepted else None, estimate,
-                           measurement, results, "" if accepted else reason, length, stage)
+        return FrameResult(
+            t,
+            status,
+            point if accepted else None,
+            point_uv if accepted else None,
+            estimate,
+            measurement,
+            results,
+            "" if accepted else reason,
+            length,
+            stage,
+        )
 
     def _empty(self, t: float, cl: Any = None) -> Measurement:
         n = self.config.nodes
         return Measurement(np.full((n, 3), np.nan), np.full((n, 2), np.nan), np.zeros(n, dtype=bool), t, cl)
 
-    def _measurement(self, results: list[ViewResult], t: float, held: NDArray[np.float64] | None,
-                     depth: Any) -> tuple[Measurement, NDArray[np.float64] | None, str]:
+    def _measurement(
+        self, results: list[ViewResult], t: float, held: NDArray[np.float64] | None, depth: Any
+    ) -> tuple[Measurement, NDArray[np.float64] | None, str]:
         """The frame's nodes (world, or pixels with NaN world), the held end in the world, and why there are
         none ("" when there are)."""
         for r in results:
@@ -710,11 +802,17 @@ class CablePipeline:
         view = self.views[0]
         if not self.stereo:
             if not self.world:
-                return Measurement(np.full((cl.n_nodes, 3), np.nan), cl.nodes_uv, cl.visible.copy(), t, cl), None, ""
+                return (
+                    Measurement(np.full((cl.n_nodes, 3), np.nan), cl.nodes_uv, cl.visible.copy(), t, cl),
+                    None,
+                    "",
+                )
             if depth is not None:
                 xyz = lift_with_depth(cl.nodes_uv, depth, view.camera, cl.visible)
             else:
-                xyz = lift_with_plane(cl.nodes_uv, view.camera, self.config.plane, cl.visible, self.config.floor)
+                xyz = lift_with_plane(
+                    cl.nodes_uv, view.camera, self.config.plane, cl.visible, self.config.floor
+                )
             visible = cl.visible & np.all(np.isfinite(xyz), axis=1)
             meas = Measurement(xyz, cl.nodes_uv, visible, t, cl)
             if held is None and results[0].gripper_uv is not None:  # the gripper, where its template matched
@@ -726,8 +824,16 @@ class CablePipeline:
         from dyndlo_vision.tracking.stereo import stereo_measurement, triangulate
 
         cams = [v.camera for v in self.views]
-        metas = [Measurement(np.full((r.centerline.n_nodes, 3), np.nan), r.centerline.nodes_uv,
-                             r.centerline.visible, t, r.centerline) for r in results]
+        metas = [
+            Measurement(
+                np.full((r.centerline.n_nodes, 3), np.nan),
+                r.centerline.nodes_uv,
+                r.centerline.visible,
+                t,
+                r.centerline,
+            )
+            for r in results
+        ]
         if held is None:  # where the two centrelines start
             starts = [r.centerline.path_uv[0] for r in results]
             held = triangulate(cams[0], starts[0][None], cams[1], starts[1][None])[0][0]
@@ -745,7 +851,9 @@ class CablePipeline:
         if marks is None:
             return False
         if self._pose is not None:
-            moved = min(np.max(np.hypot(*(marks - self._pose).T)), np.max(np.hypot(*(marks[::-1] - self._pose).T)))
+            moved = min(
+                np.max(np.hypot(*(marks - self._pose).T)), np.max(np.hypot(*(marks[::-1] - self._pose).T))
+            )
             span = float(np.hypot(*(marks[0] - marks[-1]).T))  # half the cable's length, or less where bent
             if moved <= 0.2 * span:
                 return False
@@ -753,8 +861,8 @@ class CablePipeline:
         return True
 
     def _cut(self, results: list[ViewResult]) -> str:
-        """Why fractions of the cable mean nothing in this frame ("" when they do): in some view the cable runs
-        out of the image, or into a region too thick to be cable, at an end the point is counted from."""
+        """Why fractions of the cable mean nothing in this frame ("" when they do): in some view the cable
+        runs out of the image, or into a region too thick to be cable, at an end the point is counted from."""
         need_end, need_start = self.config.point > 0, self.config.point < 1
         for view, r in zip(self.views, results, strict=True):
             cl = r.centerline
@@ -765,8 +873,9 @@ class CablePipeline:
                 return "the cable runs into a region too thick to be cable"
         return ""
 
-    def _path_length(self, meas: Measurement, held: NDArray[np.float64] | None,
-                     gripper_uv: NDArray[np.float64] | None) -> float:
+    def _path_length(
+        self, meas: Measurement, held: NDArray[np.float64] | None, gripper_uv: NDArray[np.float64] | None
+    ) -> float:
         """The measured cable's length from the held end (the robot's TCP, the gripper where its template
         matched, else the polyline's start): world (m) through the lifted nodes, or pixels."""
         view = self.views[0]
@@ -776,8 +885,9 @@ class CablePipeline:
                 return float("nan")
             points = meas.nodes_xyz[meas.lifted]
             if not self.stereo and meas.centerline is not None:  # the dense path, lifted as the nodes are
-                path = lift_with_plane(meas.centerline.path_uv, view.camera, self.config.plane, None,
-                                       self.config.floor)
+                path = lift_with_plane(
+                    meas.centerline.path_uv, view.camera, self.config.plane, None, self.config.floor
+                )
                 points = path[np.all(np.isfinite(path), axis=1)]
             return _length_from(points, held, radius_px / view.px_per_m)
         cl = meas.centerline
@@ -787,23 +897,33 @@ class CablePipeline:
             return float(cl.length_px)
         return _length_from(cl.path_uv, gripper_uv, radius_px)
 
-    def _point(self, meas: Measurement, results: list[ViewResult], held: NDArray[np.float64] | None
-               ) -> tuple[NDArray[np.float64] | None, NDArray[np.float64] | None, float, bool, str]:
+    def _point(
+        self, meas: Measurement, results: list[ViewResult], held: NDArray[np.float64] | None
+    ) -> tuple[NDArray[np.float64] | None, NDArray[np.float64] | None, float, bool, str]:
         """(point, its first-view pixel, the measured length, continued?, why not measured)."""
         cfg = self.config
         cut = self._cut(results)
         length = self._path_length(meas, held, results[0].gripper_uv)
         bridged = any(np.any(~r.centerline.path_visible) for r in results)
-        clean = (not cut and all(r.orientation is not None and r.orientation.reason in ("continuity", "registration",
-                                                                                "gravity")
-                         for r in results) and np.isfinite(length) and not self.stereo)
+        clean = (
+            not cut
+            and all(
+                r.orientation is not None
+                and r.orientation.reason in ("continuity", "registration", "gravity")
+                for r in results
+            )
+            and np.isfinite(length)
+            and not self.stereo
+        )
         if cut:
             return None, None, length, False, cut
         if clean:
             (self._bridged_lengths if bridged else self._lengths).append((length, self._new_pose()))
         reference = cfg.cable_length_m if self.world else None
         ref = reference if reference is not None else self.learned_length
-        point_space = meas.nodes_xyz if self.world else np.column_stack([meas.nodes_uv, np.zeros(len(meas.nodes_uv))])
+        point_space = (
+            meas.nodes_xyz if self.world else np.column_stack([meas.nodes_uv, np.zeros(len(meas.nodes_uv))])
+        )
         if cfg.tip:
             seen = np.flatnonzero(meas.visible & np.all(np.isfinite(point_space), axis=1))
             if seen.size == 0:
@@ -812,10 +932,21 @@ class CablePipeline:
                 return None, None, length, False, "the cable doubles back along itself at its end"
             if ref is None and self.stereo:
                 if not _reaches_far_ends(meas, self.views, results):
-                    return None, None, length, False, ("the triangulated cable does not reach its far end in both "
-                                                       "views")
+                    return (
+                        None,
+                        None,
+                        length,
+                        False,
+                        ("the triangulated cable does not reach its far end in both views"),
+                    )
             elif ref is None and reference is None and self.length_doubt:
-                return None, None, length, False, "the cable's length is in doubt: bridged frames show it longer"
+                return (
+                    None,
+                    None,
+                    length,
+                    False,
+                    "the cable's length is in doubt: bridged frames show it longer",
+                )
             elif ref is None:
                 return None, None, length, False, "the cable's length is not known yet"
             elif np.isfinite(length):
@@ -841,9 +972,19 @@ class CablePipeline:
             if seen[-1] != len(meas.visible) - 1:
                 return None, None, length, False, "the tip's node is not seen"
             return point_space[-1].copy(), meas.nodes_uv[-1].copy(), length, False, ""
-        if self.stereo and cfg.cable_length_m is None and cfg.point > 0 and not _reaches_far_ends(
-                meas, self.views, results):
-            return None, None, length, False, "the triangulated cable does not reach its far end in both views"
+        if (
+            self.stereo
+            and cfg.cable_length_m is None
+            and cfg.point > 0
+            and not _reaches_far_ends(meas, self.views, results)
+        ):
+            return (
+                None,
+                None,
+                length,
+                False,
+                "the triangulated cable does not reach its far end in both views",
+            )
         point = point_on_nodes(point_space, meas.visible, cfg.point)
         continued = False
         if point is None:
@@ -851,7 +992,7 @@ class CablePipeline:
             continued = point is not None
         if point is None:
             return None, None, length, False, "the point's nodes are not seen"
-        uv = (self.views[0].camera.project(point[None])[0] if self.world else point[:2].copy())
+        uv = self.views[0].camera.project(point[None])[0] if self.world else point[:2].copy()
         return point, uv, length, continued, ""
 
 
@@ -885,8 +1026,9 @@ def _length_from(points: NDArray[np.float64], held: NDArray[np.float64], radius:
     return float(np.linalg.norm(pts[j] - held) + np.linalg.norm(np.diff(pts[j:], axis=0), axis=1).sum())
 
 
-def _continued(points: NDArray[np.float64], visible: NDArray[np.bool_], missing: float,
-               start: NDArray[np.float64] | None) -> NDArray[np.float64] | None:
+def _continued(
+    points: NDArray[np.float64], visible: NDArray[np.bool_], missing: float, start: NDArray[np.float64] | None
+) -> NDArray[np.float64] | None:
     """The tip of a polyline (its seen nodes, after ``start`` when given) continued straight by ``missing``,
     along its last two segments (less pixel noise than the last one); None for a polyline of one point."""
     pts = points[visible & np.all(np.isfinite(points), axis=1)]

@@ -25,8 +25,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["BACKGROUND_SOURCES", "MIN_BACKGROUND_FRAMES", "SEGMENTER_KINDS", "SegmenterConfig", "ViewSegmenter",
-           "build_segmenter", "build_view_segmenter"]
+__all__ = [
+    "BACKGROUND_SOURCES",
+    "MIN_BACKGROUND_FRAMES",
+    "SEGMENTER_KINDS",
+    "SegmenterConfig",
+    "ViewSegmenter",
+    "build_segmenter",
+    "build_view_segmenter",
+]
 
 #: Kinds of segmenter.
 SEGMENTER_KINDS = ("learned", "background", "hsv")
@@ -75,20 +82,29 @@ class SegmenterConfig:
         learned_only = {"model": self.model, "short_side": self.short_side, "scale": self.scale}
         for name, value in learned_only.items():
             if value is not None and self.kind != "learned":
-                raise ValueError(f"the segmenter's {name} {value!r} is for the learned segmenter, not {self.kind!r}")
+                raise ValueError(
+                    f"the segmenter's {name} {value!r} is for the learned segmenter, not {self.kind!r}"
+                )
         if self.model is not None:
             from dyndlo_vision.tracking.networks import check_network
 
             check_network(self.model, "the segmenter model")
-        if self.short_side is not None and (isinstance(self.short_side, bool) or not isinstance(self.short_side, int)
-                                            or self.short_side < 16):
-            raise ValueError(f"the segmenter's short side must be an int of at least 16 pixels, got "
-                             f"{self.short_side!r}")
+        if self.short_side is not None and (
+            isinstance(self.short_side, bool) or not isinstance(self.short_side, int) or self.short_side < 16
+        ):
+            raise ValueError(
+                f"the segmenter's short side must be an int of at least 16 pixels, got {self.short_side!r}"
+            )
         if self.scale is not None:
-            if isinstance(self.scale, bool) or not isinstance(self.scale, int | float) or not (
-                    MIN_SCALE <= self.scale <= MAX_SCALE):
-                raise ValueError(f"the segmenter's scale must be a number in [{MIN_SCALE:g}, {MAX_SCALE:g}], got "
-                                 f"{self.scale!r}")
+            if (
+                isinstance(self.scale, bool)
+                or not isinstance(self.scale, int | float)
+                or not (MIN_SCALE <= self.scale <= MAX_SCALE)
+            ):
+                raise ValueError(
+                    f"the segmenter's scale must be a number in [{MIN_SCALE:g}, {MAX_SCALE:g}], got "
+                    f"{self.scale!r}"
+                )
             if self.short_side is not None:
                 raise ValueError("give the learned segmenter a scale or a short side, not both")
         if self.background not in BACKGROUND_SOURCES:
@@ -99,16 +115,27 @@ class SegmenterConfig:
             if self.hsv_lower is None or self.hsv_upper is None:
                 raise ValueError("the hsv segmenter needs both HSV bounds")
             for name, hsv in (("lower", self.hsv_lower), ("upper", self.hsv_upper)):
-                if len(hsv) != 3 or not (0 <= hsv[0] <= 179 and 0 <= hsv[1] <= 255 and 0 <= hsv[2] <= 255) or any(
-                        int(c) != c for c in hsv):
-                    raise ValueError(f"the {name} HSV bound must be three integers with H in 0..179 and S, V in "
-                                     f"0..255 (OpenCV's HSV), got {hsv!r}")
+                if (
+                    len(hsv) != 3
+                    or not (0 <= hsv[0] <= 179 and 0 <= hsv[1] <= 255 and 0 <= hsv[2] <= 255)
+                    or any(int(c) != c for c in hsv)
+                ):
+                    raise ValueError(
+                        f"the {name} HSV bound must be three integers with H in 0..179 and S, V in "
+                        f"0..255 (OpenCV's HSV), got {hsv!r}"
+                    )
             if self.hsv_lower[1] > self.hsv_upper[1] or self.hsv_lower[2] > self.hsv_upper[2]:
-                raise ValueError(f"the lower HSV bound's S and V must not exceed the upper's: {self.hsv_lower} "
-                                 f"against {self.hsv_upper}")
+                raise ValueError(
+                    f"the lower HSV bound's S and V must not exceed the upper's: {self.hsv_lower} "
+                    f"against {self.hsv_upper}"
+                )
         elif self.hsv_lower is not None:
             raise ValueError(f"HSV bounds are for the hsv segmenter, not {self.kind!r}")
-        if isinstance(self.open_radius, bool) or not isinstance(self.open_radius, int) or self.open_radius < 0:
+        if (
+            isinstance(self.open_radius, bool)
+            or not isinstance(self.open_radius, int)
+            or self.open_radius < 0
+        ):
             raise ValueError(f"the opening radius must be an int >= 0, got {self.open_radius!r}")
 
     @property
@@ -194,8 +221,12 @@ class ViewSegmenter:
         self._top = top
         self.last_mask: NDArray[np.bool_] | None = None
 
-    def hold(self, held_world: NDArray[np.float64] | None, held_uv: NDArray[np.float64] | None,
-             gripper_radius_px: float | None = None) -> None:
+    def hold(
+        self,
+        held_world: NDArray[np.float64] | None,
+        held_uv: NDArray[np.float64] | None,
+        gripper_radius_px: float | None = None,
+    ) -> None:
         """Where the held end is this frame (world and pixel; None: unknown): the reach is centred on it and
         the gripper cleared around it."""
         if self.reach is not None:
@@ -239,7 +270,8 @@ def build_view_segmenter(
         base: The segmenter (:func:`build_segmenter`).
         camera: The view's calibration (needed with ``reach_m``).
         reach_m: Look only within this distance of the held end (the cable's length plus a margin).
-        follow_px: With ``reach_m`` and a base that computes regions: follow the last mask's box grown by this.
+        follow_px: With ``reach_m`` and a base that computes regions: follow the last mask's box grown by
+        this.
         gripper_radius_px: Clear a disk of this radius around the held end's pixel (None: no gripper mask).
         max_width_share: Remove regions thicker than this share of the image's shorter side (None: no shape
             test).

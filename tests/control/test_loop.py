@@ -167,10 +167,13 @@ class TruthPipeline:
         est = self.filter.estimate(t)
         status = Status.MEASURED if accepted else Status.LOST if est.lost else Status.PREDICTED
         empty = Measurement(np.full((1, 3), np.nan), np.full((1, 2), np.nan), np.zeros(1, bool), t)
-        return FrameResult(t, status, point if accepted else None, np.zeros(2) if accepted else None, est, empty,
-                           ())
+        return FrameResult(
+            t, status, point if accepted else None, np.zeros(2) if accepted else None, est, empty, ()
+        )
 
-    def step(self, images: object, t: float, held_world: np.ndarray | None = None, depth: object = None) -> object:
+    def step(
+        self, images: object, t: float, held_world: np.ndarray | None = None, depth: object = None
+    ) -> object:
         self.helds.append((t, np.array(held_world)))
         return self._result(t, self.measure(t, held_world))
 
@@ -184,9 +187,11 @@ def test_camera_that_stops_makes_the_loop_predict_then_stop(caplog: pytest.LogCa
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
     env.reset(seed=1)
     base = env.unwrapped
-    source = TrackedState(StoppingCamera(env, frames=5),
-                          TruthPipeline(lambda t, held: base.p_dlo(), FilterParams(max_coast_s=0.2)),
-                          max_missing_frames=100)
+    source = TrackedState(
+        StoppingCamera(env, frames=5),
+        TruthPipeline(lambda t, held: base.p_dlo(), FilterParams(max_coast_s=0.2)),
+        max_missing_frames=100,
+    )
     loop, robot = _loop(env, source, lambda obs: np.zeros(env.action_space.shape, np.float32))
     with caplog.at_level(logging.WARNING):
         report = loop.run(duration_s=1.6)
@@ -221,7 +226,9 @@ def test_a_delayed_camera_is_tracked_with_the_gripper_where_it_was_and_predicted
     from dyndlo_vision.cameras.simulated import DelayedCamera
 
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
-    action = np.full(env.action_space.shape, 0.4, np.float32)  # the gripper moves: the held end must follow it
+    action = np.full(
+        env.action_space.shape, 0.4, np.float32
+    )  # the gripper moves: the held end must follow it
     errors = {}
     for latency in (0.0, 0.08):
         env.reset(seed=2)
@@ -277,7 +284,9 @@ def test_a_live_camera_clock_is_put_on_the_robot_clock(offset_s: float) -> None:
         camera = LiveCamera(env, offset_s)
         sync = ClockSync(clock=camera.local_time) if synced else None
         # The true tip at the capture of the frame just read, whatever clock the time is on.
-        source = TrackedState(camera, TruthPipeline(lambda t, held, cam=camera: cam.last_tip), clock_sync=sync)
+        source = TrackedState(
+            camera, TruthPipeline(lambda t, held, cam=camera: cam.last_tip), clock_sync=sync
+        )
         loop, _ = _loop(env, source, lambda obs: action)
         report = loop.run(duration_s=0.6)
         errors[synced] = (report.stop_reason, report.estimate_errors())
@@ -437,10 +446,26 @@ def test_estimate_errors_leave_out_cycles_whose_source_was_lost() -> None:
     from dyndlo_vision.control.loop import CycleRecord, LoopReport
 
     def cycle(k: int, estimate: list[float], lost: bool) -> CycleRecord:
-        return CycleRecord(k, 0.04 * k, np.array(estimate), np.zeros(3), measured=not lost, lost=lost,
-                           tcp_position=np.zeros(3), action=None, stage_ms={}, controller_ms=1.0, send_ms=0.0,
-                           deadline_missed=False)
+        return CycleRecord(
+            k,
+            0.04 * k,
+            np.array(estimate),
+            np.zeros(3),
+            measured=not lost,
+            lost=lost,
+            tcp_position=np.zeros(3),
+            action=None,
+            stage_ms={},
+            controller_ms=1.0,
+            send_ms=0.0,
+            deadline_missed=False,
+        )
 
-    report = LoopReport([cycle(0, [0.003, 0.0, 0.004], False), cycle(1, [2.5, 0.0, 0.0], True),
-                         cycle(2, [np.nan, 0.0, 0.0], False)])
+    report = LoopReport(
+        [
+            cycle(0, [0.003, 0.0, 0.004], False),
+            cycle(1, [2.5, 0.0, 0.0], True),
+            cycle(2, [np.nan, 0.0, 0.0], False),
+        ]
+    )
     np.testing.assert_allclose(report.estimate_errors(), [0.005])  # coasted 2.5 m off once lost: not scored

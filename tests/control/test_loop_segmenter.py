@@ -93,12 +93,16 @@ def test_the_loop_runs_the_segmenter_model_it_is_given() -> None:
         env.reset(seed=0)
         with pytest.raises(ValueError, match="model 'cable-segmenter' is for the learned segmenter"):
             loop_segmenter("background", "cable-segmenter")
-        source, camera = tracked_state(env, perception=LoopPerception(loop_segmenter("learned", "cable-segmenter")))
+        source, camera = tracked_state(
+            env, perception=LoopPerception(loop_segmenter("learned", "cable-segmenter"))
+        )
         camera.close()
         network = source.pipeline.views[0].segmenter.base
         assert not network.blocks  # the half-resolution network, not the default
         assert network.short_side == 720  # every network sees the frame at 1.5x
-        source, camera = tracked_state(env, perception=LoopPerception(loop_segmenter("learned")))  # the default
+        source, camera = tracked_state(
+            env, perception=LoopPerception(loop_segmenter("learned"))
+        )  # the default
         try:
             rgb = camera.read().rgb
         finally:
@@ -119,7 +123,9 @@ def test_the_segmenter_scale_reaches_the_network_and_is_checked() -> None:
     try:
         env.reset(seed=0)
         for scale, short_side in ((None, 720), (1.0, 480), (2, 960)):
-            source, camera = tracked_state(env, perception=LoopPerception(loop_segmenter("learned", scale=scale)))
+            source, camera = tracked_state(
+                env, perception=LoopPerception(loop_segmenter("learned", scale=scale))
+            )
             camera.close()
             assert source.pipeline.views[0].segmenter.base.short_side == short_side
         with pytest.raises(ValueError, match="scale 1.0 is for the learned segmenter"):
@@ -131,14 +137,21 @@ def test_the_segmenter_scale_reaches_the_network_and_is_checked() -> None:
         env.close()
 
 
-def test_demo_segmenter_scale(tmp_path: Path, capsys: pytest.CaptureFixture[str],
-                              monkeypatch: pytest.MonkeyPatch) -> None:
+def test_demo_segmenter_scale(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
     """``demo --segmenter-scale``: refused without the learned segmenter or out of range (exit 2, nothing
     written); otherwise it reaches the loop's network, and metrics.json records it."""
-    for extra, word in ((["--segmenter", "background", "--segmenter-scale", "1"],
-                         "--segmenter-scale is for --segmenter learned"),
-                        (["--segmenter", "learned", "--segmenter-scale", "9"],
-                         "--segmenter-scale must be a number in [0.5, 3], got 9.0")):
+    for extra, word in (
+        (
+            ["--segmenter", "background", "--segmenter-scale", "1"],
+            "--segmenter-scale is for --segmenter learned",
+        ),
+        (
+            ["--segmenter", "learned", "--segmenter-scale", "9"],
+            "--segmenter-scale must be a number in [0.5, 3], got 9.0",
+        ),
+    ):
         with pytest.raises(SystemExit) as exc:
             main(["demo", "--observation", "tracked", *extra, "--out", str(tmp_path / "d")])
         assert exc.value.code == 2
@@ -153,8 +166,25 @@ def test_demo_segmenter_scale(tmp_path: Path, capsys: pytest.CaptureFixture[str]
 
     monkeypatch.setattr(LearnedSegmenter, "__init__", spy)
     out = tmp_path / "one"
-    assert main(["demo", "--observation", "tracked", "--segmenter-scale", "1",  # the default: learned
-                 "--episodes", "1", "--seed", "100000", "--quiet", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "demo",
+                "--observation",
+                "tracked",
+                "--segmenter-scale",
+                "1",  # the default: learned
+                "--episodes",
+                "1",
+                "--seed",
+                "100000",
+                "--quiet",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     assert sides == [480]
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["segmenter"] == "learned" and metrics["segmenter_scale"] == 1.0

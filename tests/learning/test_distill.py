@@ -13,8 +13,6 @@ import pytest
 import dyndlo_vision  # noqa: F401
 from dyndlo_vision import policies
 from dyndlo_vision.cli import main
-from dyndlo_vision.learning.distill import collection as collection_module
-from dyndlo_vision.learning.distill import run as distill_module
 from dyndlo_vision.learning.distill import (
     CableSearchTeacher,
     DistillConfig,
@@ -26,6 +24,8 @@ from dyndlo_vision.learning.distill import (
     distill,
     run_episode,
 )
+from dyndlo_vision.learning.distill import collection as collection_module
+from dyndlo_vision.learning.distill import run as distill_module
 from dyndlo_vision.trajectory import ActionSpec, BSplineTrajectory
 
 SPEC = ActionSpec(

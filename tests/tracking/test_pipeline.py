@@ -11,7 +11,13 @@ import numpy as np
 import pytest
 
 from dyndlo_vision.tracking.identity import HeldEnd, IdentityParams, order_correlation, orient
-from dyndlo_vision.tracking.pipeline import CablePipeline, PipelineConfig, Status, bridged_point, point_on_nodes
+from dyndlo_vision.tracking.pipeline import (
+    CablePipeline,
+    PipelineConfig,
+    Status,
+    bridged_point,
+    point_on_nodes,
+)
 from dyndlo_vision.tracking.segmenters import SegmenterConfig, build_segmenter, build_view_segmenter
 from dyndlo_vision.tracking.synthetic import render_cable
 
@@ -52,7 +58,9 @@ def pixel_pipeline(anchor: np.ndarray | None = GRIPPER, **overrides: object) -> 
 
 def run(pipeline: CablePipeline, curves: list[np.ndarray], grippers: list[np.ndarray] | None = None) -> list:
     grippers = grippers or [GRIPPER] * len(curves)
-    return [pipeline.step([frame(c, g)], k / FPS) for k, (c, g) in enumerate(zip(curves, grippers, strict=True))]
+    return [
+        pipeline.step([frame(c, g)], k / FPS) for k, (c, g) in enumerate(zip(curves, grippers, strict=True))
+    ]
 
 
 def hanging(n: int) -> list[np.ndarray]:
@@ -79,8 +87,11 @@ def test_a_hanging_cable_whipped_and_hanging_again_keeps_its_held_end() -> None:
     # Once the length is learned (in the whip: a cable at rest is one pose), the frames it can measure are.
     learned = next(k for k, r in enumerate(results) if r.status.seen)
     assert learned < 20
-    inside = [k for k, c in enumerate(curves) if np.all((c >= 4) & (c <= np.array(SHAPE[::-1]) - 5))
-              and k >= learned]
+    inside = [
+        k
+        for k, c in enumerate(curves)
+        if np.all((c >= 4) & (c <= np.array(SHAPE[::-1]) - 5)) and k >= learned
+    ]
     assert sum(results[k].status.seen for k in inside) >= 0.9 * len(inside)
     assert all(r.status.seen for r in results[-8:])  # hanging again: measured, the right end
 
@@ -170,8 +181,14 @@ def _moving_curve(k: int) -> np.ndarray:
     from dyndlo_vision.tracking.synthetic import s_curve
 
     t = k / 25.0
-    return s_curve(u0=90 + 30 * np.sin(2.0 * t), u1=550 + 40 * np.sin(1.3 * t + 0.5), v0=240 + 50 * np.sin(3.0 * t),
-                   amp=100 * np.cos(2.5 * t), periods=0.9 + 0.3 * np.sin(1.7 * t), phase=0.8 * np.sin(2.2 * t))
+    return s_curve(
+        u0=90 + 30 * np.sin(2.0 * t),
+        u1=550 + 40 * np.sin(1.3 * t + 0.5),
+        v0=240 + 50 * np.sin(3.0 * t),
+        amp=100 * np.cos(2.5 * t),
+        periods=0.9 + 0.3 * np.sin(1.7 * t),
+        phase=0.8 * np.sin(2.2 * t),
+    )
 
 
 def _plain(curve: np.ndarray, k: int) -> np.ndarray:
@@ -211,7 +228,9 @@ def test_the_held_end_hidden_for_a_while_is_not_swapped() -> None:
         if k >= 9:
             assert cl is not None, f"frame {k}: not found again"
         if cl is not None:
-            assert np.hypot(*(cl.path_uv[0] - curve[0])) < np.hypot(*(cl.path_uv[0] - curve[-1])), f"flip at {k}"
+            assert np.hypot(*(cl.path_uv[0] - curve[0])) < np.hypot(*(cl.path_uv[0] - curve[-1])), (
+                f"flip at {k}"
+            )
 
 
 # ------------------------------------------------------------------------------------------- identity
@@ -280,7 +299,7 @@ def test_bridged_and_interpolated_points() -> None:
     np.testing.assert_allclose(point_on_nodes(nodes, visible, 0.5 / 6), 0.5 * (xyz[0] + xyz[1]))
 
 
-# ------------------------------------------------------------------------------------------ the cable's length
+# -------------------------------------------------------------------------------- the cable's length
 
 
 def _swinging(k: int, length: float = LENGTH_PX) -> np.ndarray:
@@ -293,8 +312,9 @@ def _hidden_beyond(curve: np.ndarray, share: float) -> np.ndarray:
     patch of its own colour)."""
     rgb = frame(curve)
     n = len(curve)
-    rgb2, mask = render_cable(curve[int((1.0 - share) * n) :], SHAPE, thickness=8, background=(200, 200, 195),
-                              noise_sigma=0.0)
+    rgb2, mask = render_cable(
+        curve[int((1.0 - share) * n) :], SHAPE, thickness=8, background=(200, 200, 195), noise_sigma=0.0
+    )
     rgb[mask] = (200, 200, 195)
     return rgb
 
@@ -386,8 +406,9 @@ def test_a_cable_cut_ever_lower_below_the_gripper_does_not_drag_its_held_end_to_
     n = len(still)
     for j, share in enumerate(np.linspace(0.05, 0.6, 7)):
         rgb = frame(still)
-        _, mask = render_cable(still[: int(share * n)], SHAPE, thickness=8, background=(200, 200, 195),
-                               noise_sigma=0.0)
+        _, mask = render_cable(
+            still[: int(share * n)], SHAPE, thickness=8, background=(200, 200, 195), noise_sigma=0.0
+        )
         rgb[mask] = (200, 200, 195)
         results.append(pipe.step([rgb], (12 + j) / FPS))
         curves.append(still)

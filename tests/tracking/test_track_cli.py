@@ -13,11 +13,11 @@ import pytest
 
 from dyndlo_vision.cli import main
 from dyndlo_vision.commands.track import parse_point, sample_evenly
-from dyndlo_vision.tracking.pipeline import PipelineConfig, point_on_nodes
 from dyndlo_vision.tracking.annotate import annotate_frame, covariance_ellipse, project_point_covariance
 from dyndlo_vision.tracking.camera_model import PinholeCamera
 from dyndlo_vision.tracking.centerline import extract_centerline
 from dyndlo_vision.tracking.masks import CableShapedMask
+from dyndlo_vision.tracking.pipeline import PipelineConfig, point_on_nodes
 from dyndlo_vision.tracking.synthetic import render_cable
 
 from .helpers import assert_track_refuses, look_at_camera
@@ -155,7 +155,7 @@ def test_world_tracking_matches_ground_truth(
     visible = _learned_then_seen(rows)
     assert f"point measured in {visible.sum()} " in captured.out
     assert "the cable's length is not known yet" in captured.err
-    assert {r["status"] for r, seen in zip(rows, visible) if seen} == {"measured"}
+    assert {r["status"] for r, seen in zip(rows, visible, strict=True) if seen} == {"measured"}
     assert {rows[k]["status"] for k in BLANK_FRAMES} == {"predicted"}
     xyz, uv = _column(rows, "x,y,z"), _column(rows, "u,v")
     # Measured frames: the filtered world tip and the measured tip pixel match the ground truth.
@@ -983,7 +983,8 @@ def test_short_side_enlarges_a_thin_cable_for_the_network(clip: Clip, tmp_path: 
         _, rows = _read_csv(out)
         visible = np.array([int(r["visible"]) for r in rows], dtype=bool)
         assert visible[LEARN_FRAMES - 1:].all()
-        medians.append(float(np.median(np.linalg.norm(_column(rows, "u,v")[visible] - tips[visible], axis=1))))
+        err = np.linalg.norm(_column(rows, "u,v")[visible] - tips[visible], axis=1)
+        medians.append(float(np.median(err)))
     assert medians[1] < 1.5 and medians[1] < medians[0] - 1.0, medians
 
 
@@ -1001,11 +1002,27 @@ def test_nodes_out_in_one_view_lies_on_the_plane_and_on_the_cable(clip: Clip, tm
     xyz = _column([r for r, s in zip(rows, seen, strict=True) if s], "x,y,z")
     np.testing.assert_allclose(xyz[:, 1], 0.0, atol=1e-9)
     curves = {k: cable_world(k / FPS) for k in range(N_FRAMES)}
-    d = [np.min(np.linalg.norm(curves[f][:, [0, 2]] - p[[0, 2]], axis=1))
-         for f, p in zip(frames[seen], xyz, strict=True)]
+    d = [
+        np.min(np.linalg.norm(curves[f][:, [0, 2]] - p[[0, 2]], axis=1))
+        for f, p in zip(frames[seen], xyz, strict=True)
+    ]
     assert np.median(d) < 0.004 and max(d) < 0.015, (np.median(d), max(d))
     pixel = tmp_path / "pixel.csv"
-    assert main(["track", str(clip.video), "--anchor", _anchor(clip), "--quiet", "--out",
-                 str(tmp_path / "p.csv"), "--nodes-out", str(pixel)]) == 0
+    assert (
+        main(
+            [
+                "track",
+                str(clip.video),
+                "--anchor",
+                _anchor(clip),
+                "--quiet",
+                "--out",
+                str(tmp_path / "p.csv"),
+                "--nodes-out",
+                str(pixel),
+            ]
+        )
+        == 0
+    )
     _, rows = _read_csv(pixel)
     assert all(r["x"] == "" for r in rows) and any(r["u"] for r in rows)
