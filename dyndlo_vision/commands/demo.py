@@ -184,8 +184,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         metavar="S",
         help="with --segmenter learned: the network sees each frame enlarged S times, 0.5-3 (default 1.5: "
-        "the loop camera's 1.6 px cable as 2.4 px; 1 is about 1.5x as fast and about 6x less accurate; "
-        "docs/RESULTS.md, \"The loop network at 1.5x\")",
+        "the loop camera's 1.6 px cable as 2.4 px; 1 is about 1.5x as fast and about 6x less accurate)",
     )
     p.add_argument(
         "--views",

@@ -128,8 +128,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=int,
         default=None,
         help="learned: each frame's shorter side is resized to this before the network (default: the "
-        "network's own: 240 for cable-segmenter, 480 for the other two). For a cable 1-3 px wide, enlarge: "
-        '720 for a 640x480 video (docs/RESULTS.md, "The loop network at 1.5x")',
+        "network's own: 240 for cable-segmenter, 480 for the others). For a cable 1-3 px wide, enlarge: "
+        "720 for a 640x480 video",
     )
     p.add_argument(
         "--segmenter-model",

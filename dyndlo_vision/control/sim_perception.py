@@ -44,13 +44,12 @@ CABLE_REACH_MARGIN_M = 0.03
 #: 200000-200019 among 1, 1.25, 1.5 and 2; on 100 fresh seeds its median estimate RMSE per episode fell from
 #: 8.8 mm (1x) to 1.95 mm. On the cable's whole reach the learned tracker's time doubled (about 5.5 to 11 ms);
 #: following the cable (LOOP_FOLLOW_PX) and resizing only its part bring it back to about 5 ms. The other
-#: shipped networks gain as much in the loop (docs/RESULTS.md, "The loop network at 1.5x").
+#: shipped networks gain as much in the loop.
 LOOP_NETWORK_SCALE = 1.5
 #: The loop's learned segmenter computes the box around the last frame's mask grown by this many pixels
 #: (``CableReachSegmenter(follow_px=...)``), not the whole image of the cable's reach: about a fifth of it.
 #: Chosen on seeds 200000-200019 between 48 and 80: at 80 the estimates match the whole reach's (median
-#: 1.71 against 1.72 mm, p90 2.08 against 2.15 mm), at 48 the p90 rose to 3.3 mm (docs/RESULTS.md, "The loop
-#: network at 1.5x").
+#: 1.71 against 1.72 mm, p90 2.08 against 2.15 mm), at 48 the p90 rose to 3.3 mm.
 LOOP_FOLLOW_PX = 80
 # The tip filter's tuned acceleration noise without and with a camera latency (why: tracking.params).
 LOOP_SIGMA_ACCEL = LOOP_FILTER.sigma_accel
@@ -64,8 +63,7 @@ LOOP_SEGMENTERS = ("background", "learned")
 #: 98 of 100 hits on fresh seeds, as with the classical one, at an estimate RMSE of 1.9 against 1.3 mm and
 #: a controller p95 of 17 against 15 ms. Two cameras (vaulting): the classical one; there the
 #: learned network loses the cable lying on the light floor beyond the obstacle (estimates 71-148 mm) and two
-#: renders plus two networks overrun the 40 ms cycle (docs/RESULTS.md, "The learned segmenter, the loop's
-#: default (session 36)").
+#: renders plus two networks overrun the 40 ms cycle.
 DEFAULT_LOOP_SEGMENTER = {1: "learned", 2: "background"}
 #: Longest simulated camera latency (s): beyond a quarter second the loop re-plans on a past the cable has
 #: long left.

@@ -78,7 +78,7 @@ class FrozenState:
     """P_DLO as it was at the episode's start, whatever the cable does: the ablation of the feedback.
 
     A policy that does as well on this as on :class:`TrueState` does not use the cable's state it is given
-    (issue 16's row (4)). The value is taken when the source is built (after ``env.reset``) and again at
+    (the feedback table's "frozen" row, docs/results.md). The value is taken when the source is built (after ``env.reset``) and again at
     :meth:`reset`.
     """
 

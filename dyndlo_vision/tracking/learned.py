@@ -12,8 +12,8 @@ of input channels when it is loaded:
 * **RGB** (3 channels, ``cablenet``, shipped as ``cable-segmenter``, the default): the frame is resized to
   ``short_side`` (240), the logits (half that size) are resized bilinearly to the frame.
 
-cv2.dnn runs these networks several times faster than torch on one core (docs/RESULTS.md, "Learned
-segmenter"), and torch is not needed at run time.
+cv2.dnn runs these networks several times faster than torch on one core (measured), and torch is not needed
+at run time.
 """
 
 from __future__ import annotations
@@ -39,8 +39,8 @@ def to_blocks(rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
     """(H, W, 3) uint8 with H, W multiples of 4 -> (1, 48, H/4, W/4) float32 ``RGB / 255 - 0.5``, channel
     ``c * 16 + 4 * i + j`` holding colour ``c`` of pixel ``(i, j)`` of each block (``pixel_unshuffle``).
 
-    Built from whole rows, which is faster than one strided numpy transpose (docs/RESULTS.md, "The 5 ms
-    rule"): ``cv2.split`` parts each row into the 12 colour-and-column planes of a block row (plane
+    Built from whole rows, which is faster than one strided numpy transpose (measured):
+    ``cv2.split`` parts each row into the 12 colour-and-column planes of a block row (plane
     ``3 * j + c``); the planes are then reordered as a copy of contiguous rows."""
     h, w = rgb.shape[:2]
     planes = cv2.split(np.ascontiguousarray(rgb).reshape(h, w // BLOCK, 3 * BLOCK))
@@ -72,7 +72,7 @@ class LearnedSegmenter:
             W/4, or N x 3 x H x W (RGB) with one logit per pixel at half the input size.
         short_side: The frame's shorter side is resized to this many pixels before the network; None: the
             frame's own size. ``"auto"``: 480 for a block network, 240 for an RGB network (the scales they
-            were measured at, docs/RESULTS.md).
+            were measured at).
         threshold: Logit above which a pixel is cable (0: probability 0.5).
         min_area: Connected components of the mask smaller than this many pixels are dropped (0: off).
 
@@ -252,7 +252,7 @@ class LearnedSegmenter:
         ``region`` (u0, v0, u1, v1), in pixels: only the network's 16-pixel grid cells that cover it are
         computed (faster), and the mask is False elsewhere. Within them the mask is the whole frame's except
         near their outer edges, where the network misses the frame around them (its receptive field: about
-        100 px, docs/RESULTS.md, "The cable's reach").
+        100 px).
         :class:`~dyndlo_vision.tracking.masks.CableReachSegmenter` gives the region the cable can reach."""
         h, w = rgb.shape[:2]
         if self.blocks and self.input_size(h, w) == (w, h):  # threshold the blocks, then put them in place

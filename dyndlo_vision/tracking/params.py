@@ -42,7 +42,7 @@ class FilterParams:
             the alpha-beta gains alpha = 1, beta = 2, whose velocity estimate oscillates undamped (each
             velocity is twice the last step's finite difference minus the previous velocity): a missed frame
             is then bridged with a velocity several m/s off. The continuous model's gains tend to beta =
-            1.27, a damped velocity (docs/RESULTS.md, "The loop filter's velocity").
+            1.27, a damped velocity.
     """
 
     sigma_accel: float = 20.0
@@ -87,7 +87,7 @@ class FilterParams:
 #: latency. A whipped tip accelerates at hundreds of m/s^2: with the default 20 m/s^2 fast measurements are
 #: gated out and the estimate coasts off (tip RMSE median 50 mm over 4 demo episodes); at 2000 m/s^2 it
 #: follows the measurements and bridges missed frames (12.7 mm). Measured with the single-step SAC policy,
-#: seeds 100000-100003, tracked observation. Since session 23 that process noise is continuous
+#: seeds 100000-100003, tracked observation. That process noise is continuous
 #: (:attr:`FilterParams.accel_psd` = 2000^2 x 0.04: the same velocity variance per 40 ms frame), so that a
 #: missed frame is bridged with a damped velocity, not an oscillating one.
 LOOP_FILTER = FilterParams(sigma_accel=2000.0, accel_psd=2000.0**2 * 0.04)

@@ -48,7 +48,7 @@ class StereoParams:
         samples: Points sampled along the first view's centreline.
         min_crossing_deg: Smallest angle between the second centreline and an epipolar line for a crossing to
             be used; below it a pixel of error moves the match far along the cable. (In the vault loop, 0, 12
-            and 20 degrees gave 4.6, 4.6 and 4.9 mm: docs/RESULTS.md, session 18.)
+            and 20 degrees gave 4.6, 4.6 and 4.9 mm.)
         max_step_m: Largest 3D distance from the previous matched point (or the held end) for a crossing to be
             taken as the same cable (a wrong crossing lands on another part of it, or off it), per sample
             since that match: after unmatched samples the cable may have gone on that much farther.

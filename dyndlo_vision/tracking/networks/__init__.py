@@ -1,6 +1,6 @@
 """The shipped learned cable segmenters: ONNX networks and the JSON beside each (how it was made).
 
-Four networks, for different pictures (docs/segmentation.md, docs/RESULTS.md "Learned cable segmenter"):
+Four networks, for different pictures (docs/segmentation.md):
 
 * ``cable-segmenter`` (the default of ``track --segmenter learned`` and the real robot's camera): RGB at a
   short side of 240 px, mask at half that. The fastest of the four on a 640x480 frame.
