@@ -78,8 +78,8 @@ class FrozenState:
     """P_DLO as it was at the episode's start, whatever the cable does: the ablation of the feedback.
 
     A policy that does as well on this as on :class:`TrueState` does not use the cable's state it is given
-    (the feedback table's "frozen" row, docs/results.md). The value is taken when the source is built (after ``env.reset``) and again at
-    :meth:`reset`.
+    (the feedback table's "frozen" row, docs/results.md). The value is taken when the source is built (after
+    ``env.reset``) and again at :meth:`reset`.
     """
 
     def __init__(self, env: Any) -> None:
