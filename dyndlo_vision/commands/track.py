@@ -932,6 +932,12 @@ def _note_first_rule(pipeline: CablePipeline, result: FrameResult, frame: Frame,
         f"{frame.index} of {cfg.video}, as the held end",
         file=sys.stderr,
     )
+    if len(pipeline.views) == 2 and pipeline.views[1].first_rule and len(result.views) == 2:
+        second = result.views[1].centerline
+        if second is not None:
+            u1, v1 = second.path_uv[0]
+            print(f"note: no --second-anchor; took {pipeline.views[1].first_rule}, at pixel ({u1:.0f}, "
+                  f"{v1:.0f}) in frame {frame.index} of {cfg.second_video}, as the held end", file=sys.stderr)
     pipeline._rule_printed = True  # type: ignore[attr-defined]
 
 

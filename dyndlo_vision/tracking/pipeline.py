@@ -928,28 +928,18 @@ class CablePipeline:
             seen = np.flatnonzero(meas.visible & np.all(np.isfinite(point_space), axis=1))
             if seen.size == 0:
                 return None, None, length, False, "the tip's node is not seen"
+            if ref is None and self.stereo and not _reaches_far_ends(meas, self.views, results):
+                why = "the triangulated cable does not reach its far end in both views"
+                return None, None, length, False, why
             if any(_doubles_back(r.centerline) for r in results):
                 return None, None, length, False, "the cable doubles back along itself at its end"
-            if ref is None and self.stereo:
-                if not _reaches_far_ends(meas, self.views, results):
-                    return (
-                        None,
-                        None,
-                        length,
-                        False,
-                        ("the triangulated cable does not reach its far end in both views"),
-                    )
-            elif ref is None and reference is None and self.length_doubt:
-                return (
-                    None,
-                    None,
-                    length,
-                    False,
-                    "the cable's length is in doubt: bridged frames show it longer",
-                )
-            elif ref is None:
+            stereo_reach = ref is None and self.stereo  # two views reaching both far ends: no length needed
+            if not stereo_reach and ref is None and reference is None and self.length_doubt:
+                why = "the cable's length is in doubt: bridged frames show it longer"
+                return None, None, length, False, why
+            if not stereo_reach and ref is None:
                 return None, None, length, False, "the cable's length is not known yet"
-            elif np.isfinite(length):
+            if not stereo_reach and np.isfinite(length):
                 ratio = length / ref
                 if ratio > 1.0 + cfg.long_tolerance:
                     return None, None, length, False, "longer than the cable"
