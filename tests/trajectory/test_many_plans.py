@@ -93,3 +93,61 @@ def test_many_names_the_bad_plan() -> None:
     with pytest.raises(ValueError, match=r"action 1 must be finite, got nan at index 3"):
         SPECS[0].decode_many(np.array([[0.0] * 9, [0, 0, 0, np.nan, 0, 0, 0, 0, 0]]), np.zeros((2, 3)),
                              np.zeros(2))
+
+
+def _same_plans(one: list[Replanner], many: list[Replanner]) -> None:
+    for a, b in zip(one, many, strict=True):
+        assert a.trajectory is not None and b.trajectory is not None
+        for field in ("_tb_a", "_tc_a", "_pb_a", "_pc_a"):
+            np.testing.assert_array_equal(getattr(a.trajectory, field), getattr(b.trajectory, field))
+
+
+def test_replan_many_fits_all_plans_in_one_computation(monkeypatch: pytest.MonkeyPatch) -> None:
+    calls = []
+    many_fits = BSplineTrajectory.many
+    monkeypatch.setattr(BSplineTrajectory, "many",
+                        staticmethod(lambda *args, **kw: calls.append(1) or many_fits(*args, **kw)))
+    planners = [Replanner(SPECS[0], np.array([[0.45, 0.0, 0.6]])) for _ in range(4)]
+    replan_many(planners, np.zeros((4, SPECS[0].size)), np.zeros(4))
+    assert calls == [1] and all(p.trajectory is not None for p in planners)
+
+
+@pytest.mark.parametrize("mixed", ["final point", "specs"])
+def test_replan_many_with_final_points_or_mixed_specs_replans_one_by_one(mixed: str) -> None:
+    """Task IV's planners (a final point) and planners of different action specs cannot share one fit: each
+    re-plans on its own, to the same plans as its own ``replan``."""
+    from dataclasses import replace
+
+    home = np.array([[0.45, 0.0, 0.6]])
+    rng = np.random.default_rng(7)
+    with_final = replace(SPECS[0], append_final_point=True)
+
+    def planners() -> list[Replanner]:
+        if mixed == "final point":
+            return [Replanner(with_final, home, final_point=[0.5, 0.0, 0.3 + 0.1 * k]) for k in range(3)]
+        return [Replanner(SPECS[0], home), Replanner(SPECS[2], home), Replanner(SPECS[0], home)]
+
+    one, many = planners(), planners()
+    size = max(p.spec.size for p in one)
+    for t in (0.0, 0.04):
+        actions = rng.uniform(-1.0, 1.0, (3, size))
+        for r, a in zip(one, actions, strict=True):
+            r.replan(a[: r.spec.size], t)
+        if mixed == "final point":
+            replan_many(many, actions, np.full(3, t))
+        else:  # one action row per planner, each its own size: rows of a list
+            for r, a in zip(many, actions, strict=True):
+                replan_many([r], a[None, : r.spec.size], np.array([t]))
+        _same_plans(one, many)
+
+
+@pytest.mark.parametrize("final_point", [None, [0.5, 0.0, 0.3]])
+def test_replan_many_refuses_actions_or_times_that_do_not_match_the_planners(final_point: object) -> None:
+    from dataclasses import replace
+
+    spec = replace(SPECS[0], append_final_point=final_point is not None)
+    planners = [Replanner(spec, np.array([[0.45, 0.0, 0.6]]), final_point=final_point) for _ in range(3)]
+    with pytest.raises(ValueError):
+        replan_many(planners, np.zeros((2, spec.size)), np.zeros(3))
+    with pytest.raises(ValueError):
+        replan_many(planners, np.zeros((3, spec.size)), np.zeros(2))
