@@ -416,3 +416,33 @@ def test_a_cable_cut_ever_lower_below_the_gripper_does_not_drag_its_held_end_to_
     results += [pipe.step([frame(c)], (19 + k) / FPS) for k, c in enumerate(back)]
     curves += back
     check_truthful(results, curves)
+
+
+def test_a_held_end_below_a_slow_cable_is_not_measured() -> None:
+    """The user clicked the cable's lower end (its tip) in the first frame of a cable hanging still: the held
+    end's track follows that end, so the gripper would be reported as the tip. A cable upside down does not
+    stay slow, so while it is slow such a frame is not measured. The first frame has no motion to judge: it
+    trusts the click (measured: the gripper reported there, then never again)."""
+    from dyndlo_vision.tracking.tracker import Plane
+
+    from .helpers import look_at_camera
+
+    cam = look_at_camera(eye=(0.05, -1.0, 0.35), target=(0.0, 0.0, 0.3))
+    world = np.column_stack((np.zeros(200), np.zeros(200), np.linspace(0.55, 0.05, 200)))  # gripper at the top
+    uv = cam.project(world)
+    config = PipelineConfig(SegmenterConfig("background"), plane=Plane(np.array([0.0, 1.0, 0.0]), 0.0),
+                            cable_length_m=0.5)
+    background = np.full((cam.height, cam.width, 3), (200, 200, 195), np.uint8)
+    base, _ = build_segmenter(config.segmenter, background_image=background)
+    view = build_view_segmenter(base, camera=cam, max_width_share=config.max_width_share,
+                                max_width_ratio=config.max_width_ratio)
+    pipe = CablePipeline(config, [cam], [view], [uv[-1]])  # the click on the tip
+    results = []
+    for k in range(12):
+        rgb, _ = render_cable(uv, (cam.height, cam.width), thickness=4, background=(200, 200, 195),
+                              noise_sigma=2.0, seed=k)
+        results.append(pipe.step([rgb], k / FPS))
+    for k, r in enumerate(results[1:], start=1):
+        if r.status.seen:  # never the gripper: a measured point is at the true tip
+            assert np.linalg.norm(r.point - world[-1]) < 0.02, f"frame {k}: {r.point} reported as the tip"
+    assert "the held end is below the tip while the cable is slow" in pipe.reasons
