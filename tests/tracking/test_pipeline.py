@@ -428,7 +428,7 @@ def test_a_held_end_below_a_slow_cable_is_not_measured() -> None:
     from .helpers import look_at_camera
 
     cam = look_at_camera(eye=(0.05, -1.0, 0.35), target=(0.0, 0.0, 0.3))
-    world = np.column_stack((np.zeros(200), np.zeros(200), np.linspace(0.55, 0.05, 200)))  # gripper at the top
+    world = np.column_stack((np.zeros(200), np.zeros(200), np.linspace(0.55, 0.05, 200)))  # gripper on top
     uv = cam.project(world)
     config = PipelineConfig(SegmenterConfig("background"), plane=Plane(np.array([0.0, 1.0, 0.0]), 0.0),
                             cable_length_m=0.5)
