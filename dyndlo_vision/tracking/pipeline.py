@@ -16,8 +16,8 @@ alone, one photo at a time):
 5. the tracked point (the tip, or a fraction of the cable from the held end), measured only where the cable
    ends free at it: not at the image border, not inside a region too thick to be cable, and not shorter or
    longer than the cable (its length given, or learned from the frames where both ends are seen). A
-   polyline shorter than a given cable length is continued straight to the tip when at least half of it is
-   seen;
+   polyline shorter than a given cable length is continued straight to the tip when the robot's pose or the
+   gripper's template places the held end and at least 80 % of the cable is seen;
 6. the Kalman filter (:mod:`~dyndlo_vision.tracking.filter`), updated at the frame's capture time.
 
 Each frame's :class:`FrameResult` says what happened and why; :meth:`CablePipeline.estimate` predicts the
