@@ -334,10 +334,7 @@ class _View:
             self.still_frames = self.slow_frames = 0
             self.slow_s = 0.0
         else:
-            moved = min(
-                np.max(np.hypot(*(marks - self.prev_ends).T)),
-                np.max(np.hypot(*(marks[::-1] - self.prev_ends).T)),
-            )
+            moved = _marks_moved(marks, self.prev_ends)
             self.still_frames = self.still_frames + 1 if moved <= self.STILL_SHARE * cl.length_px else 0
             slow = moved <= self.SLOW_LENGTHS_PER_S * dt * cl.length_px
             self.slow_frames = self.slow_frames + 1 if slow else 0
@@ -648,22 +645,26 @@ class CablePipeline:
     def learned_length(self) -> float | None:
         """The cable's length learned from the frames (world m, or px), None until enough agreeing ones were
         seen, or while it is in doubt (:attr:`length_doubt`)."""
-        length = self._longest_agreed(self._lengths)
-        return None if length is None or self.length_doubt else length
+        length, doubt = self._length_state()
+        return None if doubt else length
 
     @property
     def length_doubt(self) -> bool:
         """Frames show the cable longer than the length learned (beyond ``long_tolerance``): frames bridged
         across a gap agree on a longer length, or a tenth of all frames (at least two) are longer. The
         cable's far part is faint, and what looked like its tip may be its middle."""
+        return self._length_state()[1]
+
+    def _length_state(self) -> tuple[float | None, bool]:
+        """(the longest length the clean frames agree on, or None; whether it is in doubt), one pass."""
         length = self._longest_agreed(self._lengths)
         if length is None:
-            return False
+            return None, False
         longest = length * (1.0 + self.config.long_tolerance)
         bridged = self._longest_agreed(self._bridged_lengths, poses=0)  # doubt needs less evidence
         every = [v for v, _ in self._lengths] + [v for v, _ in self._bridged_lengths]
         longer = sum(v > longest for v in every)
-        return (bridged is not None and bridged > longest) or longer >= max(2, 0.1 * len(every))
+        return length, (bridged is not None and bridged > longest) or longer >= max(2, 0.1 * len(every))
 
     def _longest_agreed(self, values: deque[tuple[float, bool]], poses: int | None = None) -> float | None:
         """The median of the longest group of lengths within ``max_length_spread`` of one of them, with at
@@ -851,9 +852,7 @@ class CablePipeline:
         if marks is None:
             return False
         if self._pose is not None:
-            moved = min(
-                np.max(np.hypot(*(marks - self._pose).T)), np.max(np.hypot(*(marks[::-1] - self._pose).T))
-            )
+            moved = _marks_moved(marks, self._pose)
             span = float(np.hypot(*(marks[0] - marks[-1]).T))  # half the cable's length, or less where bent
             if moved <= 0.2 * span:
                 return False
@@ -920,7 +919,8 @@ class CablePipeline:
         if clean:
             (self._bridged_lengths if bridged else self._lengths).append((length, self._new_pose()))
         reference = cfg.cable_length_m if self.world else None
-        ref = reference if reference is not None else self.learned_length
+        learned, doubt = (None, False) if reference is not None else self._length_state()
+        ref = reference if reference is not None else (None if doubt else learned)
         point_space = (
             meas.nodes_xyz if self.world else np.column_stack([meas.nodes_uv, np.zeros(len(meas.nodes_uv))])
         )
@@ -934,7 +934,7 @@ class CablePipeline:
             if any(_doubles_back(r.centerline) for r in results):
                 return None, None, length, False, "the cable doubles back along itself at its end"
             stereo_reach = ref is None and self.stereo  # two views reaching both far ends: no length needed
-            if not stereo_reach and ref is None and reference is None and self.length_doubt:
+            if not stereo_reach and ref is None and doubt:
                 why = "the cable's length is in doubt: bridged frames show it longer"
                 return None, None, length, False, why
             if not stereo_reach and ref is None:
@@ -984,6 +984,12 @@ class CablePipeline:
             return None, None, length, False, "the point's nodes are not seen"
         uv = self.views[0].camera.project(point[None])[0] if self.world else point[:2].copy()
         return point, uv, length, continued, ""
+
+
+def _marks_moved(marks: NDArray[np.float64], previous: NDArray[np.float64]) -> float:
+    """How far (px) a cable's quarter, middle and three-quarter points moved from ``previous``: the largest
+    of the three, for the ordering of the two that fits best (a cable's path may run either way)."""
+    return float(min(np.max(np.hypot(*(marks - previous).T)), np.max(np.hypot(*(marks[::-1] - previous).T))))
 
 
 def _doubles_back(cl: Any, share: float = 0.1) -> bool:
