@@ -53,6 +53,7 @@ def main() -> int:
     from dyndlo_vision import policies
     from dyndlo_vision.control.episode import run_loop_episode
     from dyndlo_vision.control.sim_perception import LoopPerception, loop_segmenter
+    from dyndlo_vision.policies.actor import deterministic_policy
     from dyndlo_vision.tasks import make_env
     from dyndlo_vision.tracking.params import LATENT_LOOP_FILTER, LOOP_FILTER
 
@@ -62,9 +63,7 @@ def main() -> int:
     _, meta = policies.resolve(name)
     env = make_env("tip-control", multi_step=bool(meta.get("multi_step", False)))
     model = policies.load(name, env=env)
-
-    def act(obs: np.ndarray) -> np.ndarray:
-        return model.predict(obs, deterministic=True)[0]
+    act = deterministic_policy(model)
 
     segmenter = None if args.segmenter is None else loop_segmenter(args.segmenter)
     rows = []

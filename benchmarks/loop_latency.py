@@ -23,6 +23,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
+from dyndlo_vision.policies.actor import deterministic_policy  # noqa: E402
 from dyndlo_vision.tasks import make_env  # noqa: E402
 
 
@@ -43,7 +44,7 @@ def pinned_demo_policy(policy: str | None) -> tuple[str, Any, Any]:
     _, meta = policies.resolve(name)
     env = make_env("tip-control", multi_step=bool(meta.get("multi_step", False)))
     model = policies.load(name, env=env)
-    return str(name), env, lambda obs: model.predict(obs, deterministic=True)[0]
+    return str(name), env, deterministic_policy(model)
 
 
 def main() -> int:

@@ -75,6 +75,7 @@ def main(argv: list[str] | None = None) -> int:
         loop_segmenter,
         scene_views,
     )
+    from dyndlo_vision.policies.actor import deterministic_policy
     from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
     from dyndlo_vision.tasks.registry import make_env
     from dyndlo_vision.tasks.wrappers import cable_ranges_for
@@ -93,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     for i in range(args.episodes):
         if hasattr(model, "reset"):
             model.reset()  # a policy with a P_DLO history starts every episode afresh (as the demo does)
-        record = run_loop_episode(env, lambda obs: model.predict(obs, deterministic=True)[0], args.seed + i,
+        record = run_loop_episode(env, deterministic_policy(model), args.seed + i,
                                   "tracked", "tracking", perception=perception)
         rec = episode_records(record["trace"], CONTROL_PERIOD_S)
         rec["episode"] = np.full(len(rec["speed"]), i)

@@ -487,6 +487,7 @@ def film_episode(
     the video shows the present, with the polyline the tracker found in the delayed frame.
     """
     from dyndlo_vision.control.episode import run_loop_episode
+    from dyndlo_vision.policies.actor import deterministic_policy
 
     shown_legend = make_legend(observation == "tracked", goal_name)
 
@@ -508,7 +509,7 @@ def film_episode(
         model.reset()  # a policy with a P_DLO history starts the episode afresh
     return run_loop_episode(
         env,
-        lambda obs: model.predict(obs, deterministic=True)[0],
+        deterministic_policy(model),
         seed,
         observation,
         camera_name,

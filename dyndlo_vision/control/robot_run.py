@@ -542,6 +542,7 @@ def run_session(cfg: RunConfig, dry_run: bool, say: Callable[[str], None] = prin
     import dyndlo_vision.policies as policies
     from dyndlo_vision.control.scripted import scripted_policy
     from dyndlo_vision.control.sim_env import as_sim_env
+    from dyndlo_vision.policies.actor import deterministic_policy
     from dyndlo_vision.tasks.registry import make_env
     from dyndlo_vision.tracking.camera_model import PinholeCamera
     from dyndlo_vision.trajectory import Replanner
@@ -575,9 +576,7 @@ def run_session(cfg: RunConfig, dry_run: bool, say: Callable[[str], None] = prin
         model = policies.load(name, env=env)
         if hasattr(model, "reset"):
             model.reset()  # a policy with a P_DLO history (one run is one episode)
-
-        def policy(obs: Any) -> Any:
-            return model.predict(obs, deterministic=True)[0]
+        policy = deterministic_policy(model)
 
     fake = None
     if dry_run:
