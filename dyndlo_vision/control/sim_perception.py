@@ -189,19 +189,31 @@ def loop_pipeline_config(
     )
 
 
-def view_segmenter(config: PipelineConfig, camera: Any, calibration: Any, background: Any = None) -> Any:
+def view_segmenter(
+    config: PipelineConfig,
+    camera: Any,
+    calibration: Any,
+    background: Any = None,
+    held_world: NDArray[np.float64] | None = None,
+) -> Any:
     """One view's segmenter stack for the loop's pipeline (``background``: the scene without the cable, for
-    the classical segmenter; the learned one is warmed up on a first frame here, as the classical one is by
-    that render: a camera's first render and a process's first network pass at the frame's size take 3-5x
-    their usual time, up to 52 ms together, which would overrun cycle 0's deadline)."""
+    the classical segmenter).
+
+    The learned one is warmed up here, before the loop's first cycle, as the classical one is by that
+    render: a camera's first render and a process's first network pass at the frame's size take 3-5x their
+    usual time, up to 52 ms together, which would overrun cycle 0's deadline. With ``held_world`` (the TCP
+    now) the warm-up frame also goes through the cable's reach, so that the first cycle already follows the
+    cable's box (:class:`~dyndlo_vision.tracking.masks.CableReachSegmenter`) instead of computing the whole
+    ball: the scene is at rest until the loop starts, so the first cycle sees this frame's cable."""
     seg = config.segmenter
     base, _ = build_segmenter(
         seg, frame_size=(calibration.width, calibration.height), background_image=background
     )
-    if seg.kind == "learned":
-        base.segment(camera.read().rgb)
+    first = camera.read().rgb if seg.kind == "learned" else None
+    if first is not None:
+        base.segment(first)
     reach = None if config.reach_margin_m is None else config.cable_length_m + config.reach_margin_m
-    return build_view_segmenter(
+    stack = build_view_segmenter(
         base,
         camera=calibration,
         reach_m=reach,
@@ -210,6 +222,10 @@ def view_segmenter(config: PipelineConfig, camera: Any, calibration: Any, backgr
         max_width_share=config.max_width_share,
         max_width_ratio=config.max_width_ratio,
     )
+    if first is not None and held_world is not None and stack.reach is not None:
+        stack.hold(np.asarray(held_world, dtype=np.float64), None)
+        stack(first)
+    return stack
 
 
 def tracked_state(
@@ -253,8 +269,11 @@ def tracked_state(
     names = ["tracking" if camera_name is None else camera_name, SECOND_TRACKING_CAMERA_NAME][:views]
     cameras = [MujocoCamera(base.model, base.data, name, width=width, height=height) for name in names]
     calibrations = [c.calibration for c in cameras]
+    held = base.scene.tcp_positions()[0]
     segmenters = [
-        view_segmenter(config, cam, calib, None if segmenter.kind == "learned" else render_without_cable(cam))
+        view_segmenter(
+            config, cam, calib, None if segmenter.kind == "learned" else render_without_cable(cam), held
+        )
         for cam, calib in zip(cameras, calibrations, strict=True)
     ]
     pipeline = CablePipeline(config, calibrations, segmenters)

@@ -260,7 +260,9 @@ class FrameResult:
         views: Each view's :class:`ViewResult`.
         reason: Why the point was not measured ("" when it was).
         length: The measured cable's length from the held end (world m, or px), NaN when none.
-        stage_ms: Wall time of the frame's stages: ``track`` (segmentation to the point) and ``filter``.
+        stage_ms: Wall time of the frame's stages (ms): ``track`` (segmentation to the point) and ``filter``;
+            and within ``track``: ``segment``, ``centreline`` (both summed over the views), ``identity`` (the
+            rest of the views' work: which end is held) and ``lift`` (3-D, length checks, the point).
     """
 
     t: float
@@ -302,6 +304,8 @@ class _View:
         #: The held end's pixel, time and noise waiting for :meth:`settle`.
         self.pending: tuple[NDArray[np.float64], float, float] | None = None
         self.px_per_m = px_per_m
+        #: The last :meth:`measure`'s segmentation and centreline times (ms).
+        self.ms = {"segment": 0.0, "centreline": 0.0}
         self.reset()
 
     def reset(self) -> None:
@@ -396,7 +400,9 @@ class _View:
             if cfg.gripper_radius_m is not None:
                 radius_px = cfg.gripper_radius_m * float(self.camera.K[0, 0]) / depth
         self.segmenter.hold(held_world, known_uv, radius_px)
+        t0 = time.perf_counter()
         mask = self.segmenter(rgb)
+        self.ms["segment"] = 1e3 * (time.perf_counter() - t0)
         if known_uv is None and self.gripper is None and self.anchor is not None:
             self.gripper = GripperTemplate(rgb, self.anchor, self._template_size(rgb))
         lost = self.held.lost_at(t)
@@ -424,7 +430,9 @@ class _View:
             hint = self.held.predict(t) if not lost else self.held.uv
         else:
             hint = self.anchor
+        t1 = time.perf_counter()
         cl = extract_centerline(mask, cfg.nodes, anchor_uv=hint)
+        self.ms["centreline"] = 1e3 * (time.perf_counter() - t1)
         if not cl.any_visible:
             self.prev_ends = None
             return ViewResult(None, None, hint, float("nan"), "no cable found")
@@ -724,6 +732,7 @@ class CablePipeline:
             if k == 1 and results[0].centerline is not None:
                 first = (self.views[0].camera, results[0].centerline.path_uv[0])
             results.append(view.measure(rgb, t, held, first))
+        t_views = time.perf_counter()
         measurement, held_xyz, reason = self._measurement(results, t, held, depth)
         point, point_uv, length, continued = None, None, float("nan"), False
         if not reason:
@@ -731,7 +740,12 @@ class CablePipeline:
         explained = reason in _LENGTH_EXPLAINED
         for view in self.views:
             view.settle(explained)
-        return self._filtered(t, point, point_uv, continued, reason, measurement, tuple(results), length, t0)
+        detail = {k: sum(v.ms[k] for v in self.views) for k in ("segment", "centreline")}
+        detail["identity"] = 1e3 * (t_views - t0) - detail["segment"] - detail["centreline"]
+        detail["lift"] = 1e3 * (time.perf_counter() - t_views)
+        return self._filtered(
+            t, point, point_uv, continued, reason, measurement, tuple(results), length, t0, detail
+        )
 
     def skip(self, t_capture: float, reason: str) -> FrameResult:
         """A frame that cannot be measured (``reason``): the filter predicts."""
@@ -758,8 +772,10 @@ class CablePipeline:
         results: tuple[ViewResult, ...],
         length: float,
         t0: float,
+        detail: dict[str, float] | None = None,
     ) -> FrameResult:
-        """Updates the filter with the frame's point (None: not measured) and says what it rests on."""
+        """Updates the filter with the frame's point (None: not measured) and says what it rests on
+        (``detail``: the ``track`` stage's parts, ms)."""
         t1 = time.perf_counter()
         self.n_frames += 1
         accepted = self.filter.update(point, t)
@@ -773,7 +789,7 @@ class CablePipeline:
         else:
             status = Status.LOST if estimate.lost else Status.PREDICTED
             self.reasons[reason] += 1
-        stage = {"track": 1e3 * (t1 - t0), "filter": 1e3 * (time.perf_counter() - t1)}
+        stage = {"track": 1e3 * (t1 - t0), "filter": 1e3 * (time.perf_counter() - t1), **(detail or {})}
         return FrameResult(
             t,
             status,

@@ -46,6 +46,28 @@ def test_tracked_state_segmenters() -> None:
         env.close()
 
 
+def test_the_first_cycle_already_follows_the_cable() -> None:
+    """The warm-up frame, rendered before the loop starts, goes through the cable's reach: the first cycle
+    computes the box around its cable, not the whole ball (about 3x the pixels, past the cycle's budget)."""
+    from dyndlo_vision.control.sim_env import as_sim_env
+
+    env = gym.make("DynDLO/TipControl-v0", multi_step=True)
+    try:
+        env.reset(seed=0)
+        source, camera = tracked_state(env)
+        try:
+            reach = source.pipeline.views[0].segmenter.reach
+            assert reach.last_box is not None
+            held = as_sim_env(env).scene.tcp_positions()[0]
+            result = source.pipeline.step([camera.read().rgb], 0.0, held_world=held)
+            assert result.status.seen
+            assert (reach.followed, reach.recomputed) == (1, 0)
+        finally:
+            camera.close()
+    finally:
+        env.close()
+
+
 def test_the_default_segmenter_is_the_network_with_one_camera_and_classical_with_two() -> None:
     """Tip control's one loop camera: the learned network, as with a real camera; vaulting's two: the
     classical segmenter, where the network loses the cable on the floor (docs/RESULTS.md, session 36)."""

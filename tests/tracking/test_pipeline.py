@@ -446,3 +446,25 @@ def test_a_held_end_below_a_slow_cable_is_not_measured() -> None:
         if r.status.seen:  # never the gripper: a measured point is at the true tip
             assert np.linalg.norm(r.point - world[-1]) < 0.02, f"frame {k}: {r.point} reported as the tip"
     assert "the held end is below the tip while the cable is slow" in pipe.reasons
+
+
+def test_each_frame_reports_its_stage_times() -> None:
+    """``track`` splits into segment, centreline, identity and lift, which add up to it (the loop's profile);
+    the views' segmentation is timed around the segmenter's call, so a slow segmenter shows as ``segment``."""
+    import time
+
+    pipe = pixel_pipeline()
+    view = pipe.views[0].segmenter
+    inner = view._top
+
+    def slow(rgb: np.ndarray) -> np.ndarray:
+        time.sleep(0.02)
+        return inner(rgb)
+
+    view._top = slow
+    stage = run(pipe, hanging(2))[-1].stage_ms
+    assert set(stage) == {"track", "filter", "segment", "centreline", "identity", "lift"}
+    assert all(v >= 0 for v in stage.values())
+    assert stage["segment"] >= 20.0
+    parts = stage["segment"] + stage["centreline"] + stage["identity"] + stage["lift"]
+    assert parts == pytest.approx(stage["track"], abs=0.5)
