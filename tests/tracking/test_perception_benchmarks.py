@@ -93,8 +93,11 @@ def test_tracking_speed_quick_times_each_stage_of_both_loop_pipelines(tmp_path: 
 def test_loop_latency_quick_reports_the_loops_stages(tmp_path: Path) -> None:
     res = _quick("loop_latency.py", tmp_path)
     assert res["episodes"] == 1 and res["cycles"] >= 10
-    assert {"camera", "track", "filter", "policy", "plan"} <= set(res["stage_ms_p50"])
-    assert 0 < res["controller_ms_p50"] < res["controller_ms_p95"]
+    assert {"camera", "track", "filter", "policy", "plan", "segment", "centreline", "identity",
+            "lift"} <= set(res["stage_ms_p50"])
+    assert 0 < res["controller_ms_p50"] < res["controller_ms_p95"] <= res["controller_ms_p99"]
+    assert 0 < res["without_render_ms_p50"] < res["controller_ms_p50"]
+    assert res["without_render_ms_p95"] <= res["without_render_ms_p99"] < res["controller_ms_p99"]
     assert 0.0 <= res["deadline_miss_share"] <= 1.0
     assert res["estimate_rmse_m_median"] < 0.01
 
