@@ -362,14 +362,17 @@ def test_demo_loop_on_true_state_is_the_environment_episode(seed: int) -> None:
 
     from dyndlo_vision import policies
     from dyndlo_vision.commands.demo import film_episode
+    from dyndlo_vision.policies.actor import deterministic_policy
 
     env = gym.make("DynDLO/TipControl-v0", multi_step=True)
     model = policies.load("tip-control-multi-step", env=env)
+    # The loop's own forward pass (equal to predict within float rounding: test_policy_actor.py), so that
+    # the episodes agree to the last bit and this compares the loop's scoring with the environment's.
+    act = deterministic_policy(model)
     obs, _ = env.reset(seed=seed)
     done, steps = False, 0
     while not done:
-        action, _ = model.predict(obs, deterministic=True)
-        obs, _, done, _, info = env.step(action)
+        obs, _, done, _, info = env.step(act(obs))
         steps += 1
     end_time = env.unwrapped.scene.time
     end_tip = env.unwrapped.p_dlo()

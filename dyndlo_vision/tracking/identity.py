@@ -353,6 +353,22 @@ class GripperTemplate:
             return None
         return rgb[v - r : v + r + 1, u - r : u + r + 1].astype(np.float32)
 
+    def seen_near(self, rgb: NDArray[np.uint8], uv: NDArray[np.float64], radius_px: float) -> bool:
+        """Whether the gripper's template matches (at least ``min_score``) somewhere within ``radius_px`` of
+        ``uv``: a check, which changes nothing of the template's state."""
+        import cv2
+
+        if self.template is None or not np.all(np.isfinite(uv)):
+            return False
+        h, w = rgb.shape[:2]
+        s = int(math.ceil(radius_px)) + self.size // 2
+        u, v = int(round(float(uv[0]))), int(round(float(uv[1])))
+        u0, v0, u1, v1 = max(0, u - s), max(0, v - s), min(w, u + s + 1), min(h, v + s + 1)
+        if u1 - u0 < self.size or v1 - v0 < self.size:
+            return False
+        scores = cv2.matchTemplate(rgb[v0:v1, u0:u1].astype(np.float32), self.template, cv2.TM_CCOEFF_NORMED)
+        return bool(float(scores.max()) >= self.min_score)
+
     def locate(self, rgb: NDArray[np.uint8], t: float, search_px: float) -> NDArray[np.float64] | None:
         """The gripper's pixel in ``rgb`` (taken at ``t``), searched within ``search_px`` of its prediction;
         None when it matches nowhere well enough."""

@@ -737,6 +737,10 @@ class CablePipeline:
         point, point_uv, length, continued = None, None, float("nan"), False
         if not reason:
             point, point_uv, length, continued, reason = self._point(measurement, results, held_xyz)
+        if not reason and point_uv is not None and self.config.tip and held is None:
+            reason = self._looks_held(images[0], point_uv)
+            if reason:
+                point, point_uv, continued = None, None, False
         explained = reason in _LENGTH_EXPLAINED
         for view in self.views:
             view.settle(explained)
@@ -911,6 +915,21 @@ class CablePipeline:
         if gripper_uv is None:
             return float(cl.length_px)
         return _length_from(cl.path_uv, gripper_uv, radius_px)
+
+    def _looks_held(self, rgb: NDArray[np.uint8], tip_uv: NDArray[np.float64]) -> str:
+        """Why the tip at ``tip_uv`` is not measured ("" when it may be): the gripper's template matches
+        there. A tip reported on the gripper is the worst wrong answer: the held end and the tip swapped, or
+        the tip so close to the gripper that they cannot be told apart. (With the robot's pose the gripper is
+        masked out of the segmentation instead.) The template is searched within the cable start's offset
+        from it plus half its size."""
+        view = self.views[0]
+        grip = view.gripper
+        if grip is None or not grip.usable or not view.offsets:
+            return ""
+        offset = float(np.hypot(*np.median(np.array(view.offsets), axis=0)))
+        if grip.seen_near(rgb, tip_uv, offset + 0.5 * grip.size):
+            return "the tip looks like the gripper"
+        return ""
 
     def _point(
         self, meas: Measurement, results: list[ViewResult], held: NDArray[np.float64] | None

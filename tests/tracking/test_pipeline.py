@@ -468,3 +468,29 @@ def test_each_frame_reports_its_stage_times() -> None:
     assert stage["segment"] >= 20.0
     parts = stage["segment"] + stage["centreline"] + stage["identity"] + stage["lift"]
     assert parts == pytest.approx(stage["track"], abs=0.5)
+
+
+def test_a_tip_that_looks_like_the_gripper_is_not_measured(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The last guard: should the ends' identity be fooled (here: the orientation forced the wrong way round
+    once the cable's length is learned, in a frame where the gripper's template was not followed, so the
+    length from the gripper does not give the swap away), a tip where the clicked gripper's template matches
+    is not measured: the gripper is never reported as the tip."""
+    from dyndlo_vision.tracking import pipeline as pipeline_module
+    from dyndlo_vision.tracking.identity import GripperTemplate, Orientation
+
+    whip = [arc(GRIPPER + [0, 8], 90.0 + 50 * math.sin(k / 3), 160 * math.sin(k / 2.5)) for k in range(25)]
+    pipe = pixel_pipeline()
+    run(pipe, hanging(4) + whip)
+    assert pipe.learned_length is not None
+    real_orient = pipeline_module.orient
+
+    def swapped(*args: object, **kwargs: object) -> Orientation:
+        o = real_orient(*args, **kwargs)
+        return o if o.held_at_start is None else Orientation(not o.held_at_start, o.reason, o.registered)
+
+    monkeypatch.setattr(pipeline_module, "orient", swapped)
+    monkeypatch.setattr(GripperTemplate, "locate", lambda *args, **kwargs: None)
+    curve = arc(GRIPPER + [0, 8], 90.0, 0.0)
+    result = pipe.step([frame(curve)], 30 / FPS)
+    assert result.reason == "the tip looks like the gripper"
+    assert not result.status.seen and result.point is None
