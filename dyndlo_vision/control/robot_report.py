@@ -13,7 +13,7 @@ from dyndlo_vision.control.horizon import HorizonRobot
 from dyndlo_vision.control.loop import CycleRecord
 from dyndlo_vision.control.run_config import RunConfig
 
-__all__ = ["RunResult", "moving_targets_lost", "run_metrics"]
+__all__ = ["RunResult", "moving_targets_lost", "robot_series", "run_metrics", "simulated_outcome"]
 
 FloatArray = NDArray[np.float64]
 
@@ -31,6 +31,39 @@ class RunResult:
     trace: dict[str, Any] | None
     #: Robot time series: measured and target joints, for the robot plot.
     robot: dict[str, Any] = field(default_factory=dict)
+
+
+def simulated_outcome(base: Any, goal: FloatArray, records: list[CycleRecord], truth_t: list[float],
+                      truth: list[FloatArray], replan_end_t: float) -> tuple[dict[str, Any], dict[str, Any]]:
+    """A dry run's outcome, judged on its simulation as it stands, and the P_DLO plot's data.
+
+    ``truth_t``, ``truth``: the simulation's P_DLO at each cycle; the final one (now) is appended.
+    """
+    _, success, info = base.outcome()
+    final = base.p_dlo()
+    truth = truth + [np.asarray(final, dtype=float)]
+    outcome = {"success": bool(success), "truth": "the dry run's simulation (cable following the robot)",
+               "final_distance_m": float(np.linalg.norm(final - goal)),
+               "min_distance_m": float(info["min_distance_m"]), "avoid": info["avoid"],
+               "final_p_dlo_m": np.asarray(final).tolist()}
+    trace = {
+        "t": [r.t for r in records], "estimate": [r.p_dlo_estimate.tolist() for r in records],
+        "measured": [r.measured for r in records], "truth_t": truth_t,
+        "truth": [p.tolist() for p in truth],
+        "goal": goal.tolist(), "success_radius_m": getattr(base.task, "success_radius_m", None),
+        "replan_end_t": replan_end_t, "success": bool(success), "min_distance_m": info["min_distance_m"],
+    }
+    return outcome, trace
+
+
+def robot_series(driver: Any, goal: FloatArray, arm: str) -> dict[str, Any]:
+    """Measured and target joints over time (the targets sent while moving), for the robot plot."""
+    rec = driver.targets
+    return {
+        "t_measured": [m[0] for m in driver.measured], "q_measured": [m[1].tolist() for m in driver.measured],
+        "t_target": [r[0] for r in rec if r[2]], "q_target": [r[1].tolist() for r in rec if r[2]],
+        "goal": goal.tolist(), "arm": arm,
+    }
 
 
 def moving_targets_lost(sent: list[FloatArray], received: list[FloatArray], tol: float = 1e-9) -> int:

@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 from dyndlo_vision.control.horizon import HorizonRobot
 from dyndlo_vision.control.loop import ControlLoop, CycleRecord
 from dyndlo_vision.control.robot_perception import build_source, camera_calibration
-from dyndlo_vision.control.robot_report import RunResult, run_metrics
+from dyndlo_vision.control.robot_report import RunResult, robot_series, run_metrics, simulated_outcome
 from dyndlo_vision.control.robot_setup import (
     RunRefused,
     arm_kinematics,
@@ -284,29 +284,11 @@ def _loop(cfg: RunConfig, dry_run: bool, say: Callable[[str], None], annotate: A
     trace = None
     if simulated:
         camera.advance()  # the scene up to the robot's last state
-        _, success, info = base.outcome()
-        final = base.p_dlo()
-        truth_t.append(camera.robot_time())
-        truth.append(np.asarray(final, dtype=float))
-        film(None, None, f"{'HIT' if success else 'miss'}, tip {100 * np.linalg.norm(final - goal):.1f} cm "
-             "from target centre")
-        outcome = {"success": bool(success), "truth": "the dry run's simulation (cable following the robot)",
-                   "final_distance_m": float(np.linalg.norm(final - goal)),
-                   "min_distance_m": float(info["min_distance_m"]), "avoid": info["avoid"],
-                   "final_p_dlo_m": np.asarray(final).tolist()}
-        trace = {
-            "t": [r.t for r in records], "estimate": [r.p_dlo_estimate.tolist() for r in records],
-            "measured": [r.measured for r in records], "truth_t": truth_t,
-            "truth": [p.tolist() for p in truth],
-            "goal": goal.tolist(), "success_radius_m": getattr(base.task, "success_radius_m", None),
-            "replan_end_t": replan_end_t, "success": bool(success), "min_distance_m": info["min_distance_m"],
-        }
+        outcome, trace = simulated_outcome(base, goal, records, truth_t + [camera.robot_time()], truth,
+                                           replan_end_t)
+        film(None, None, f"{'HIT' if outcome['success'] else 'miss'}, tip "
+             f"{100 * outcome['final_distance_m']:.1f} cm from target centre")
     metrics = run_metrics(cfg, dry_run, name, note, multi_step, exit_code, stop_reason, records, outcome,
-                       first_plan, robot, driver, fake, kin, true_model, limit_usage, source)
-    rec = driver.targets
-    robot_series = {
-        "t_measured": [m[0] for m in driver.measured], "q_measured": [m[1].tolist() for m in driver.measured],
-        "t_target": [r[0] for r in rec if r[2]], "q_target": [r[1].tolist() for r in rec if r[2]],
-        "goal": goal.tolist(), "arm": cfg.robot.arm,
-    }
-    return RunResult(exit_code, stop_reason, records, frames, metrics, trace, robot_series)
+                          first_plan, robot, driver, fake, kin, true_model, limit_usage, source)
+    return RunResult(exit_code, stop_reason, records, frames, metrics, trace,
+                     robot_series(driver, goal, cfg.robot.arm))
