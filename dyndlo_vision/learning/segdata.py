@@ -37,7 +37,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from dyndlo_vision.learning.segcomposite import COMPOSITE_STYLES, CompositeSampler
+from dyndlo_vision.learning.segcomposite import COMPOSITE_STYLES, CompositeSampler, draw_shapes
 
 __all__ = ["DEFAULT_WIDTHS_PX", "MUJOCO_STYLES", "STYLES", "SceneSampler", "SegDataConfig",
            "TaskSceneSampler", "camera_effects", "enlarged", "make_sampler", "procedural_background",
@@ -181,27 +181,7 @@ def procedural_background(rng: np.random.Generator, h: int, w: int) -> NDArray[n
         t = _value_noise(rng, h, w, 3) * 0.4
     img = c1[None, None, :] * (1 - t[..., None]) + c2[None, None, :] * t[..., None]
     if kind == "clutter" or rng.random() < 0.3:
-        for _ in range(int(rng.integers(3, 25))):
-            col = tuple(float(c) for c in _random_colour(rng))
-            cx, cy = int(rng.integers(0, w)), int(rng.integers(0, h))
-            s = int(rng.integers(4, max(6, min(h, w) // 3)))
-            shape = rng.integers(0, 3)
-            if shape == 0:
-                cv2.rectangle(img, (cx - s, cy - s // 2), (cx + s, cy + s // 2), col, -1)
-            elif shape == 1:
-                cv2.circle(img, (cx, cy), s // 2, col, -1, cv2.LINE_AA)
-            else:
-                cv2.ellipse(
-                    img,
-                    (cx, cy),
-                    (s, max(3, s // 3)),
-                    float(rng.uniform(0, 180)),
-                    0,
-                    360,
-                    col,
-                    -1,
-                    cv2.LINE_AA,
-                )
+        draw_shapes(rng, img, int(rng.integers(3, 25)), _random_colour)
     if kind == "splatter" or rng.random() < 0.1:
         _splatter(rng, img)
     img += (
