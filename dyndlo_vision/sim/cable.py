@@ -132,11 +132,6 @@ class CableParams:
         """Torsional rigidity G*J, with J = pi r^4 / 2 = 2 I for a circular section."""
         return self.shear_modulus_pa * 2.0 * self.second_moment_m4
 
-    @property
-    def linear_density_kg_m(self) -> float:
-        """Mass per unit length."""
-        return self.mass_kg / self.length_m
-
 
 def paper_cable(length_m: float = 0.5, **overrides: float | str) -> CableParams:
     """Return the paper's cable of the given length (0.5 m: 20 segments, 0.9 m: 60 segments)."""

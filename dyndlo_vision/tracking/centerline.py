@@ -48,7 +48,6 @@ __all__ = [
 
 # Neighbour order P2..P9 of Zhang & Suen: N, NE, E, SE, S, SW, W, NW (clockwise from north).
 _OFFSETS = ((-1, 0), (-1, 1), (0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1))
-_STEP_LEN = np.array([1.0, math.sqrt(2.0)] * 4)
 
 
 def _zhang_suen_luts() -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:

@@ -24,12 +24,6 @@ class Plane:
     normal: NDArray[np.float64]
     d: float
 
-    @classmethod
-    def from_point_normal(cls, point: ArrayLike, normal: ArrayLike) -> Plane:
-        """The plane through ``point`` with the given normal."""
-        n = np.asarray(normal, dtype=np.float64).reshape(3)
-        return cls(n, -float(n @ np.asarray(point, dtype=np.float64).reshape(3)))
-
 
 @dataclass(frozen=True)
 class Measurement:
