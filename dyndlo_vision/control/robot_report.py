@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from dyndlo_vision.control.episode import p_dlo_trace
 from dyndlo_vision.control.horizon import HorizonRobot
 from dyndlo_vision.control.loop import CycleRecord
 from dyndlo_vision.control.run_config import RunConfig
@@ -46,14 +47,8 @@ def simulated_outcome(base: Any, goal: FloatArray, records: list[CycleRecord], t
                "final_distance_m": float(np.linalg.norm(final - goal)),
                "min_distance_m": float(info["min_distance_m"]), "avoid": info["avoid"],
                "final_p_dlo_m": np.asarray(final).tolist()}
-    trace = {
-        "t": [r.t for r in records], "estimate": [r.p_dlo_estimate.tolist() for r in records],
-        "measured": [r.measured for r in records], "truth_t": truth_t,
-        "truth": [p.tolist() for p in truth],
-        "goal": goal.tolist(), "success_radius_m": getattr(base.task, "success_radius_m", None),
-        "replan_end_t": replan_end_t, "success": bool(success), "min_distance_m": info["min_distance_m"],
-    }
-    return outcome, trace
+    return outcome, p_dlo_trace(records, truth_t, truth, goal, base.task, replan_end_t, success,
+                                info["min_distance_m"])
 
 
 def robot_series(driver: Any, goal: FloatArray, arm: str) -> dict[str, Any]:
