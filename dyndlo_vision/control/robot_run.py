@@ -38,10 +38,11 @@ from dyndlo_vision.control.robot_setup import (
     arm_kinematics,
     check_first_plan,
     describe_robot,
-    make_driver,
+    load_policy,
     resolve_policy,
+    start_driver,
 )
-from dyndlo_vision.control.run_config import SCRIPTED_PREFIX, RunConfig
+from dyndlo_vision.control.run_config import RunConfig
 from dyndlo_vision.robots.safety import WorkspaceBox
 from dyndlo_vision.tasks.base import CONTROL_PERIOD_S, observation_vector
 
@@ -78,8 +79,6 @@ def run_session(cfg: RunConfig, dry_run: bool, say: Callable[[str], None] = prin
     Raises:
         RunRefused, ValueError, FileNotFoundError: Before anything moved.
     """
-    import dyndlo_vision.policies as policies
-    from dyndlo_vision.control.scripted import scripted_policy
     from dyndlo_vision.control.sim_env import as_sim_env
     from dyndlo_vision.tasks.registry import make_env
     from dyndlo_vision.tracking.camera_model import PinholeCamera
@@ -100,37 +99,8 @@ def run_session(cfg: RunConfig, dry_run: bool, say: Callable[[str], None] = prin
     box = WorkspaceBox(cfg.safety.workspace_min, cfg.safety.workspace_max)
     if not box.contains(home):
         raise RunRefused(f"{cfg.path}: safety.workspace does not contain the task's home TCP {home.tolist()}")
-
-    def reachable(p: FloatArray) -> bool:
-        try:
-            kin.ik(np.asarray(p, dtype=float))
-        except ValueError:
-            return False
-        return bool(box.contains(p))
-
-    if name.startswith(SCRIPTED_PREFIX):
-        policy = scripted_policy(name[len(SCRIPTED_PREFIX):], base.spec_actions, reachable)
-    else:
-        model = policies.load(name, env=env)
-        if hasattr(model, "reset"):
-            model.reset()  # a policy with a P_DLO history (one run is one episode)
-
-        def policy(obs: Any) -> Any:
-            return model.predict(obs, deterministic=True)[0]
-
-    fake = None
-    if dry_run:
-        from dyndlo_vision.control.dry_run import start_fake_controller
-
-        q0 = kin.ik(home).q
-        if cfg.robot.driver == "egm":
-            driver = make_driver(cfg, arm, kin, True, None)
-            fake = start_fake_controller("egm", true_model, q0, egm_port=driver.bind())
-        else:
-            fake = start_fake_controller("rtde", true_model, q0)
-            driver = make_driver(cfg, arm, kin, True, (fake.rtde_port, fake.script_port))
-    else:
-        driver = make_driver(cfg, arm, kin, False, None)
+    policy = load_policy(name, env, kin, box)
+    driver, fake = start_driver(cfg, arm, kin, true_model, home, dry_run)
     say(f"connecting to {describe_robot(cfg, dry_run)} (timeout {cfg.robot.connect_timeout_s:g} s)")
     try:
         try:

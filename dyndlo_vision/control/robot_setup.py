@@ -19,7 +19,8 @@ from dyndlo_vision.robots.rtde import RtdeRobot
 from dyndlo_vision.robots.safety import WorkspaceBox, clamp_setpoints
 
 __all__ = [
-    "RunRefused", "arm_kinematics", "check_first_plan", "describe_robot", "make_driver", "resolve_policy",
+    "RunRefused", "arm_kinematics", "check_first_plan", "describe_robot", "load_policy", "make_driver",
+    "resolve_policy", "start_driver",
 ]
 
 #: How long a dry run's driver waits for the fake controller before it faults (the fake shares this
@@ -106,6 +107,50 @@ def make_driver(cfg: RunConfig, arm: Any, kin: Any, dry_run: bool,
         host, (rtde_port, script_port) = "127.0.0.1", fake_ports
     return RecordingRtdeRobot(host, kin, rtde_port=rtde_port, script_port=script_port,
                               frequency_hz=1.0 / arm.period_s, **timeouts)
+
+
+def start_driver(cfg: RunConfig, arm: Any, kin: Any, true_model: Any, home: Any,
+                 dry_run: bool) -> tuple[Any, Any]:
+    """The driver, not yet connected, and in a dry run the fake controller it talks to (else None), its arm
+    (``true_model``) at rest with the TCP at ``home``."""
+    if not dry_run:
+        return make_driver(cfg, arm, kin, False, None), None
+    from dyndlo_vision.control.dry_run import start_fake_controller
+
+    q0 = kin.ik(home).q
+    if cfg.robot.driver == "egm":
+        driver = make_driver(cfg, arm, kin, True, None)
+        fake = start_fake_controller("egm", true_model, q0, egm_port=driver.bind())
+    else:
+        fake = start_fake_controller("rtde", true_model, q0)
+        driver = make_driver(cfg, arm, kin, True, (fake.rtde_port, fake.script_port))
+    return driver, fake
+
+
+def load_policy(name: str, env: Any, kin: Any, box: WorkspaceBox) -> Callable[[Any], Any]:
+    """The policy ``name`` (:func:`resolve_policy`) as ``observation -> action``, deterministic; a scripted
+    one plans only to points the arm reaches with the tool down inside ``box``."""
+    import dyndlo_vision.policies as policies
+    from dyndlo_vision.control.scripted import scripted_policy
+    from dyndlo_vision.control.sim_env import as_sim_env
+
+    def reachable(p: Any) -> bool:
+        try:
+            kin.ik(np.asarray(p, dtype=float))
+        except ValueError:
+            return False
+        return bool(box.contains(p))
+
+    if name.startswith(SCRIPTED_PREFIX):
+        return scripted_policy(name[len(SCRIPTED_PREFIX):], as_sim_env(env).spec_actions, reachable)
+    model = policies.load(name, env=env)
+    if hasattr(model, "reset"):
+        model.reset()  # a policy with a P_DLO history (one run is one episode)
+
+    def policy(obs: Any) -> Any:
+        return model.predict(obs, deterministic=True)[0]
+
+    return policy
 
 
 def describe_robot(cfg: RunConfig, dry_run: bool) -> str:
