@@ -186,8 +186,3 @@ class FollowingCamera:
     def close(self) -> None:
         """Close the renderer."""
         self.camera.close()
-
-
-def ik_home(kinematics: Any, home: FloatArray) -> FloatArray:
-    """Joints with the TCP at ``home``, tool down (the fake arm's start)."""
-    return np.asarray(kinematics.ik(np.asarray(home, dtype=float)).q, dtype=float)

@@ -91,6 +91,25 @@ def _second_view(source: Any) -> SecondView | None:
     return SecondView(frames[1].rgb, polyline, source.pipeline.views[1].camera)
 
 
+def p_dlo_trace(cycles: list[CycleRecord], truth_t: list[float], truth: list[NDArray[np.float64]],
+                goal: NDArray[np.float64], task: Any, replan_end_t: float, success: bool,
+                min_distance_m: float) -> dict[str, Any]:
+    """The P_DLO plot's data (``commands.demo._write_plot``): the loop's estimate at each cycle, the truth at
+    ``truth_t``, the goal, and the outcome."""
+    return {
+        "t": [c.t for c in cycles],
+        "estimate": [c.p_dlo_estimate.tolist() for c in cycles],
+        "measured": [c.measured for c in cycles],
+        "truth_t": truth_t,
+        "truth": [p.tolist() for p in truth],
+        "goal": goal.tolist(),
+        "success_radius_m": getattr(task, "success_radius_m", None),
+        "replan_end_t": replan_end_t,
+        "success": bool(success),
+        "min_distance_m": min_distance_m,
+    }
+
+
 def run_loop_episode(
     env: Any,
     act: Callable[[NDArray[np.float32]], NDArray[np.float32]],
@@ -228,23 +247,19 @@ def run_loop_episode(
         close_source = getattr(source, "close", None)  # a two-camera source's second camera
         if close_source is not None:
             close_source()
+    return _episode_record(base, seed, report, truth_t, truth, goal, replan_end_t, success, info, outcome)
+
+
+def _episode_record(base: Any, seed: int, report: Any, truth_t: list[float], truth: list[NDArray[np.float64]],
+                    goal: NDArray[np.float64], replan_end_t: float, success: bool, info: dict[str, Any],
+                    outcome: str) -> dict[str, Any]:
+    """:func:`run_loop_episode`'s record of the loop's ``report`` and the truth ``truth`` at ``truth_t``."""
     errors = report.estimate_errors()
     controller = report.controller_ms()
     # Tip control reports the closest approach on the swept path; other tasks the monitor's 2 ms samples.
     min_distance = float(info.get("min_distance_m", base.monitor.min_goal_distance_m))
-    trace = {
-        "t": [c.t for c in report.cycles],
-        "estimate": [c.p_dlo_estimate.tolist() for c in report.cycles],
-        "measured": [c.measured for c in report.cycles],
-        "truth_t": truth_t,
-        "truth": [p.tolist() for p in truth],
-        "goal": goal.tolist(),
-        "success_radius_m": getattr(base.task, "success_radius_m", None),
-        "replan_end_t": replan_end_t,
-        "success": bool(success),
-        "min_distance_m": min_distance,
-        "outcome": outcome,
-    }
+    trace = p_dlo_trace(report.cycles, truth_t, truth, goal, base.task, replan_end_t, success, min_distance)
+    trace["outcome"] = outcome
     cable = base.scene.config.cable
     return {
         "seed": seed,

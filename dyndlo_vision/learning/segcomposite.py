@@ -398,11 +398,20 @@ def _plain(rng: np.random.Generator, h: int, w: int) -> NDArray[np.float32]:
 
 def _clutter(rng: np.random.Generator, h: int, w: int) -> NDArray[np.float32]:
     img = _plain(rng, h, w)
-    for _ in range(int(rng.integers(5, 40))):
-        col = tuple(float(v) for v in _hsv_colour(rng))
+    draw_shapes(rng, img, int(rng.integers(5, 40)), _hsv_colour, tools=True)
+    return img
+
+
+def draw_shapes(rng: np.random.Generator, img: NDArray[np.float32], count: int,
+                colour: Any, tools: bool = False) -> None:
+    """Draw ``count`` filled rectangles, discs and ellipses of random ``colour(rng)`` on ``img``, and with
+    ``tools`` also straight thick lines (a tool or a pen: elongated, but straight and with ends)."""
+    h, w = img.shape[:2]
+    for _ in range(count):
+        col = tuple(float(v) for v in colour(rng))
         cx, cy = int(rng.integers(0, w)), int(rng.integers(0, h))
         s = int(rng.integers(4, max(6, min(h, w) // 3)))
-        shape = rng.integers(0, 4)
+        shape = rng.integers(0, 4 if tools else 3)
         if shape == 0:
             cv2.rectangle(img, (cx - s, cy - s // 2), (cx + s, cy + s // 2), col, -1)
         elif shape == 1:
@@ -415,7 +424,6 @@ def _clutter(rng: np.random.Generator, h: int, w: int) -> NDArray[np.float32]:
             d = np.array([math.cos(ang), math.sin(ang)]) * s * 1.5
             cv2.line(img, (int(cx - d[0]), int(cy - d[1])), (int(cx + d[0]), int(cy + d[1])), col,
                      int(rng.integers(3, 12)), cv2.LINE_AA)
-    return img
 
 
 _SURFACE_FUNCS = {"plain": _plain, "wood": _wood, "fabric": _fabric, "metal": _metal, "keyboard": _keyboard,

@@ -37,7 +37,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from dyndlo_vision.learning.segcomposite import COMPOSITE_STYLES, CompositeSampler
+from dyndlo_vision.learning.segcomposite import COMPOSITE_STYLES, CompositeSampler, draw_shapes
 
 __all__ = ["DEFAULT_WIDTHS_PX", "MUJOCO_STYLES", "STYLES", "SceneSampler", "SegDataConfig",
            "TaskSceneSampler", "camera_effects", "enlarged", "make_sampler", "procedural_background",
@@ -181,27 +181,7 @@ def procedural_background(rng: np.random.Generator, h: int, w: int) -> NDArray[n
         t = _value_noise(rng, h, w, 3) * 0.4
     img = c1[None, None, :] * (1 - t[..., None]) + c2[None, None, :] * t[..., None]
     if kind == "clutter" or rng.random() < 0.3:
-        for _ in range(int(rng.integers(3, 25))):
-            col = tuple(float(c) for c in _random_colour(rng))
-            cx, cy = int(rng.integers(0, w)), int(rng.integers(0, h))
-            s = int(rng.integers(4, max(6, min(h, w) // 3)))
-            shape = rng.integers(0, 3)
-            if shape == 0:
-                cv2.rectangle(img, (cx - s, cy - s // 2), (cx + s, cy + s // 2), col, -1)
-            elif shape == 1:
-                cv2.circle(img, (cx, cy), s // 2, col, -1, cv2.LINE_AA)
-            else:
-                cv2.ellipse(
-                    img,
-                    (cx, cy),
-                    (s, max(3, s // 3)),
-                    float(rng.uniform(0, 180)),
-                    0,
-                    360,
-                    col,
-                    -1,
-                    cv2.LINE_AA,
-                )
+        draw_shapes(rng, img, int(rng.integers(3, 25)), _random_colour)
     if kind == "splatter" or rng.random() < 0.1:
         _splatter(rng, img)
     img += (
@@ -453,6 +433,46 @@ class SceneSampler:
         rng, cfg, m, d = self.rng, self.config, self.scene.model, self.scene.data
         self._move()
         w, h = cfg.width, cfg.height
+        width_px, colour, fovy = self._randomise_look()
+        mujoco.mj_forward(m, d)
+        rgb2, seg = _render_with_segmentation(self.renderer, d, self.cam_id)
+        ids, types = seg[..., 0], seg[..., 1]
+        cable2 = self.cable_look.mask(seg).astype(np.float32)
+        bg2 = (types == -1) | ((types == int(mujoco.mjtObj.mjOBJ_GEOM)) & (ids == self.floor_geom))
+        textured = bool(rng.random() < cfg.texture_share)
+        lum_matched = False
+        if textured:
+            bg = procedural_background(rng, h, w).astype(np.float32)
+            on_cable = cable2 > 0.5
+            if rng.random() < cfg.lum_match_share and on_cable.any():
+                # Colour-only contrast: the background as bright as the cable, so that only hue and
+                # saturation tell them apart (a red cable on a grey floor of the same brightness).
+                cable_lum = float(np.mean(_luminance(rgb2[on_cable])))
+                bg *= np.float32(cable_lum / max(float(np.mean(_luminance(bg))), 1.0))
+                lum_matched = True
+            bg2f = bg2.astype(np.float32)
+            bg_big = cv2.resize(bg, (2 * w, 2 * h), interpolation=cv2.INTER_LINEAR)
+            rgb2 = rgb2 * (1 - bg2f[..., None]) + bg_big * bg2f[..., None]
+        img = cv2.resize(rgb2, (w, h), interpolation=cv2.INTER_AREA)
+        cov = cv2.resize(cable2, (w, h), interpolation=cv2.INTER_AREA)
+        cover_u8 = np.clip(cov * 255 + 0.5, 0, 255).astype(np.uint8)
+        img, n_extra = _draw_distractors(rng, cfg, img, cover_u8)
+        rgb, mask = camera_effects(rng, img, cover_u8)
+        meta = {
+            "width_px": round(width_px, 2),
+            "textured": textured,
+            "lum_matched": lum_matched,
+            "extra_cables": n_extra,
+            "colour": [round(float(c), 3) for c in colour],
+            "fovy_deg": round(fovy, 1),
+        }
+        return rgb, mask, meta
+
+    def _randomise_look(self) -> tuple[float, NDArray[np.float64], float]:
+        """A random camera pose and field of view on the cable, cable width and colour, gripper, lights and
+        floor; returns the cable's width in output pixels, its colour and the field of view (degrees)."""
+        rng, cfg, m = self.rng, self.config, self.scene.model
+        h = cfg.height
         nodes = self.scene.cable_nodes()
         centre = nodes.mean(axis=0)
         extent = float(np.linalg.norm(np.ptp(nodes, axis=0))) + 0.05
@@ -487,71 +507,47 @@ class SceneSampler:
             m.light_pos[0] = self.scene_lights[1]
             m.vis.headlight.ambient[:] = self.scene_lights[2] * gain
             m.vis.headlight.diffuse[:] = self.scene_lights[3] * gain
-        mujoco.mj_forward(m, d)
-        rgb2, seg = _render_with_segmentation(self.renderer, d, self.cam_id)
-        ids, types = seg[..., 0], seg[..., 1]
-        cable2 = self.cable_look.mask(seg).astype(np.float32)
-        bg2 = (types == -1) | ((types == int(mujoco.mjtObj.mjOBJ_GEOM)) & (ids == self.floor_geom))
-        textured = bool(rng.random() < cfg.texture_share)
-        lum_matched = False
-        if textured:
-            bg = procedural_background(rng, h, w).astype(np.float32)
-            on_cable = cable2 > 0.5
-            if rng.random() < cfg.lum_match_share and on_cable.any():
-                # Colour-only contrast: the background as bright as the cable, so that only hue and
-                # saturation tell them apart (a red cable on a grey floor of the same brightness).
-                cable_lum = float(np.mean(_luminance(rgb2[on_cable])))
-                bg *= np.float32(cable_lum / max(float(np.mean(_luminance(bg))), 1.0))
-                lum_matched = True
-            bg2f = bg2.astype(np.float32)
-            bg_big = cv2.resize(bg, (2 * w, 2 * h), interpolation=cv2.INTER_LINEAR)
-            rgb2 = rgb2 * (1 - bg2f[..., None]) + bg_big * bg2f[..., None]
-        img = cv2.resize(rgb2, (w, h), interpolation=cv2.INTER_AREA)
-        cov = cv2.resize(cable2, (w, h), interpolation=cv2.INTER_AREA)
-        cover_u8 = np.clip(cov * 255 + 0.5, 0, 255).astype(np.uint8)
-        # Distractors and extra cables, drawn in 2D.
-        n_extra = int(rng.integers(1, 5)) if rng.random() < 0.35 else 0
-        for _ in range(n_extra):
-            _draw_tube(
-                img,
-                cover_u8,
-                sample_path(rng, h, w),
-                float(np.exp(rng.uniform(math.log(cfg.min_width_px), math.log(cfg.max_width_px)))),
-                (_cable_colour(rng) * 255).astype(np.float32),
-                rng,
-            )
-        for _ in range(int(rng.integers(0, 4))):  # blobs (grippers, parts), boxes: they hide what is behind
-            col = tuple(float(c) for c in (_cable_colour(rng) * 255))
-            cx, cy, s = int(rng.integers(0, w)), int(rng.integers(0, h)), int(rng.integers(6, max(8, h // 4)))
-            occl = np.zeros((h, w), np.uint8)
-            if rng.random() < 0.5:
-                cv2.circle(occl, (cx, cy), s // 2, 255, -1, cv2.LINE_AA)
-            else:
-                cv2.rectangle(occl, (cx - s // 2, cy - s // 3), (cx + s // 2, cy + s // 3), 255, -1)
-            a = (occl.astype(np.float32) / 255.0)[..., None]
-            img = img * (1 - a) + a * np.asarray(col, np.float32)
-            cover_u8[occl >= 128] = 0
-        if rng.random() < 0.25:  # an occluder (a pole) in front of everything
-            x0 = int(rng.integers(0, w))
-            bw = int(rng.integers(6, max(8, w // 8)))
-            col = tuple(float(c) for c in (_cable_colour(rng) * 255))
-            if rng.random() < 0.5:
-                cv2.rectangle(img, (x0, 0), (x0 + bw, h), col, -1)
-                cover_u8[:, x0 : x0 + bw + 1] = 0
-            else:
-                y0 = int(rng.integers(0, h))
-                cv2.rectangle(img, (0, y0), (w, y0 + bw), col, -1)
-                cover_u8[y0 : y0 + bw + 1, :] = 0
-        rgb, mask = camera_effects(rng, img, cover_u8)
-        meta = {
-            "width_px": round(width_px, 2),
-            "textured": textured,
-            "lum_matched": lum_matched,
-            "extra_cables": n_extra,
-            "colour": [round(float(c), 3) for c in colour],
-            "fovy_deg": round(fovy, 1),
-        }
-        return rgb, mask, meta
+        return width_px, colour, fovy
+
+
+def _draw_distractors(rng: np.random.Generator, cfg: SegDataConfig, img: NDArray[np.float32],
+                      cover_u8: NDArray[np.uint8]) -> tuple[NDArray[np.float32], int]:
+    """Extra cables, blobs and a pole drawn in 2D on ``img``; what hides the cable is taken out of its cover
+    ``cover_u8`` (in place). Returns the image and the number of extra cables."""
+    h, w = cover_u8.shape
+    n_extra = int(rng.integers(1, 5)) if rng.random() < 0.35 else 0
+    for _ in range(n_extra):
+        _draw_tube(
+            img,
+            cover_u8,
+            sample_path(rng, h, w),
+            float(np.exp(rng.uniform(math.log(cfg.min_width_px), math.log(cfg.max_width_px)))),
+            (_cable_colour(rng) * 255).astype(np.float32),
+            rng,
+        )
+    for _ in range(int(rng.integers(0, 4))):  # blobs (grippers, parts), boxes: they hide what is behind
+        col = tuple(float(c) for c in (_cable_colour(rng) * 255))
+        cx, cy, s = int(rng.integers(0, w)), int(rng.integers(0, h)), int(rng.integers(6, max(8, h // 4)))
+        occl = np.zeros((h, w), np.uint8)
+        if rng.random() < 0.5:
+            cv2.circle(occl, (cx, cy), s // 2, 255, -1, cv2.LINE_AA)
+        else:
+            cv2.rectangle(occl, (cx - s // 2, cy - s // 3), (cx + s // 2, cy + s // 3), 255, -1)
+        a = (occl.astype(np.float32) / 255.0)[..., None]
+        img = img * (1 - a) + a * np.asarray(col, np.float32)
+        cover_u8[occl >= 128] = 0
+    if rng.random() < 0.25:  # an occluder (a pole) in front of everything
+        x0 = int(rng.integers(0, w))
+        bw = int(rng.integers(6, max(8, w // 8)))
+        col = tuple(float(c) for c in (_cable_colour(rng) * 255))
+        if rng.random() < 0.5:
+            cv2.rectangle(img, (x0, 0), (x0 + bw, h), col, -1)
+            cover_u8[:, x0 : x0 + bw + 1] = 0
+        else:
+            y0 = int(rng.integers(0, h))
+            cv2.rectangle(img, (0, y0), (w, y0 + bw), col, -1)
+            cover_u8[y0 : y0 + bw + 1, :] = 0
+    return img, n_extra
 
 
 #: The tasks whose loop scenes the ``task-scenes`` style renders, and their loop cameras.

@@ -402,59 +402,10 @@ def train(
             raise FileNotFoundError(f"--resume: no checkpoint at {ckpt_path}")
     elif out.exists() and any(out.iterdir()):
         raise FileExistsError(f"--out {out} already holds files; use --resume to continue, or another folder")
-    if config.external_share > 0 and external is None:
-        raise ValueError("external_share > 0 needs --external DIR")
-    if isinstance(config.external_short_side, bool) or not isinstance(config.external_short_side, int) or (
-            config.external_short_side < 64):
-        raise ValueError(f"external_short_side must be an int >= 64, got {config.external_short_side!r}")
-    if config.arch not in ARCHITECTURES:
-        raise ValueError(f"arch must be one of {ARCHITECTURES}, got {config.arch!r}")
-    if len(config.widths) != 3 or not all(isinstance(c, int) and c >= 1 for c in config.widths):
-        raise ValueError(f"widths must be three positive ints (c1, c2, c3), got {config.widths!r}")
-    if config.arch == "cablenet-s2d4" and (config.crop_h % 16 or config.crop_w % 16):
-        raise ValueError(
-            f"cablenet-s2d4 needs crops in multiples of 16 px, got {config.crop_h}x{config.crop_w}"
-        )
-    init_weights = None
-    if init is not None and not resume:
-        if is_onnx_init(init):
-            from dyndlo_vision.tracking.networks import onnx_bytes
-
-            if not config.frozen_batch_norm:
-                raise ValueError(f"--init {init} is an ONNX network, whose batch-norm statistics the export "
-                                 "folded away: fine-tune it with frozen_batch_norm=True")
-            init_net, init_arch, init_widths = net_from_onnx(onnx_bytes(init))
-            init_weights = init_net.state_dict()
-        else:
-            init_state = torch.load(Path(init), weights_only=False)
-            if init_state.get("config", {}).get("frozen_batch_norm", False) and not config.frozen_batch_norm:
-                raise ValueError(f"--init {init} comes from a run with frozen batch norms (its statistics "
-                                 "are identities): fine-tune it with frozen_batch_norm=True")
-            init_weights = init_state["net"]
-            init_arch = init_state.get("config", {}).get("arch", "cablenet")  # before the choice: cablenet
-            init_widths = tuple(init_state.get("config", {}).get("widths", DEFAULT_WIDTHS))
-        if init_arch != config.arch:
-            raise ValueError(f"--init {init} holds a {init_arch} network; train it with --arch {init_arch}")
-        if init_widths != tuple(config.widths):
-            raise ValueError(f"--init {init} holds a network of widths {init_widths}; train it with --widths "
-                             f"{','.join(map(str, init_widths))}")
+    _check_config(config, external)
+    init_weights = None if init is None or resume else _init_weights(init, config)
     folders = [Path(f) for f in (data if isinstance(data, (list, tuple)) else [data])]
-    images, masks = [], []
-    for folder in folders:  # every sample of every folder equally likely
-        folder_images, folder_masks = load_dataset(folder)
-        images += folder_images
-        masks += folder_masks
-    ext_images: list[Any] = []
-    ext_masks: list[Any] = []
-    by_source: list[list[int]] = []  # indices of ext_images per external source
-    if external is not None and config.external_share > 0:
-        pairs = external_split(Path(external))["train"]
-        ext_images, ext_masks = load_external(pairs, config.external_short_side)
-        if not ext_images:
-            raise ValueError(f"no labelled images found under {external}")
-        sources = [external_source(pair[0]) for pair in pairs]
-        by_source = [[k for k, name in enumerate(sources) if name == source]
-                     for source in sorted(set(sources))]
+    images, masks, ext_images, ext_masks, by_source = _load_training_data(folders, external, config)
     out.mkdir(parents=True, exist_ok=True)
     net = build_net(config.arch, *config.widths)
     opt = torch.optim.Adam(net.parameters(), lr=config.lr)
@@ -484,6 +435,7 @@ def train(
         disable=not progress,
         dynamic_ncols=True,
     )
+
     def save_checkpoint() -> None:
         """Everything a resumed run needs: weights, optimiser, step, history and the random stream."""
         state = {"net": net.state_dict(), "opt": opt.state_dict(), "step": step, "history": history,
@@ -502,18 +454,7 @@ def train(
             lr = config.lr * (0.03 + 0.97 * 0.5 * (1 + math.cos(math.pi * step / config.steps)))
             for g in opt.param_groups:
                 g["lr"] = lr
-            xs, ys = [], []
-            for _ in range(config.batch):
-                if ext_images and rng.random() < config.external_share:
-                    k = _draw_external(rng, by_source, config.external_balanced)
-                    x, y = _augment(rng, ext_images[k], ext_masks[k], (config.crop_h, config.crop_w))
-                else:
-                    k = int(rng.integers(len(images)))
-                    x, y = _augment(rng, images[k], masks[k], (config.crop_h, config.crop_w))
-                xs.append(x)
-                ys.append(y)
-            xb = torch.from_numpy(np.stack(xs))
-            yb = torch.from_numpy(np.stack(ys))[:, None]
+            xb, yb = _batch(rng, config, images, masks, ext_images, ext_masks, by_source)
             logit = full_res_logits(net, xb, config.arch)
             bce = torch.nn.functional.binary_cross_entropy_with_logits(logit, yb, pos_weight=pos_weight)
             p = torch.sigmoid(logit)
@@ -539,7 +480,102 @@ def train(
     (out / "history.json").write_text(json.dumps(history))
     onnx = export_onnx(net)
     (out / "cable_segmenter.onnx").write_bytes(onnx)
-    meta = {
+    meta = _metadata(config, net, folders, len(images), len(ext_images), init, running)
+    (out / "cable_segmenter.json").write_text(json.dumps(meta, indent=1))
+    return meta
+
+
+def _check_config(config: TrainConfig, external: Path | None) -> None:
+    """Settings :func:`train` refuses (ValueError)."""
+    if config.external_share > 0 and external is None:
+        raise ValueError("external_share > 0 needs --external DIR")
+    if isinstance(config.external_short_side, bool) or not isinstance(config.external_short_side, int) or (
+            config.external_short_side < 64):
+        raise ValueError(f"external_short_side must be an int >= 64, got {config.external_short_side!r}")
+    if config.arch not in ARCHITECTURES:
+        raise ValueError(f"arch must be one of {ARCHITECTURES}, got {config.arch!r}")
+    if len(config.widths) != 3 or not all(isinstance(c, int) and c >= 1 for c in config.widths):
+        raise ValueError(f"widths must be three positive ints (c1, c2, c3), got {config.widths!r}")
+    if config.arch == "cablenet-s2d4" and (config.crop_h % 16 or config.crop_w % 16):
+        raise ValueError(
+            f"cablenet-s2d4 needs crops in multiples of 16 px, got {config.crop_h}x{config.crop_w}"
+        )
+
+
+def _init_weights(init: str | Path, config: TrainConfig) -> Any:
+    """The weights of ``--init`` (a checkpoint or a shipped ONNX network) for a network of ``config``."""
+    torch = _torch()
+    if is_onnx_init(init):
+        from dyndlo_vision.tracking.networks import onnx_bytes
+
+        if not config.frozen_batch_norm:
+            raise ValueError(f"--init {init} is an ONNX network, whose batch-norm statistics the export "
+                             "folded away: fine-tune it with frozen_batch_norm=True")
+        init_net, init_arch, init_widths = net_from_onnx(onnx_bytes(init))
+        init_weights = init_net.state_dict()
+    else:
+        init_state = torch.load(Path(init), weights_only=False)
+        if init_state.get("config", {}).get("frozen_batch_norm", False) and not config.frozen_batch_norm:
+            raise ValueError(f"--init {init} comes from a run with frozen batch norms (its statistics "
+                             "are identities): fine-tune it with frozen_batch_norm=True")
+        init_weights = init_state["net"]
+        init_arch = init_state.get("config", {}).get("arch", "cablenet")  # before the choice: cablenet
+        init_widths = tuple(init_state.get("config", {}).get("widths", DEFAULT_WIDTHS))
+    if init_arch != config.arch:
+        raise ValueError(f"--init {init} holds a {init_arch} network; train it with --arch {init_arch}")
+    if init_widths != tuple(config.widths):
+        raise ValueError(f"--init {init} holds a network of widths {init_widths}; train it with --widths "
+                         f"{','.join(map(str, init_widths))}")
+    return init_weights
+
+
+def _load_training_data(folders: list[Path], external: Path | None, config: TrainConfig) -> tuple[
+        list[Any], list[Any], list[Any], list[Any], list[list[int]]]:
+    """The datasets' images and masks, the external training photos and masks, and the photos' indices per
+    source."""
+    images, masks = [], []
+    for folder in folders:  # every sample of every folder equally likely
+        folder_images, folder_masks = load_dataset(folder)
+        images += folder_images
+        masks += folder_masks
+    ext_images: list[Any] = []
+    ext_masks: list[Any] = []
+    by_source: list[list[int]] = []  # indices of ext_images per external source
+    if external is not None and config.external_share > 0:
+        pairs = external_split(Path(external))["train"]
+        ext_images, ext_masks = load_external(pairs, config.external_short_side)
+        if not ext_images:
+            raise ValueError(f"no labelled images found under {external}")
+        sources = [external_source(pair[0]) for pair in pairs]
+        by_source = [[k for k, name in enumerate(sources) if name == source]
+                     for source in sorted(set(sources))]
+    return images, masks, ext_images, ext_masks, by_source
+
+
+def _batch(rng: np.random.Generator, config: TrainConfig, images: list[Any], masks: list[Any],
+           ext_images: list[Any], ext_masks: list[Any], by_source: list[list[int]]) -> tuple[Any, Any]:
+    """One augmented batch: inputs (B, C, H, W) and masks (B, 1, H, W) as tensors."""
+    torch = _torch()
+    xs, ys = [], []
+    for _ in range(config.batch):
+        if ext_images and rng.random() < config.external_share:
+            k = _draw_external(rng, by_source, config.external_balanced)
+            x, y = _augment(rng, ext_images[k], ext_masks[k], (config.crop_h, config.crop_w))
+        else:
+            k = int(rng.integers(len(images)))
+            x, y = _augment(rng, images[k], masks[k], (config.crop_h, config.crop_w))
+        xs.append(x)
+        ys.append(y)
+    xb = torch.from_numpy(np.stack(xs))
+    yb = torch.from_numpy(np.stack(ys))[:, None]
+    return xb, yb
+
+
+def _metadata(config: TrainConfig, net: Any, folders: list[Path], samples: int, external_images: int,
+              init: Path | None, final_loss: float) -> dict[str, Any]:
+    """What ``cable_segmenter.json`` says of the network and how it was trained."""
+    torch = _torch()
+    return {
         "architecture": f"{config.arch}(c1={config.widths[0]}, c2={config.widths[1]}, c3={config.widths[2]})",
         "parameters": int(sum(p.numel() for p in net.parameters())),
         "input": _LAYOUTS[config.arch],
@@ -547,14 +583,12 @@ def train(
         "data": str(folders[0]) if len(folders) == 1 else [str(f) for f in folders],
         "data_manifest": json.loads((folders[0] / "dataset.json").read_text()) if len(folders) == 1
         else [json.loads((f / "dataset.json").read_text()) for f in folders],
-        "samples": len(images),
-        "external_train_images": len(ext_images),
+        "samples": samples,
+        "external_train_images": external_images,
         "external_split": "dyndlo_vision.learning.segtrain.external_split: even positions train, odd held out"
-        if ext_images
+        if external_images
         else None,
         "init": str(init) if init is not None else None,
-        "final_loss": running,
+        "final_loss": final_loss,
         "torch": torch.__version__,
     }
-    (out / "cable_segmenter.json").write_text(json.dumps(meta, indent=1))
-    return meta

@@ -53,8 +53,6 @@ SEALED_SEEDS = range(900_000, 1_000_000)
 
 #: Physics step (s).
 _DT = 0.001
-#: The plane the cable moves in is y = 0; the wall stands behind it at +y, the camera in front at -y.
-PLANE = (0.0, 1.0, 0.0, 0.0)
 
 _PALETTE = {
     "black": (0.04, 0.04, 0.05), "dark-grey": (0.18, 0.18, 0.2), "grey": (0.5, 0.5, 0.52),

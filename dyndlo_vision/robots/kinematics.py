@@ -274,8 +274,7 @@ class IKOptions:
         rotation_weight_m: Metres of position error worth one radian of orientation error.
         damping_bias: lambda_bias in Sugihara's damping ``lambda = E + lambda_bias`` (m^2).
         coarse_step_s: Spacing of the sequentially solved samples in ``joint_trajectory``. 40 ms gives the
-            joints of 20 ms to 1.1e-8 rad, 1.4-1.5x faster, on 87 random tip-control plans on both arms
-            (``benchmarks/ik_coarse_step.py``; the same plans out of reach either way).
+            same joints as 20 ms, faster (docs/results.md, "Decided questions").
     """
 
     position_tolerance_m: float = 1e-9

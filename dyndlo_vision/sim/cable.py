@@ -27,9 +27,7 @@ PAPER_SHORT_CABLE = (0.50, 20)
 PAPER_LONG_CABLE = (0.90, 60)
 CABLE_MODELS = ("rod", "chain")
 #: Default damping of each model (``CableParams.damping_s`` / ``damping_quadratic_s2`` left as None).
-#: Chain: without the quadratic term it diverged in 5 of 50 random tip-control episodes at 1 ms; with these
-#: values 0 of 600 in tip control and hooking, 4 of 600 in task IV (docs/CHAIN.md,
-#: ``benchmarks/chain_robustness.py``).
+#: Chain: the quadratic term keeps a 1 ms step stable under random actions (docs/CHAIN.md).
 DEFAULT_DAMPING_S = {"rod": 0.002, "chain": 0.005}
 DEFAULT_DAMPING_QUADRATIC_S2 = {"rod": 0.0, "chain": 0.05}
 
@@ -131,11 +129,6 @@ class CableParams:
     def torsional_stiffness_nm2(self) -> float:
         """Torsional rigidity G*J, with J = pi r^4 / 2 = 2 I for a circular section."""
         return self.shear_modulus_pa * 2.0 * self.second_moment_m4
-
-    @property
-    def linear_density_kg_m(self) -> float:
-        """Mass per unit length."""
-        return self.mass_kg / self.length_m
 
 
 def paper_cable(length_m: float = 0.5, **overrides: float | str) -> CableParams:

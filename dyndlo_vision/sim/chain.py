@@ -18,10 +18,9 @@ Elasticity per joint (discrete elastic rod energy with Voronoi length = segment 
   whip the cable's tip at tens of m/s (docs/CHAIN.md).
 
 Integrator: the scenes' default, ``discrete`` at 1 ms (implicit in the joint springs, so the stiff twist DOFs,
-about 1000 rad/s, need no armature). ``implicitfast`` is 1.01-1.07x faster per step but diverged more often
-under random actions (73 of 300 task IV multi-step episodes against 3; ``benchmarks/chain_robustness.py``).
-The scene uses the dense constraint Jacobian for the chain (``PhysicsOptions.jacobian``; same physics,
-1.1-1.3x).
+about 1000 rad/s, need no armature). ``implicitfast`` is barely faster per step but diverges far more often
+under random actions (docs/results.md, "Simulation"). The scene uses the dense constraint Jacobian for the
+chain (``PhysicsOptions.jacobian``; the same physics, faster).
 
 Capsules collide with the floor and the props but not with each other (contype 2, conaffinity 1; the props
 have MuJoCo's default 1/1).

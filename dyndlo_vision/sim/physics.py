@@ -1,4 +1,4 @@
-"""Solver settings for the cable scenes, chosen by measurement (``benchmarks/integrator_choice.py``)."""
+"""Solver settings for the cable scenes."""
 
 from __future__ import annotations
 
@@ -15,10 +15,10 @@ _JACOBIANS = ("dense", "sparse", "auto")
 class PhysicsOptions:
     """MuJoCo ``<option>`` values used by every scene.
 
-    Default: ``discrete`` + Newton at 1 ms. Measured (``benchmarks/integrator_choice.py``, docs/results.md):
-    ``Euler`` at 1 ms is faster and closer to a fine reference on smooth whips, but diverged in 10 of 20
-    random-action tip-control episodes (the per-edge twist joints are stiff and light), while ``discrete``
-    diverged in none; an RL sandbox explores with random actions, so robustness wins.
+    Default: ``discrete`` + Newton at 1 ms. ``Euler`` is faster and closer to a fine reference on smooth
+    whips, but diverges under random actions (the per-edge twist joints are stiff and light), while
+    ``discrete`` does not (docs/results.md, "Simulation"); an RL sandbox explores with random actions, so
+    robustness wins.
 
     Rod elasticity in MuJoCo 4 runs under ``discrete`` (implicit in the effective metric), ``Euler`` or
     ``RK4`` (explicit); ``implicit``/``implicitfast`` are rejected by MuJoCo for rods (and by
@@ -33,14 +33,13 @@ class PhysicsOptions:
         tolerance: Solver early-termination tolerance.
         twist_armature_kg_m2: Armature (added rotational inertia) of the rod's per-edge twist hinges, or of
             the chain's twist DOFs (the third DOF of each ball joint, about the capsule's axis). MuJoCo
-            gives them bodies of 1e-9 kg m^2, stiff in torsion: the explicit integrators diverge on them
-            (``Euler`` at 1 ms in 7 of 20 random tip-control episodes). 1e-8 removes that (0 of 20) and
-            leaves planar motion unchanged; 3D motion changes a little (docs/results.md, "Decided
-            questions"). 0 (default): MuJoCo's own.
+            gives them bodies of 1e-9 kg m^2, stiff in torsion: the explicit integrators diverge on them.
+            1e-8 stops that and leaves planar motion unchanged (docs/results.md, "Decided questions").
+            0 (default): MuJoCo's own.
         jacobian: Constraint Jacobian storage, ``"dense"``, ``"sparse"`` or ``"auto"`` (MuJoCo's: dense below
-            60 DOFs). None (default): ``"dense"`` for the chain cable (the same physics, and measured 1.1-1.3x
-            faster in every task scene, where the chain's 60 to 180 DOFs make ``auto`` pick sparse:
-            benchmarks/chain_profile.py, docs/CHAIN.md), ``"auto"`` for the rod.
+            60 DOFs). None (default): ``"dense"`` for the chain cable (the same physics, faster in every task
+            scene, where the chain's 60 to 180 DOFs make ``auto`` pick sparse: docs/CHAIN.md), ``"auto"`` for
+            the rod.
     """
 
     timestep_s: float = 0.001

@@ -336,7 +336,7 @@ def build_spec(config: SceneConfig) -> mujoco.MjSpec:
     Why not declare the flexcomp inside the TCP body: its node bodies would then be children of the TCP and
     every node's Jacobian would involve the TCP's joints, which sends MuJoCo's implicit rod stiffness through
     its general (attachment-Jacobian) assembly; with nodes on world-axis slide joints of their own it
-    assembles 3x3 vertex blocks instead (measured on the tip-control scene: 1.6x fewer CPU-us per step).
+    assembles 3x3 vertex blocks instead, faster per step.
     """
     spec = mujoco.MjSpec.from_string(build_mjcf(config))
     if config.cable.model == "chain":

@@ -103,12 +103,8 @@ class FlickVault:
     Via points are offsets from the TCP's position in the observation, each interval a fixed duration
     (:attr:`SHAPE`): the TCP lifts the cable up and forward over the box (above M = 0.3 m: it pays table V's
     lambda_4), and comes back to lay it over the box, its middle beyond (reward 8 on the nominal cable of
-    either model). It is one of the first population of a cross-entropy search (``benchmarks/vault_search.py``
-    at commit 0a36000, since removed), kept because it vaulted the most of 8 random chain cables the search
-    never saw without breaking an avoid condition.
-
-    The name is historical: in the second layout (support 0.2 m beyond the box) the rod vaulted with a flick
-    that kept the TCP below M, and no throw vaulted the inextensible chain (nor the paper's own model).
+    either model). It came out of a cross-entropy search, kept because it vaulted the most random chain
+    cables the search never saw without breaking an avoid condition.
     """
 
     #: (offsets from the start (m), intervals (s)).

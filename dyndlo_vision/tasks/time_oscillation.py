@@ -35,7 +35,6 @@ LAYOUTS = {
     },
 }
 START_M = {k: v[0] for k, v in LAYOUTS["vertical"].items()}
-TARGET_M = {k: v[1] for k, v in LAYOUTS["vertical"].items()}
 ARRIVAL_TOLERANCE_M = 0.01
 OBSERVATION_WINDOW_S = 1.0  # residual oscillation is measured over this long after arrival
 

@@ -35,11 +35,8 @@ TRACKING_CAMERA = CameraPose.looking_at((0.70, -1.7, 0.90), (0.70, 0.0, 0.40))
 #: swings sideways as it is thrown), so the loop triangulates it from the two views. Two views cannot place a
 #: stretch of cable that lies in an epipolar plane (through both cameras): with the baseline in the y-z plane
 #: (a camera straight above) that is the cable hanging vertically from the lifted TCP, just where the middle
-#: is then, and the middle's estimate was off by up to 0.14 m. A baseline up and along +x leaves vertical and
-#: x-running cable well posed. Measured on randomised cables (`benchmarks/stereo_views.py`), median RMSE of
-#: the middle: 46 mm from straight above (6 cables), 4.7 mm from (1.4, -1.2, 1.4) (where the box hides the
-#: cable's lower part as it is lifted), 4.6 mm from here (10 cables each; these with `StereoParams(smooth=5)`,
-#: 1.5 mm unsmoothed).
+#: is then. A baseline up and along +x leaves vertical and x-running cable well posed: on randomised cables
+#: the middle's error is a tenth of what it is from straight above (docs/results.md, "Decided questions").
 SECOND_TRACKING_CAMERA = CameraPose.looking_at((1.3, -0.9, 1.8), (0.70, 0.0, 0.35))
 #: The cable passes the box's side at least this far from its mid-plane (half its 8 cm width plus 2 cm).
 MIN_SIDE_OFFSET_M = 0.06

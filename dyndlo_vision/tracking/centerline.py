@@ -48,7 +48,6 @@ __all__ = [
 
 # Neighbour order P2..P9 of Zhang & Suen: N, NE, E, SE, S, SW, W, NW (clockwise from north).
 _OFFSETS = ((-1, 0), (-1, 1), (0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1))
-_STEP_LEN = np.array([1.0, math.sqrt(2.0)] * 4)
 
 
 def _zhang_suen_luts() -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
@@ -167,8 +166,7 @@ class CenterlineParams:
     hint_radius_widths: float = 5.0
     hint_longer_walk: float = 1.5
     #: A path at least this share of ``expected_length_px`` short is still the whole cable (its nodes are
-    #: spread over it): skeletons stop short of the mask ends, and a rendered 2 px cable measured 2.7 px
-    #: (median) / 6.4 px (p95) short of its 200 px (benchmarks/tracking_accuracy.py).
+    #: spread over it): skeletons stop short of the mask ends, by a few pixels on a rendered 200 px cable.
     length_tolerance: float = 0.035
     #: A path shorter than this many widths is no cable: a blob (a gripper, a box, a knot of noise) thins into
     #: a skeleton about as long as it is wide, while a cable is many times longer than wide.

@@ -12,8 +12,8 @@ of input channels when it is loaded:
 * **RGB** (3 channels, ``cablenet``, shipped as ``cable-segmenter``, the default): the frame is resized to
   ``short_side`` (240), the logits (half that size) are resized bilinearly to the frame.
 
-cv2.dnn runs these networks several times faster than torch on one core (measured), and torch is not needed
-at run time.
+cv2.dnn runs these networks several times faster than torch on one core, and torch is not needed at run
+time.
 """
 
 from __future__ import annotations
@@ -39,9 +39,9 @@ def to_blocks(rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
     """(H, W, 3) uint8 with H, W multiples of 4 -> (1, 48, H/4, W/4) float32 ``RGB / 255 - 0.5``, channel
     ``c * 16 + 4 * i + j`` holding colour ``c`` of pixel ``(i, j)`` of each block (``pixel_unshuffle``).
 
-    Built from whole rows, which is faster than one strided numpy transpose (measured):
-    ``cv2.split`` parts each row into the 12 colour-and-column planes of a block row (plane
-    ``3 * j + c``); the planes are then reordered as a copy of contiguous rows."""
+    Built from whole rows, which is faster than one strided numpy transpose: ``cv2.split`` parts each row
+    into the 12 colour-and-column planes of a block row (plane ``3 * j + c``); the planes are then reordered
+    as a copy of contiguous rows."""
     h, w = rgb.shape[:2]
     planes = cv2.split(np.ascontiguousarray(rgb).reshape(h, w // BLOCK, 3 * BLOCK))
     by_plane = np.stack(planes).reshape(BLOCK, 3, h // BLOCK, BLOCK, w // BLOCK)  # j, c, y, i, x

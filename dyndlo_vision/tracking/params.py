@@ -85,16 +85,14 @@ class FilterParams:
 
 #: The simulated control loop's tip filter (``control.sim_perception.tracked_state``) on a camera without
 #: latency. A whipped tip accelerates at hundreds of m/s^2: with the default 20 m/s^2 fast measurements are
-#: gated out and the estimate coasts off (tip RMSE median 50 mm over 4 demo episodes); at 2000 m/s^2 it
-#: follows the measurements and bridges missed frames (12.7 mm). Measured with the single-step SAC policy,
-#: seeds 100000-100003, tracked observation. That process noise is continuous
+#: gated out and the estimate coasts off; at 2000 m/s^2 it follows the measurements and bridges missed
+#: frames. That process noise is continuous
 #: (:attr:`FilterParams.accel_psd` = 2000^2 x 0.04: the same velocity variance per 40 ms frame), so that a
 #: missed frame is bridged with a damped velocity, not an oscillating one.
 LOOP_FILTER = FilterParams(sigma_accel=2000.0, accel_psd=2000.0**2 * 0.04)
 #: The loop's tip filter behind a camera latency (``max_coast_s`` is then lengthened by the latency). The
-#: filter must predict across the delay, and a constant-velocity model predicts a whip badly: at sigma_accel
-#: 2000 the estimate's p95 error per episode is 168 mm (40 ms) and 551 mm (80 ms), at 20 it is 93 and 160 mm
-#: with the lowest medians too (benchmarks/camera_latency.py, 20 episodes per row).
+#: filter must predict across the delay, and a constant-velocity model predicts a whip badly: a small
+#: sigma_accel errs less there than 2000 does (docs/results.md, "The loop").
 LATENT_LOOP_FILTER = FilterParams(sigma_accel=20.0)
 #: ``dyndlo-vision track``'s filter (and :class:`~dyndlo_vision.tracking.pipeline.PipelineConfig`'s default):
 #: a whipped tip's acceleration at the frame rate, measured on the simulator's whips, with a continuous white

@@ -206,8 +206,6 @@ class BackgroundSegmenter:
         self._background: NDArray[np.uint8] | None = None
         if background is not None:
             self.set_background(background)
-        #: Thresholds (low, high) used on the last frame, for diagnostics.
-        self.last_thresholds: tuple[float, float] = (float("nan"), float("nan"))
 
     @property
     def background(self) -> NDArray[np.uint8] | None:
@@ -284,7 +282,6 @@ class BackgroundSegmenter:
         """Segments one RGB frame; returns the cleaned (H, W) bool mask."""
         feat = self.feature(rgb)
         low, high = self.thresholds(feat)
-        self.last_thresholds = (low, high)
         # cv2.threshold is strict (>), matching the documented "above".
         _, low_mask = cv2.threshold(feat, low, 1, cv2.THRESH_BINARY)
         _, high_mask = cv2.threshold(feat, high, 1, cv2.THRESH_BINARY)

@@ -24,12 +24,6 @@ class Plane:
     normal: NDArray[np.float64]
     d: float
 
-    @classmethod
-    def from_point_normal(cls, point: ArrayLike, normal: ArrayLike) -> Plane:
-        """The plane through ``point`` with the given normal."""
-        n = np.asarray(normal, dtype=np.float64).reshape(3)
-        return cls(n, -float(n @ np.asarray(point, dtype=np.float64).reshape(3)))
-
 
 @dataclass(frozen=True)
 class Measurement:
@@ -76,14 +70,9 @@ def _path_length(points: NDArray[np.float64]) -> float:
 
 
 #: Shortest share of the cable's known length that the measured polyline (from the held end) must cover for
-#: its tip to be estimated at all; below it the tip is *not seen*. Measured in the loop (``python
-#: benchmarks/tip_completion.py``, since removed: tip control, chain, the shipped policies, tracked, seeds
-#: 500000+; 1 833 frames; docs/results.md, "Decided questions"): where the polyline covered 0.8-0.97 of the
-#: cable (looked at: the tip behind the target sphere) its end was 33-64 mm from the tip (medians), continued
-#: straight by the missing length (:func:`tip_from_polyline`) 2.5-7.8 mm (max 21 mm); at 0.5-0.8, 3 frames,
-#: 25-37 mm. An earlier run, whose loop still took the polyline's end for the tip, also had frames below 0.3
-#: of the cable: continued, they were up to 113 mm off. 0.5 is the boundary. On foreign scenes with wrong
-#: masks continuing does harm (RESULTS, whip videos): it trusts the segmentation.
+#: its tip to be estimated at all; below it the tip is *not seen*. Above it, continuing the polyline straight
+#: by the missing length puts the tip within millimetres; below, it can be a decimetre off (docs/results.md,
+#: "Decided questions"). Continuing trusts the segmentation: with wrong masks it does harm.
 MIN_SEEN_LENGTH_FRACTION = 0.5
 
 

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from dyndlo_vision.control.robot_run import LEAD_FACTOR, HorizonRobot
+from dyndlo_vision.control.horizon import LEAD_FACTOR, HorizonRobot
 from dyndlo_vision.control.run_config import ConfigError, parse_run_config
 from dyndlo_vision.control.scripted import SlowReach
 from dyndlo_vision.robots.kinematics import ArmKinematics, IKOptions, abb_gofa_crb15000
@@ -322,7 +322,7 @@ def test_horizon_robot_with_plans_pending() -> None:
 
 
 def test_moving_targets_lost_counts_what_never_arrived() -> None:
-    from dyndlo_vision.control.robot_run import moving_targets_lost
+    from dyndlo_vision.control.robot_report import moving_targets_lost
 
     q = [np.full(6, 0.01 * k) for k in range(10)]
     rest = [q[-1], q[-1]]
