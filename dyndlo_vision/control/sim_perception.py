@@ -51,9 +51,6 @@ LOOP_NETWORK_SCALE = 1.5
 #: Chosen on seeds 200000-200019 between 48 and 80: at 80 the estimates match the whole reach's (median
 #: 1.71 against 1.72 mm, p90 2.08 against 2.15 mm), at 48 the p90 rose to 3.3 mm.
 LOOP_FOLLOW_PX = 80
-# The tip filter's tuned acceleration noise without and with a camera latency (why: tracking.params).
-LOOP_SIGMA_ACCEL = LOOP_FILTER.sigma_accel
-LATENT_LOOP_SIGMA_ACCEL = LATENT_LOOP_FILTER.sigma_accel
 #: Segmenters the loop can use: the shipped full-resolution CNN ``cable-segmenter-loop`` (no background
 #: image needed, as with a real camera), or the classical background segmenter against the scene rendered
 #: without the cable (a clean plate only a simulator or a fixed real camera has).
@@ -139,15 +136,6 @@ def render_without_cable(camera: MujocoCamera) -> NDArray[np.uint8]:
     finally:
         cable.set_alphas(model, saved[0])
         model.geom_rgba[geoms, 3], model.site_rgba[sites, 3] = saved[1], saved[2]
-
-
-def pixels_per_metre(camera: Any, point: NDArray[np.float64], plane: Plane = MOTION_PLANE) -> float:
-    """Image scale on the motion plane near ``point`` (pixels per metre), from two projected points."""
-    normal = np.asarray(plane.normal, dtype=float)
-    along = np.cross(normal, [0.0, 0.0, 1.0])
-    along = along / np.linalg.norm(along)
-    uv = camera.project(np.stack([point, point + 0.1 * along]))
-    return float(np.linalg.norm(uv[1] - uv[0]) / 0.1)
 
 
 def default_segmenter(env: Any) -> str:
