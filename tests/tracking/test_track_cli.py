@@ -452,7 +452,7 @@ def sim_clip(tmp_path_factory: pytest.TempPathFactory) -> SimClip:
         base.frame_hook = None
         env.close()
     calib = root / "camera.json"
-    assert main(["calib", "--camera", "tracking", "--task", "tip-control", "--out", str(calib)]) == 0
+    assert main(["calibrate", "--scene", "tip-control", "--camera", "tracking", "--out", str(calib)]) == 0
     return SimClip(_write_mp4(root / "sim.mp4", frames), calib, tip_uv)
 
 
@@ -547,7 +547,7 @@ def test_on_the_demo_video_the_tip_is_never_confidently_wrong(tmp_path: Path) ->
     env.close()
     video, calib = tmp_path / "demo.mp4", tmp_path / "camera.json"
     write_video_atomic(video, frames, rgb=False)  # as the demo writes it
-    assert main(["calib", "--out", str(calib)]) == 0
+    assert main(["calibrate", "--scene", "tip-control", "--out", str(calib)]) == 0
     plane = ",".join(f"{c:g}" for c in (*MOTION_PLANE.normal, MOTION_PLANE.d))
     camera = PinholeCamera.from_json(calib)
     tip_uv = camera.project(np.array(record["trace"]["truth"]).reshape(-1, 3))
