@@ -37,8 +37,7 @@ FIRST_EPISODE_SEED = 100_000
 LOOP_CAMERA = "tracking"
 #: What each segmenter kind is, for ``--segmenter``'s help.
 SEGMENTER_KINDS = {
-    "learned": "learned, a CNN (--segmenter-model) that segments each frame on its own, for textured or "
-    "cluttered scenes",
+    "learned": "learned, a CNN (--segmenter-model), for textured or cluttered scenes",
     "background": "background, contrast with a model of the scene without the cable",
     "hsv": "hsv, colour bounds (--hsv-lower, --hsv-upper)",
 }

@@ -72,7 +72,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         help="with --charuco: the ArUco markers' side in metres")
     photos.add_argument("--dictionary", choices=CHARUCO_DICTIONARIES, default=None,
                         help="with --charuco: the markers' ArUco dictionary (default 5X5_100)")
-    photos.add_argument("--square", type=float, metavar="M", help="square side in metres (required)")
+    photos.add_argument("--square", type=float, metavar="M",
+                        help="square side in metres (required with photos)")
     photos.add_argument(
         "--distortion",
         choices=DISTORTION_MODELS,
