@@ -528,10 +528,13 @@ def test_demo_cable_ranges_beyond_training_draw_from_the_wider_ranges(tmp_path: 
     drawn = asdict(info["cable"])
     cable = metrics["episodes"][0]["cable"]
     assert cable == pytest.approx({k: drawn[k] for k in cable})
-    with pytest.raises(SystemExit) as exc:
-        main(["demo", "--cable-ranges", "beyond", "--out", str(tmp_path / "no")])
-    assert exc.value.code == 2
-    assert not (tmp_path / "no").exists()
+    # --cable-ranges alone draws the same cables (as in distill, train and evaluate): it means random cables.
+    alone = tmp_path / "alone"
+    argv = ["demo", "--observation", "true", "--cable-ranges", "beyond", "--seed", "9"]
+    assert main([*argv, "--quiet", "--out", str(alone)]) == 0
+    again = json.loads((alone / "metrics.json").read_text())
+    assert again["randomize_cable"] is True and again["cable_ranges"] == "beyond"
+    assert again["episodes"][0]["cable"] == cable
 
 
 @pytest.mark.slow

@@ -7,7 +7,6 @@ from __future__ import annotations
 COMMANDS: dict[str, str] = {
     "demo": "demo",
     "track": "track",
-    "calib": "calib",
     "calibrate": "calibrate",
     "evaluate": "evaluate",
     "plot": "plot",

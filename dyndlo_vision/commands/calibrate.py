@@ -1,21 +1,29 @@
-"""``dyndlo-vision calibrate``: a real camera's calibration JSON from checkerboard photos (``track --calib``).
+"""``dyndlo-vision calibrate``: a camera's calibration JSON (what ``track --calib`` and ``run``'s
+``camera.calibration`` read), for a real camera from photos of a checkerboard, or for a simulated one from its
+task's scene (``--scene``).
 
-Intrinsics and lens distortion come from several photos of a checkerboard held at different tilts
-(:func:`~dyndlo_vision.tracking.calibration.calibrate_intrinsics`, OpenCV's ``calibrateCamera``). The pose in
-the robot's base frame comes from one more photo (``--extrinsic``) of the board lying at a known pose there
-(``--board-pose``), or at a pose found by touching 3 or more of its corners with the robot's TCP
+**A real camera.** Intrinsics and lens distortion come from several photos of a checkerboard held at different
+tilts (:func:`~dyndlo_vision.tracking.calibration.calibrate_intrinsics`, OpenCV's ``calibrateCamera``). The
+pose in the robot's base frame comes from one more photo (``--extrinsic``) of the board lying at a known pose
+there (``--board-pose``), or at a pose found by touching 3 or more of its corners with the robot's TCP
 (``--touch``), with a pixel near the board's origin corner (``--board-origin``), since a checkerboard's
 corners can be numbered from either end. Without ``--extrinsic`` the camera's own frame is the world
 (``R = I``, ``t = 0``): fine for tracking in pixels, not for the loop.
 
-The file has the fields ``track --calib`` reads (``width``, ``height``, ``K``, ``dist``, ``R``, ``t``,
-``fps``); it is written atomically, and nothing is written after any error. (``dyndlo-vision calib`` writes
-the same file for a *simulated* camera, from the scene.)
+**A simulated camera** (``--scene TASK``). The task's scene is built as the other commands build it, and the
+named MuJoCo camera's pinhole model is taken from :attr:`dyndlo_vision.cameras.MujocoCamera.calibration` (the
+model the loop's tracker uses): ``fx = fy`` from the vertical field of view, the principal point at the image
+centre, no lens distortion (MuJoCo renders without), and the camera's pose in the task's world.
+
+The file has the fields ``track --calib`` reads (``width``, ``height``, ``K``, ``dist``, ``R``, ``t`` with
+``x_cam = R @ x_world + t`` in OpenCV's camera axes, ``fps``); it is written atomically, and nothing is
+written after any error.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 from dataclasses import dataclass
@@ -24,21 +32,31 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-HELP = "calibrate a real camera from checkerboard photos: intrinsics, distortion, pose in the robot's frame"
+HELP = ("write a camera's calibration JSON: a real camera's from checkerboard photos (intrinsics, "
+        "distortion, pose in the robot's frame), or with --scene a simulated one's from its task's scene")
+#: The options of each mode, as they are named (the other mode refuses them).
+PHOTO_OPTIONS = ("--board", "--charuco", "--marker", "--dictionary", "--square", "--distortion",
+                 "--extrinsic", "--board-pose", "--touch", "--board-origin")
+SCENE_OPTIONS = ("--camera", "--width", "--height")
+#: A simulated camera's image size when not given: the loop's camera's.
+SCENE_SIZE = (640, 480)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``calibrate``."""
+    from dyndlo_vision.commands import _options as options
+    from dyndlo_vision.tasks.registry import TASKS
     from dyndlo_vision.tracking.calibration import CHARUCO_DICTIONARIES, DISTORTION_MODELS, MIN_VIEWS
 
     p.add_argument(
         "images",
-        nargs="+",
+        nargs="*",
         metavar="IMAGE",
         help=f"photos of the checkerboard at different tilts (files or folders of them; at least {MIN_VIEWS} "
-        "with the board found)",
+        "with the board found); none with --scene",
     )
-    target = p.add_mutually_exclusive_group(required=True)
+    photos = p.add_argument_group("a real camera, from photos of a checkerboard")
+    target = photos.add_mutually_exclusive_group()
     target.add_argument(
         "--board",
         metavar="COLSxROWS",
@@ -50,30 +68,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="a ChArUco board (OpenCV's): squares across and down, e.g. 7x5; the photos may show part of it, "
         "and the extrinsic photo needs no --board-origin (needs --marker)",
     )
-    p.add_argument("--marker", type=float, metavar="M",
-                   help="with --charuco: the ArUco markers' side in metres")
-    p.add_argument("--dictionary", choices=CHARUCO_DICTIONARIES, default="5X5_100",
-                   help="with --charuco: the markers' ArUco dictionary")
-    p.add_argument("--square", required=True, type=float, metavar="M", help="square side in metres")
-    p.add_argument(
+    photos.add_argument("--marker", type=float, metavar="M",
+                        help="with --charuco: the ArUco markers' side in metres")
+    photos.add_argument("--dictionary", choices=CHARUCO_DICTIONARIES, default=None,
+                        help="with --charuco: the markers' ArUco dictionary (default 5X5_100)")
+    photos.add_argument("--square", type=float, metavar="M",
+                        help="square side in metres (required with photos)")
+    photos.add_argument(
         "--distortion",
         choices=DISTORTION_MODELS,
-        default="radial",
-        help="distortion coefficients to fit: none, radial (k1, k2) or full (k1, k2, p1, p2, k3)",
+        default=None,
+        help="distortion coefficients to fit: none, radial (k1, k2; the default) or full (k1, k2, p1, p2, "
+        "k3)",
     )
-    p.add_argument(
+    photos.add_argument(
         "--extrinsic",
         metavar="IMAGE",
         help="a photo of the board lying at --board-pose in the robot's base frame (may be one of IMAGES)",
     )
-    p.add_argument(
+    photos.add_argument(
         "--board-pose",
         metavar="X,Y,Z,ROLL,PITCH,YAW",
         help="with --extrinsic: the board's origin corner in the robot's base frame (m) and its orientation "
         "(degrees, R = Rz(yaw) Ry(pitch) Rx(roll)); the board's x runs along a row of corners from the "
         "origin, y along a column",
     )
-    p.add_argument(
+    photos.add_argument(
         "--touch",
         metavar="CSV",
         help="with --extrinsic, instead of --board-pose: corners of the board, lying as in that photo, "
@@ -81,15 +101,49 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "the first inner corner; TCP position in m in the robot's base frame), at least 3 corners not on one "
         "line",
     )
-    p.add_argument(
+    photos.add_argument(
         "--board-origin",
         metavar="U,V",
         help="with --extrinsic and --board: a pixel near the board's origin corner in that photo",
     )
-    p.add_argument("--fps", type=float, help="frame rate to write to the file (optional)")
+    scene = p.add_argument_group("a simulated camera, from its task's scene")
+    scene.add_argument(
+        "--scene", choices=sorted(TASKS), metavar="TASK",
+        help=f"the task whose MuJoCo scene holds the camera, one of {', '.join(sorted(TASKS))}",
+    )
+    options.add_camera(scene)
+    options.add_image_size(scene, None, None, unless=(*SCENE_SIZE, "the loop camera's"))
+    p.add_argument("--fps", type=float,
+                   help="frame rate written to the file (default: none for photos; with --scene 25, one "
+                   "frame per control period)")
     p.add_argument(
         "--out", required=True, metavar="CAMERA.json", help="file to write (its folder must exist)"
     )
+
+
+def _check_mode(args: argparse.Namespace) -> None:
+    """Each mode's options only in that mode, and what each mode needs (ValueError naming the option)."""
+    def given(option: str) -> bool:
+        return getattr(args, option[2:].replace("-", "_")) is not None
+
+    if args.scene is not None:
+        if args.images:
+            raise ValueError(f"--scene {args.scene} takes its camera from the scene, not from photos; got "
+                             f"{len(args.images)} image(s): {args.images[0]} ...")
+        for option in PHOTO_OPTIONS:
+            if given(option):
+                raise ValueError(f"{option} is for photos of a board, not --scene")
+        return
+    for option in SCENE_OPTIONS:
+        if given(option):
+            raise ValueError(f"{option} is for a simulated camera: it needs --scene TASK")
+    if not args.images:
+        raise ValueError("give photos of a checkerboard (IMAGE ...), or --scene TASK for a simulated camera")
+    if args.board is None and args.charuco is None:
+        raise ValueError("the photos need the board they show: --board COLSxROWS or --charuco "
+                         "SQUARESxSQUARES")
+    if args.square is None:
+        raise ValueError("the photos need --square, the board's square side in metres")
 
 
 @dataclass(frozen=True)
@@ -122,7 +176,7 @@ def _numbers(text: str, count: int, option: str) -> NDArray[np.float64]:
 
 
 def _settings(args: argparse.Namespace) -> _Settings:
-    """Validates every argument (raises ValueError naming the bad one)."""
+    """Validates every argument of a real camera's calibration (raises ValueError naming the bad one)."""
     charuco = args.charuco is not None
     option, text = ("--charuco", args.charuco) if charuco else ("--board", args.board)
     board = str(text).lower().split("x")
@@ -172,8 +226,8 @@ def _settings(args: argparse.Namespace) -> _Settings:
         rows=rows,
         square_m=float(args.square),
         marker_m=None if args.marker is None else float(args.marker),
-        dictionary=str(args.dictionary),
-        distortion=str(args.distortion),
+        dictionary=str(args.dictionary or "5X5_100"),
+        distortion=str(args.distortion or "radial"),
         extrinsic=extrinsic,
         board_pose=None if args.board_pose is None else _numbers(args.board_pose, 6, "--board-pose"),
         touch=None if touch is None else Path(touch),
@@ -226,6 +280,12 @@ def _read_gray(path: Path) -> NDArray[np.uint8]:
 
 
 def run(args: argparse.Namespace) -> int:
+    """A real camera's calibration from the photos, or with ``--scene`` a simulated camera's."""
+    _check_mode(args)
+    return _run_scene(args) if args.scene is not None else _run_photos(args)
+
+
+def _run_photos(args: argparse.Namespace) -> int:
     """Detect the board, calibrate, and write the JSON."""
     from dyndlo_vision.tracking.calibration import (
         BoardView,
@@ -339,4 +399,94 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     print(f"wrote {cfg.out}")
+    return 0
+
+
+# ------------------------------------------------------------------------------------ a simulated camera
+
+
+@dataclass(frozen=True)
+class _SceneSettings:
+    camera: str
+    task: str
+    width: int
+    height: int
+    fps: float
+    out: Path
+
+
+def _scene_settings(args: argparse.Namespace) -> _SceneSettings:
+    """Validates every argument of a simulated camera's calibration that needs no scene (raises ValueError
+    naming the bad one)."""
+    from dyndlo_vision.commands._options import LOOP_CAMERA
+    from dyndlo_vision.tasks.base import CONTROL_PERIOD_S
+    from dyndlo_vision.tasks.registry import TASKS
+
+    if args.scene not in TASKS:
+        raise ValueError(f"--scene {args.scene!r} is not a task; expected one of {sorted(TASKS)}")
+    width = SCENE_SIZE[0] if args.width is None else args.width
+    height = SCENE_SIZE[1] if args.height is None else args.height
+    for option, value in (("--width", width), ("--height", height)):
+        if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+            raise ValueError(f"{option} must be a positive number of pixels, got {value!r}")
+    fps = 1.0 / CONTROL_PERIOD_S if args.fps is None else args.fps  # the loop renders once per period
+    if not (isinstance(fps, int | float) and math.isfinite(fps) and fps > 0):
+        raise ValueError(f"--fps must be a positive finite number, got {fps!r}")
+    from dyndlo_vision._atomic import check_output_file
+
+    out = check_output_file(Path(args.out), "--out", "camera.json")
+    return _SceneSettings(str(args.camera or LOOP_CAMERA), str(args.scene), width, height, float(fps), out)
+
+
+def _run_scene(args: argparse.Namespace) -> int:
+    """Build the task's scene, take the camera's calibration and write it."""
+    cfg = _scene_settings(args)
+
+    import mujoco
+
+    from dyndlo_vision._atomic import write_atomic
+    from dyndlo_vision.cameras.simulated import MujocoCamera
+    from dyndlo_vision.tasks.registry import make_env
+
+    env = make_env(cfg.task)
+    try:
+        model, data = env.unwrapped.model, env.unwrapped.data
+        names = [model.camera(i).name for i in range(model.ncam)]
+        if cfg.camera not in names:
+            raise ValueError(
+                f"--camera {cfg.camera!r} is not a camera of the {cfg.task} scene; its cameras: {names}"
+            )
+        cam_id = int(model.camera(cfg.camera).id)
+        # One file holds one pose: a camera that tracks a body, or rides on a moving one, has none.
+        fixed = int(model.cam_mode[cam_id]) == int(mujoco.mjtCamLight.mjCAMLIGHT_FIXED)
+        body = int(model.cam_bodyid[cam_id])
+        if not fixed or int(model.body_weldid[body]) != 0:
+            raise ValueError(
+                f"--camera {cfg.camera!r} moves with the scene (body {model.body(body).name!r}, mode "
+                f"{int(model.cam_mode[cam_id])}); a calibration file describes a camera fixed to the world"
+            )
+        # The file is for images the scene can render (MujocoCamera's limit too, with advice about the model
+        # file that a user of a task cannot follow).
+        largest = (int(model.vis.global_.offwidth), int(model.vis.global_.offheight))
+        if cfg.width > largest[0] or cfg.height > largest[1]:
+            raise ValueError(
+                f"--width {cfg.width} --height {cfg.height} is larger than the {cfg.task} scene renders "
+                f"(at most {largest[0]}x{largest[1]})"
+            )
+        mujoco.mj_forward(model, data)
+        camera = MujocoCamera(model, data, cfg.camera, width=cfg.width, height=cfg.height, fps=cfg.fps)
+        try:
+            calib = camera.calibration
+        finally:
+            camera.close()
+    finally:
+        env.close()
+    text = json.dumps(calib.to_dict(), indent=2) + "\n"
+    write_atomic(cfg.out, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+    fx, cx, cy = calib.K[0, 0], calib.K[0, 2], calib.K[1, 2]
+    centre = ", ".join(f"{c:.3f}" for c in calib.center)
+    print(
+        f"wrote {cfg.out}: camera {cfg.camera!r} of {cfg.task}, {cfg.width}x{cfg.height} px, "
+        f"fx = fy = {fx:.2f} px, principal point ({cx:.1f}, {cy:.1f}), centre ({centre}) m, {cfg.fps:g} fps"
+    )
     return 0

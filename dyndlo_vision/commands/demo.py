@@ -85,14 +85,12 @@ def parse_push(text: str | None) -> Any:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``demo``."""
+    from dyndlo_vision.commands import _options as options
     from dyndlo_vision.tasks.registry import task_entry
 
-    p.add_argument(
-        "--task",
-        choices=DEMO_TASKS,
-        default="tip-control",
-        help="the task (default: tip-control); its scene's camera is placed for it",
-    )
+    p.epilog = ("The video and the plot show the first episode; metrics.json aggregates all of them, and "
+                "records each episode's cable and the ranges it was drawn from.")
+    options.add_task(p, choices=DEMO_TASKS)
     defaults = "; ".join(f"{t}: {list(task_entry(t).shipped_policies)}" for t in DEMO_TASKS)
     p.add_argument(
         "--policy",
@@ -108,38 +106,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "simulator's P_DLO frozen at reset (the ablation: what the policy does without "
         "feedback)",
     )
-    p.add_argument(
-        "--obs-noise",
-        default=None,
-        metavar="MODEL.json|NAME",
-        help="with --observation noisy: the noise model, a JSON written by ObservationNoiseModel.save (e.g. "
-        "by benchmarks/loop_noise_model.py) or a shipped one: 'packaged' (tip control's one-camera tracker) "
-        "or 'vaulting-two-cameras' (the vault loop's two-camera tracker). Default: the task's own loop "
-        "tracker ('vaulting-two-cameras' for vaulting, 'packaged' for tip control)",
-    )
-    p.add_argument(
-        "--randomize-cable",
-        action="store_true",
-        help="a new cable every episode, drawn from the episode's seed (length, mass, Young's modulus, "
-        "damping; --cable-ranges); metrics.json records each cable",
-    )
-    p.add_argument(
-        "--cable-ranges",
-        choices=["training", "beyond"],
-        default="training",
-        help="with --randomize-cable: 'training' (default), the ranges of `train --randomize-cable` (length "
-        "0.9-1.1x, mass 0.7-1.3x, Young's modulus and damping 0.5-2x), or 'beyond' them (length 0.8-1.2x, "
-        "mass 0.5-2x, Young's modulus and damping 0.25-4x; vaulting's lengths 0.9-1.2x, as shorter cables "
-        "do not fit around its box); metrics.json records the factors drawn from",
-    )
-    p.add_argument(
-        "--episodes",
-        type=int,
-        default=1,
-        help="episodes to run; the video and plot show the first, metrics.json aggregates all (default 1)",
-    )
-    p.add_argument("--seed", type=int, default=100_000, help="seed of the first episode (default 100000)")
-    p.add_argument("--camera", default="tracking", help="MuJoCo camera to track from (default: tracking)")
+    options.add_obs_noise(p, default="with --observation noisy, the task's own loop tracker's "
+                          "('vaulting-two-cameras' for vaulting, 'packaged' for tip control)")
+    options.add_cable_options(p)
+    options.add_episodes(p, default=1)
+    options.add_first_seed(p)
+    options.add_camera(p)
     p.add_argument(
         "--latency-ms",
         type=float,
@@ -163,21 +135,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "T s of episode time, e.g. 0.3,0.01,0,0 (the momentum of tip control's whole 10 g cable at 1 m/s); "
         "chain cable only (default: none)",
     )
-    p.add_argument(
-        "--segmenter",
-        choices=["learned", "background"],
-        default=None,
-        help="tracked observation: the shipped full-resolution CNN fine-tuned on the loop's scenes "
-        "(cable-segmenter-loop), or the classical background segmenter against the scene rendered without "
-        "the cable. Default: learned where the scene has one camera (tip control), background where it has "
-        "two (vaulting, where the network loses the cable on the floor and two networks overrun the cycle)",
+    # The loop's segmenters (control.sim_perception.LOOP_SEGMENTERS; not imported here: it loads MuJoCo).
+    options.add_segmenter(
+        p, ("learned", "background"), None,
+        default_text="the scene's own, learned where it has one camera (tip control), background where it "
+        "has two (vaulting, where the network loses the cable on the floor and two networks overrun the "
+        "cycle); the loop's background is its scene rendered without the cable; with --observation tracked "
+        "only",
     )
-    p.add_argument(
-        "--segmenter-model",
-        metavar="FILE.onnx|NAME",
-        help="with --segmenter learned: another network, an ONNX file from seg-train or a shipped one by "
-        "name (default cable-segmenter-loop)",
-    )
+    options.add_segmenter_model(p, default="cable-segmenter-loop")
     p.add_argument(
         "--segmenter-scale",
         type=float,
@@ -204,9 +170,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "tcp.csv (the gripper, time_s,x,y,z) and truth.csv (the true P_DLO), one row per frame",
     )
     p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
-    p.add_argument(
-        "--quiet", action="store_true", help="no progress bar on stderr (shown for --episodes > 1)"
-    )
+    options.add_quiet(p)
 
 
 def check_camera(env: Any, camera_name: str) -> None:
@@ -223,56 +187,24 @@ def run(args: argparse.Namespace) -> int:
     Everything that can be checked before the episodes is (options, the output folder, the camera), and the
     outputs are written together at the end: a run that fails leaves no new folder and no partial output.
     """
+    from dyndlo_vision.commands._options import LOOP_CAMERA, ObservationChoice, random_cables
+
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
-    from dyndlo_vision.control.sim_perception import MAX_LATENCY_S
-
-    if not 0.0 <= args.latency_ms <= 1000.0 * MAX_LATENCY_S:
-        raise ValueError(f"--latency-ms must be in [0, {1000.0 * MAX_LATENCY_S:g}] ms, got {args.latency_ms}")
-    if args.latency_ms and args.observation != "tracked":
-        raise ValueError(f"--latency-ms applies to the tracked observation, not to {args.observation!r}")
-    if args.cable_ranges != "training" and not args.randomize_cable:
-        raise ValueError(f"--cable-ranges {args.cable_ranges} applies with --randomize-cable")
-    segmenter_scale = getattr(args, "segmenter_scale", None)
-    for option, value in (("--segmenter", args.segmenter), ("--segmenter-model", args.segmenter_model),
-                          ("--segmenter-scale", segmenter_scale)):
-        if value is not None and args.observation != "tracked":
-            raise ValueError(f"{option} applies to the tracked observation, not to {args.observation!r}")
-    if args.segmenter == "background":
-        for option, value in (("--segmenter-model", args.segmenter_model), ("--segmenter-scale",
-                                                                             segmenter_scale)):
-            if value is not None:
-                raise ValueError(f"{option} is for --segmenter learned, not background")
-    if args.segmenter_model is not None:
-        from dyndlo_vision.tracking.networks import check_network
-
-        check_network(args.segmenter_model, "--segmenter-model")
-    if segmenter_scale is not None:
-        from dyndlo_vision.tracking.segmenters import MAX_SCALE, MIN_SCALE
-
-        if not MIN_SCALE <= segmenter_scale <= MAX_SCALE:  # also NaN
-            raise ValueError(f"--segmenter-scale must be a number in [{MIN_SCALE:g}, {MAX_SCALE:g}], got "
-                             f"{segmenter_scale!r}")
-    noise_model, noise_name = None, None
-    if getattr(args, "obs_noise", None) is not None and args.observation != "noisy":
-        raise ValueError(f"--obs-noise applies to the noisy observation, not to {args.observation!r}")
-    if args.observation == "noisy":  # the given model, else the task's own loop tracker's
-        from dyndlo_vision.tasks import noise
-
-        noise_name = args.obs_noise or noise.task_noise_model(getattr(args, "task", "tip-control"))
-        noise_model = noise.ObservationNoiseModel.load(
-            noise.noise_model_file(noise.resolve_noise_model_path(noise_name)))
-    if args.views is not None and args.observation != "tracked":
-        raise ValueError(f"--views applies to the tracked observation, not to {args.observation!r}")
+    task = args.task
+    observation = ObservationChoice.from_args(args, task)
     push = parse_push(args.push)
-    if getattr(args, "raw_videos", False) and (args.observation != "tracked" or args.latency_ms):
+    if args.raw_videos and (observation.kind != "tracked" or observation.latency_ms):
         raise ValueError(
             "--raw-videos records the frames the loop's tracker is given, at the instants its truth is read: "
-            f"it needs --observation tracked without --latency-ms (got --observation {args.observation}, "
-            f"--latency-ms {args.latency_ms:g})"
+            f"it needs --observation tracked without --latency-ms (got --observation {observation.kind}, "
+            f"--latency-ms {observation.latency_ms:g})"
         )
     if not 0.0 <= args.actuation_latency_ms <= 1000.0:
         raise ValueError(f"--actuation-latency-ms must be in [0, 1000] ms, got {args.actuation_latency_ms}")
+    cables = random_cables(args)
+    cable_options = {} if cables is None else cables.env_options(task)
+    camera = args.camera or LOOP_CAMERA
     out = Path(args.out)
     check_output_folder(out)
 
@@ -282,45 +214,14 @@ def run(args: argparse.Namespace) -> int:
     from dyndlo_vision.tasks.registry import make_env
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    task = getattr(args, "task", "tip-control")
     name = args.policy or policies.default_for(task)
     _, meta = policies.resolve(name)
     if meta.get("task", "tip-control") != task:
         raise ValueError(f"policy {name} is for {meta.get('task')}, not --task {task}")
     multi_step = bool(meta.get("multi_step", False))
-    from dyndlo_vision.tasks.wrappers import cable_ranges_for
-
-    ranges = cable_ranges_for(task, args.cable_ranges)
-    if task == "vaulting" and args.randomize_cable:
-        from dyndlo_vision.tasks.vaulting import check_cable_lengths
-
-        check_cable_lengths(ranges["length_m"][0], f"--cable-ranges {args.cable_ranges}")
-    env = make_env(task, multi_step=multi_step,
-                   randomize_cable_every=1 if args.randomize_cable else None,
-                   cable_ranges=ranges)
-    check_camera(env, args.camera)
-    views, segmenter, perception = None, None, None
-    effective_scale = None  # the learned network's enlargement, recorded as run
-    if args.observation == "tracked":
-        from dyndlo_vision.control.sim_perception import (
-            LoopPerception,
-            default_segmenter,
-            loop_segmenter,
-            scene_views,
-        )
-
-        available = scene_views(env)
-        views = available if args.views is None else args.views
-        if views > available:
-            raise ValueError(f"--views {views}: the {task} scene has one tracking camera; expected --views 1")
-        segmenter = args.segmenter or default_segmenter(env)
-        if segmenter != "learned" and (args.segmenter_model is not None or segmenter_scale is not None):
-            raise ValueError(f"--segmenter-model and --segmenter-scale are for --segmenter learned; the "
-                             f"{task} scene's default segmenter is {segmenter!r}")
-        seg_config = loop_segmenter(segmenter, args.segmenter_model,
-                                    None if segmenter_scale is None else float(segmenter_scale))
-        effective_scale = seg_config.scale
-        perception = LoopPerception(seg_config, views, latency_s=1e-3 * args.latency_ms)
+    env = make_env(task, multi_step=multi_step, **cable_options)
+    check_camera(env, camera)
+    perception = observation.perception(env, task)
     if push is not None:
         if env.unwrapped.task.cable.model != "chain":
             raise ValueError("--push needs the chain cable; this policy's environment has the rod")
@@ -329,7 +230,7 @@ def run(args: argparse.Namespace) -> int:
 
     episodes = []
     video: list[np.ndarray] = []
-    raw = RawRecording(env, views or 1) if getattr(args, "raw_videos", False) else None
+    raw = RawRecording(env, perception.views) if args.raw_videos and perception is not None else None
     bar = tqdm(total=args.episodes, desc="demo episodes", unit="episode", file=sys.stderr,
                disable=args.quiet or args.episodes == 1)
     with bar:
@@ -338,14 +239,14 @@ def run(args: argparse.Namespace) -> int:
                 env,
                 model,
                 args.seed + i,
-                args.observation,
-                args.camera,
+                observation.kind,
+                camera,
                 video if i == 0 else None,
                 perception=perception,
                 goal_name=GOAL_NAMES[task],
                 actuation_latency_s=1e-3 * args.actuation_latency_ms,
                 raw=raw if i == 0 else None,
-                noise_model=noise_model,
+                noise_model=observation.noise_model,
             )
             episodes.append(record)
             bar.update(1)
@@ -363,19 +264,19 @@ def run(args: argparse.Namespace) -> int:
         "task": task,
         "policy": str(name),
         "multi_step": multi_step,
-        "observation": args.observation,
-        "randomize_cable": bool(args.randomize_cable),
-        "cable_ranges": args.cable_ranges if args.randomize_cable else None,
-        "cable_range_factors": ranges if args.randomize_cable else None,
-        "latency_ms": args.latency_ms,
+        "observation": observation.kind,
+        "randomize_cable": cables is not None,
+        "cable_ranges": None if cables is None else cables.ranges,
+        "cable_range_factors": cable_options.get("cable_ranges"),
+        "latency_ms": observation.latency_ms,
         "actuation_latency_ms": args.actuation_latency_ms,
         "push": None if push is None else {"time_s": push.time_s, "impulse_n_s": list(push.impulse_n_s),
                                            "node": "middle"},
-        "obs_noise": noise_name,
-        "segmenter": segmenter,
-        "segmenter_model": args.segmenter_model,
-        "segmenter_scale": effective_scale,
-        "views": views,
+        "obs_noise": observation.noise,
+        "segmenter": None if perception is None else perception.segmenter.kind,
+        "segmenter_model": observation.segmenter_model,
+        "segmenter_scale": None if perception is None else perception.segmenter.scale,
+        "views": None if perception is None else perception.views,
         **summarize(episodes),
         "cycle_ms_note": "controller time per 40 ms cycle: camera render + tracking + filter + policy + "
         "planning (the simulated robot's physics is timed apart as send_ms); percentiles over the cycles of "

@@ -14,12 +14,13 @@ HELP = (
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``distill``."""
-    p.add_argument(
-        "--task",
-        choices=("tip-control", "vaulting"),
-        default="tip-control",
-        help="the task (default tip-control)",
-    )
+    from dyndlo_vision.commands import _options as options
+
+    p.epilog = ("With --resume, --obs-noise may change: every fit draws all rounds' observations again "
+                "through the new model.")
+    # The tasks with a shipped single-step teacher (learning.distill.DEFAULT_TEACHERS; not imported here: it
+    # loads torch).
+    options.add_task(p, choices=("tip-control", "vaulting"))
     p.add_argument(
         "--teacher",
         default=None,
@@ -40,36 +41,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="rounds in which the expert acts, each on new seeds (default 1); resume a finished run with "
         "more --rounds and --expert-rounds to add behaviour-cloning data",
     )
-    p.add_argument("--episodes", type=int, default=200, help="episodes per DAgger round (default 200)")
+    p.add_argument(
+        "--dagger-episodes", type=int, default=200, help="episodes of every DAgger round (default 200)"
+    )
     p.add_argument(
         "--first-round-episodes", type=int, default=400, help="episodes of every expert round (default 400)"
     )
-    p.add_argument(
-        "--obs-noise",
-        default=None,
-        help="observation-noise model (JSON) the student sees P_DLO through, or a shipped one: 'packaged' "
-        "(tip control's one-camera tracker) or 'vaulting-two-cameras' (default: true state). With --resume "
-        "it may change: every fit draws all rounds' observations again through it",
-    )
-    p.add_argument(
-        "--env-option",
-        action="append",
-        metavar="KEY=VALUE",
-        help="task option of the task's environment, e.g. cable=chain (repeatable; default: the "
-        "teacher's own options, from the JSON beside it)",
-    )
+    options.add_obs_noise(p)
+    options.add_env_option(p)
     p.add_argument("--seed", type=int, default=1, help="episode seeds start at SEED * 1e6 (default 1)")
     p.add_argument("--workers", type=int, default=2, help="processes collecting episodes (default 2)")
     p.add_argument(
         "--epochs", type=int, default=300, help="regression passes over the data per round (default 300)"
     )
-    p.add_argument(
-        "--cable-ranges",
-        choices=("training", "beyond"),
-        default=None,
-        help="draw every episode's cable from these ranges (training: evaluate --randomize-cable's; beyond: "
-        "the wider ones of the feedback benchmark); default: the nominal cable",
-    )
+    options.add_cable_options(p)
     p.add_argument(
         "--teacher-search",
         action="store_true",
@@ -112,24 +97,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--out", default=None, help="run folder (default: runs/<task>-multi-step-distill-s<seed>)"
     )
-    p.add_argument("--resume", action="store_true", help="continue the run in --out after its last round")
+    options.add_resume(p)
     p.add_argument(
         "--refit",
         action="store_true",
         help="with --resume: fit the student again from new weights on the finished rounds (as the run did, "
         "round by round), through --obs-noise now, without collecting them again; then go on",
     )
-    p.add_argument("--quiet", action="store_true", help="no progress bars on stderr")
+    options.add_quiet(p)
 
 
 def run(args: argparse.Namespace) -> int:
     """Resolve the options, then run the rounds."""
     from dyndlo_vision import policies
+    from dyndlo_vision.commands._options import random_cables
     from dyndlo_vision.commands.train import parse_assignments
     from dyndlo_vision.learning.distill import DEFAULT_TEACHERS, DistillConfig, distill
     from dyndlo_vision.tasks.noise import resolve_noise_model_path
 
     noise = resolve_noise_model_path(args.obs_noise)
+    cables = random_cables(args)
     options = parse_assignments(args.env_option, "--env-option")
     teacher = args.teacher or DEFAULT_TEACHERS[args.task]
     _, teacher_meta = policies.resolve(teacher)
@@ -139,13 +126,13 @@ def run(args: argparse.Namespace) -> int:
         task_options={**teacher_meta.get("env_options", {}), **options},
         rounds=args.rounds,
         expert_rounds=args.expert_rounds,
-        episodes=args.episodes,
+        episodes=args.dagger_episodes,
         first_round_episodes=args.first_round_episodes,
         noise_model=noise,
         seed=args.seed,
         workers=args.workers,
         epochs=args.epochs,
-        cable_ranges=args.cable_ranges,
+        cable_ranges=None if cables is None else cables.ranges,
         teacher_search=args.teacher_search,
         teacher_commit_decision=args.teacher_commit,
         search_candidates=args.search_candidates,

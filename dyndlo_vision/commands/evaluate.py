@@ -8,10 +8,13 @@ import math
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from dyndlo_vision._atomic import write_atomic
 from dyndlo_vision._video import write_video_atomic
+
+if TYPE_CHECKING:
+    from dyndlo_vision.tasks.wrappers import RandomCables
 
 HELP = "evaluate a policy (shipped name, .zip, 'geometric', 'flick-vault' or 'random') over N episodes"
 
@@ -30,50 +33,29 @@ def scripted_policies() -> dict[str, str | None]:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``evaluate``."""
-    from dyndlo_vision.robots.feasibility import ROBOT_ARMS
-    from dyndlo_vision.tasks.registry import TASKS
+    from dyndlo_vision.commands import _options as options
 
+    p.epilog = ("With --robot, the report's 'joints' block gives the joint-feasible fraction and the "
+                "successes with feasible plans.")
     p.add_argument(
         "policy",
         help="shipped policy name, path to a stable-baselines3 .zip, 'geometric' (task IV's baseline), "
         "'flick-vault' (the scripted vault of task II) or 'random' (uniform actions seeded by --seed: the "
         "task's chance level; needs --task)",
     )
-    p.add_argument(
-        "--task",
-        choices=sorted(TASKS),
-        default=None,
-        help="default: the policy's own task (from its metadata)",
-    )
-    p.add_argument(
-        "--multi-step",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="default: the policy's own mode (a policy with metadata is only evaluated in its own mode)",
-    )
-    p.add_argument("--episodes", type=int, default=100, help="episodes to run, seeds --seed, --seed+1, ...")
-    p.add_argument("--seed", type=int, default=100_000, help="first episode seed (default: 100000, unseen)")
-    p.add_argument("--env-option", action="append", metavar="KEY=VALUE", help="task option (repeatable)")
+    options.add_task(p, default=None, help="the task (default: the policy's own, from its metadata)")
+    options.add_multi_step(p)
+    options.add_episodes(p, default=100)
+    options.add_first_seed(p)
+    options.add_env_option(p)
     p.add_argument(
         "--geometric-time",
         type=float,
         default=1.35,
         help="trajectory time of the geometric baseline in s (default 1.35)",
     )
-    p.add_argument(
-        "--randomize-cable",
-        action="store_true",
-        help="a new cable (length, mass, E, damping; training's --randomize-cable ranges) every episode, "
-        "drawn from the episode's seed: success under cable variation, also for tasks with a fixed start",
-    )
-    p.add_argument(
-        "--robot",
-        choices=sorted(ROBOT_ARMS),
-        default=None,
-        help="also judge every plan on this arm's joint limits (IK with the tool down; positions, speeds, "
-        "accelerations, as its driver checks): the report's 'joints' block gives the joint-feasible fraction "
-        "and successes with feasible plans (default: the policy's own robot, if it was trained with one)",
-    )
+    options.add_cable_options(p)
+    options.add_robot(p)
     p.add_argument("--out", default=None, help="JSON report path (default: print only)")
     p.add_argument("--video", default=None, help="MP4 (.mp4) of the first --video-episodes episodes")
     p.add_argument(
@@ -82,13 +64,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="evaluated episodes the video shows, 1 to --episodes (default: 3, or --episodes if fewer)",
     )
-    p.add_argument("--quiet", action="store_true", help="no progress bars on stderr")
+    options.add_quiet(p)
 
 
 def run(args: argparse.Namespace) -> int:
     """Load the policy, run the episodes, print and write the report."""
     import dyndlo_vision  # noqa: F401
     from dyndlo_vision import policies
+    from dyndlo_vision.commands._options import random_cables
     from dyndlo_vision.commands.train import parse_assignments
     from dyndlo_vision.learning.evaluate import evaluate, records_as_dicts
     from dyndlo_vision.tasks.baselines import GeometricLift, RandomActions
@@ -96,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
 
     # Every option is checked before any episode runs: a bad one must not cost the minutes of a long run.
     video_episodes = check_options(args)
+    cables = random_cables(args)
     options = parse_assignments(args.env_option, "--env-option")
     meta: dict[str, Any] = {}
     if args.policy not in scripted_policies():
@@ -104,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     multi_step = policy_mode(args.policy, args.multi_step, meta)
     options = {**meta.get("env_options", {}), **options}
     robot = args.robot or meta.get("robot")
-    env = _make_env(task, multi_step, options, args.randomize_cable, robot=robot)
+    env = _make_env(task, multi_step, options, cables, robot=robot)
     entry = task_entry(task)
     policy: Any
     if args.policy == RANDOM:
@@ -123,7 +107,8 @@ def run(args: argparse.Namespace) -> int:
             "task": task,
             "multi_step": multi_step,
             "env_options": options,
-            "randomize_cable": bool(args.randomize_cable),
+            "randomize_cable": cables is not None,
+            "cable_ranges": None if cables is None else cables.ranges,
             "robot": robot,
         }
     )
@@ -143,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
             policy,
             args.seed,
             video_episodes,
-            args.randomize_cable,
+            cables,
             progress=not args.quiet,
         )
         print(f"wrote {args.video}")
@@ -250,16 +235,16 @@ def _make_env(
     task: str,
     multi_step: bool,
     options: dict[str, Any],
-    randomize_cable: bool,
+    cables: RandomCables | None,
     render_mode: str | None = None,
     robot: str | None = None,
 ) -> Any:
-    """The evaluated environment; with ``randomize_cable`` a new cable every episode, drawn from its seed;
-    with ``robot`` every plan judged on that arm's joint limits."""
+    """The evaluated environment; with ``cables`` a new cable every episode, drawn from its seed; with
+    ``robot`` every plan judged on that arm's joint limits."""
     from dyndlo_vision.tasks.registry import make_env
 
-    return make_env(task, multi_step=multi_step, render_mode=render_mode,
-                    randomize_cable_every=1 if randomize_cable else None, robot=robot, **options)
+    randomise = {} if cables is None else cables.env_options(task)
+    return make_env(task, multi_step=multi_step, render_mode=render_mode, robot=robot, **randomise, **options)
 
 
 def _write_video(
@@ -270,7 +255,7 @@ def _write_video(
     policy: Any,
     seed: int,
     episodes: int,
-    randomize_cable: bool = False,
+    cables: RandomCables | None = None,
     progress: bool = False,
 ) -> None:
     """Render episodes at 25 Hz of simulated time to an MP4, atomically (the same cables as evaluated)."""
@@ -278,7 +263,7 @@ def _write_video(
 
     from dyndlo_vision.learning.evaluate import as_action_fn
 
-    env = _make_env(task, multi_step, options, randomize_cable, render_mode="rgb_array")
+    env = _make_env(task, multi_step, options, cables, render_mode="rgb_array")
     base = env.unwrapped
     act = as_action_fn(policy)
     frames: list[np.ndarray] = []

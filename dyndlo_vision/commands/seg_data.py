@@ -17,13 +17,14 @@ HELP = "render a domain-randomised cable image/mask dataset (resumable)"
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``seg-data``."""
+    from dyndlo_vision.commands import _options as options
+
     p.add_argument(
         "--out", required=True, metavar="DIR", help="dataset folder (created; resumed if it holds one)"
     )
     p.add_argument("--count", type=int, default=2000, help="number of samples")
     p.add_argument("--seed", type=int, default=0, help="seed of the randomisation (training used 0)")
-    p.add_argument("--width", type=int, default=320, help="image width in pixels")
-    p.add_argument("--height", type=int, default=240, help="image height in pixels")
+    options.add_image_size(p, 320, 240)
     defaults = SegDataConfig()
     p.add_argument("--texture-share", type=float, default=defaults.texture_share,
                    help="share of samples whose background is a procedural texture; the others keep the "
@@ -47,7 +48,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--upscale", type=float, default=defaults.upscale, metavar="S",
                    help="enlarge every image and label S times (bilinear) after rendering at --width x "
                    "--height, as the loop enlarges its frames for its network (1-4; default 1: as rendered)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    options.add_quiet(p)
 
 
 def run(args: argparse.Namespace) -> int:

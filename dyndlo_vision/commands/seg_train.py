@@ -14,6 +14,8 @@ HELP = "train the learned cable segmenter on a seg-data dataset (resumable), exp
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``seg-train``."""
+    from dyndlo_vision.commands import _options as options
+
     p.add_argument("--data", required=True, nargs="+", metavar="DIR",
                    help="dataset(s) written by seg-data; several are pooled, every sample equally likely")
     p.add_argument("--out", required=True, metavar="DIR", help="run folder (checkpoint, ONNX, JSON)")
@@ -56,8 +58,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "from one, is fine-tuned with its batch norms frozen (the export folded their statistics "
                    "away)")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
-    p.add_argument("--resume", action="store_true", help="continue OUT/checkpoint.pt")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    options.add_resume(p)
+    options.add_quiet(p)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -23,64 +23,28 @@ SEGMENTERS = ("learned", "background", "hsv")
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``segment``."""
+    from dyndlo_vision.commands import _options as options
+
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="image files and/or folders of images")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
-    p.add_argument(
-        "--segmenter",
-        choices=SEGMENTERS,
-        default="learned",
-        help="learned CNN (default), background contrast, or HSV bounds",
-    )
-    p.add_argument(
-        "--model",
-        metavar="FILE.onnx",
-        help="learned: an ONNX file from seg-train, or a shipped network by name: cable-segmenter-photo "
-        "(default; full resolution, the best on real photos), cable-segmenter (half resolution, faster) or "
-        "cable-segmenter-fine (full resolution, for cables 1-3 px wide; cable-segmenter-loop: the same "
-        "fine-tuned on the simulated loop's scenes)",
-    )
-    p.add_argument(
-        "--short-side",
-        type=int,
-        default=None,
-        help="learned: the image's shorter side is resized to this before the network (default: the "
-        "network's own: 240 for cable-segmenter, 480 for the others)",
-    )
-    p.add_argument("--hsv-lower", default="0,80,60", help="hsv: lower H,S,V bound (OpenCV ranges)")
-    p.add_argument("--hsv-upper", default="179,255,255", help="hsv: upper H,S,V bound")
+    options.add_segmenter(p, SEGMENTERS, "learned")
+    options.add_segmenter_model(p, default="cable-segmenter-photo")
+    options.add_short_side(p)
+    options.add_hsv_bounds(p)
     p.add_argument("--max-cables", type=int, default=8, help="most polylines per image")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-
-
-def _hsv(text: str, name: str) -> tuple[int, int, int]:
-    try:
-        vals = tuple(int(v) for v in text.split(","))
-    except ValueError:
-        vals = ()
-    if len(vals) != 3:
-        raise ValueError(f"{name} must be three integers H,S,V, got {text!r}")
-    return vals  # type: ignore[return-value]
+    options.add_quiet(p)
 
 
 def _segmenter(args: argparse.Namespace) -> Any:
-    """The segmenter the options name, built where every segmenter is
-    (:func:`~dyndlo_vision.tracking.segmenters.build_segmenter`); each image on its own."""
+    """The segmenter the options name (:func:`~dyndlo_vision.commands._options.segmenter_config`), built
+    where every segmenter is (:func:`~dyndlo_vision.tracking.segmenters.build_segmenter`); each image on its
+    own, so the background one estimates the background from the image itself."""
+    from dyndlo_vision.commands._options import segmenter_config
     from dyndlo_vision.tracking.networks import PHOTO_NAME
-    from dyndlo_vision.tracking.segmenters import SegmenterConfig, build_segmenter
+    from dyndlo_vision.tracking.segmenters import build_segmenter
 
-    if args.segmenter == "learned":
-        if args.short_side is not None and args.short_side < 16:
-            raise ValueError(f"--short-side must be >= 16, got {args.short_side}")
-        config = SegmenterConfig("learned", model=args.model or PHOTO_NAME, short_side=args.short_side)
-    elif args.model:
-        raise ValueError("--model is for --segmenter learned")
-    elif args.segmenter == "background":
-        config = SegmenterConfig("background", background="frame")  # one image: no video to learn it from
-    else:
-        config = SegmenterConfig("hsv", hsv_lower=_hsv(args.hsv_lower, "--hsv-lower"),
-                                 hsv_upper=_hsv(args.hsv_upper, "--hsv-upper"))
-    return build_segmenter(config)[0]
+    return build_segmenter(segmenter_config(args, default_model=PHOTO_NAME, background="frame"))[0]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -115,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"cannot read image {f} (not an image OpenCV decodes, or truncated)")
     segmenter = _segmenter(args)
     out.mkdir(parents=True, exist_ok=True)
-    name = args.segmenter if args.segmenter != "learned" else f"learned:{args.model or 'shipped'}"
+    name = args.segmenter if args.segmenter != "learned" else f"learned:{args.segmenter_model or 'shipped'}"
     for f in tqdm(files, desc="segment", unit="img", file=sys.stderr, disable=args.quiet, dynamic_ncols=True):
         bgr = cv2.imread(str(f), cv2.IMREAD_COLOR)
         if bgr is None:

@@ -58,7 +58,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dyndlo_vision.tracking.masks import MAX_WIDTH_RATIO, MIN_CUT_RADIUS_PX
-from dyndlo_vision.tracking.networks import check_network
 from dyndlo_vision.tracking.params import TRACK_FILTER
 from dyndlo_vision.tracking.segmenters import MIN_BACKGROUND_FRAMES
 
@@ -89,6 +88,8 @@ NODE_CSV_COLUMNS = ("frame", "time_s", "node", "visible", "u", "v", "x", "y", "z
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``track``."""
+    from dyndlo_vision.commands import _options as options
+
     p.add_argument("video", metavar="VIDEO", help="video file OpenCV can read, or a folder of images")
     p.add_argument("--out", required=True, metavar="TRACK.csv", help="CSV to write (folder must exist)")
     p.add_argument(
@@ -115,31 +116,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "`dyndlo-vision calibrate --extrinsic` with one board lying at one pose)",
     )
     p.add_argument("--second-anchor", metavar="U,V", help="--anchor for the second video")
-    p.add_argument(
-        "--segmenter",
-        choices=("background", "learned"),
-        default="background",
-        help="'background' (default): contrast with a background model (--background); 'learned': the "
-        "shipped CNN of `dyndlo-vision segment` (or --segmenter-model), each frame on its own, for textured "
-        "or cluttered scenes; an HSV range (--hsv-lower/--hsv-upper) replaces either",
-    )
-    p.add_argument(
-        "--short-side",
-        type=int,
-        default=None,
-        help="learned: each frame's shorter side is resized to this before the network (default: the "
-        "network's own: 240 for cable-segmenter, 480 for the others). For a cable 1-3 px wide, enlarge: "
-        "720 for a 640x480 video",
-    )
-    p.add_argument(
-        "--segmenter-model",
-        metavar="FILE.onnx",
-        help="learned: an ONNX file from seg-train, or a shipped network by name: cable-segmenter (default) "
-        "or cable-segmenter-fine (full resolution, for cables 1-3 px wide; cable-segmenter-loop: the same "
-        "fine-tuned on the simulated loop's scenes)",
-    )
-    p.add_argument("--hsv-lower", metavar="H,S,V", help="lower HSV bound (OpenCV: H 0-179, S, V 0-255)")
-    p.add_argument("--hsv-upper", metavar="H,S,V", help="upper HSV bound; H lower > upper wraps through red")
+    options.add_segmenter(p, ("learned", "background", "hsv"), "background")
+    options.add_segmenter_model(p, default="cable-segmenter")
+    options.add_short_side(p)
+    options.add_hsv_bounds(p)
     p.add_argument(
         "--point",
         default="tip",
@@ -158,9 +138,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--background",
         choices=("auto", "median", "frame"),
         default=None,
-        help="automatic segmentation's background: 'median' learns a per-pixel median from frames sampled "
-        "across the whole video (any static background, e.g. MuJoCo renders; the cable must move; reads the "
-        "video twice); 'frame' estimates one colour from each frame (uniform backgrounds, a still cable); "
+        help="with --segmenter background: the background model. 'median' learns a per-pixel median from "
+        "frames sampled across the whole video (any static background, e.g. MuJoCo renders; the cable must "
+        "move; reads the video twice); 'frame' estimates one colour from each frame (uniform backgrounds, a "
+        "still cable); "
         f"'auto' (default) is 'median' for videos of at least {MIN_BACKGROUND_FRAMES} frames, else 'frame'",
     )
     p.add_argument(
@@ -234,7 +215,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help=f"the filter's measurement noise, m (default {TRACK_FILTER.sigma_meas:g}; in pixel mode "
         f"{TRACK_FILTER.sigma_meas * _PX_PER_M_NOMINAL:g} px)",
     )
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    options.add_quiet(p)
 
 
 # ------------------------------------------------------------------------------------------- parsing
@@ -254,21 +235,6 @@ def parse_floats(text: str, count: int, option: str) -> NDArray[np.float64]:
     if values.size != count or len(parts) != count or not np.all(np.isfinite(values)):
         raise ValueError(f"{option} must be {count} comma-separated finite numbers, got {text!r}")
     return values
-
-
-def parse_hsv(text: str, option: str) -> NDArray[np.int64]:
-    """An OpenCV HSV triple ``H,S,V`` with H in 0..179 and S, V in 0..255.
-
-    Raises:
-        ValueError: On anything else, naming the option and the text.
-    """
-    values = parse_floats(text, 3, option)
-    if np.any(values != np.round(values)):
-        raise ValueError(f"{option} must be three integers H,S,V, got {text!r}")
-    hsv = values.astype(np.int64)
-    if not (0 <= hsv[0] <= 179 and 0 <= hsv[1] <= 255 and 0 <= hsv[2] <= 255):
-        raise ValueError(f"{option} must have H in 0..179 and S, V in 0..255 (OpenCV's HSV), got {text!r}")
-    return hsv
 
 
 def parse_point(text: str) -> float:
@@ -397,34 +363,10 @@ def _settings(args: argparse.Namespace) -> _Settings:
         if np.linalg.norm(values[:3]) == 0:
             raise ValueError(f"--plane normal must be non-zero, got {args.plane!r}")
         plane = (values[:3], float(values[3]))
-    if (args.hsv_lower is None) != (args.hsv_upper is None):
-        raise ValueError("--hsv-lower and --hsv-upper go together; give both or neither")
-    hsv = None
-    if args.hsv_lower is not None:
-        hsv = (parse_hsv(args.hsv_lower, "--hsv-lower"), parse_hsv(args.hsv_upper, "--hsv-upper"))
-        lo, hi = hsv
-        if np.any(lo[1:] > hi[1:]):
-            raise ValueError(
-                f"--hsv-lower S,V must not exceed --hsv-upper S,V: {args.hsv_lower} vs {args.hsv_upper}"
-            )
-    if hsv is not None and args.background is not None:
+    if args.background is not None and args.segmenter != "background":
         raise ValueError(
-            "--background applies to automatic segmentation; it cannot be used with an HSV range"
+            f"--background {args.background} is for --segmenter background, not {args.segmenter}"
         )
-    if args.segmenter == "learned" and (hsv is not None or args.background is not None):
-        raise ValueError(
-            "--segmenter learned segments each frame on its own: it takes neither --background nor an HSV "
-            "range"
-        )
-    model = None if args.segmenter_model is None else Path(args.segmenter_model)
-    if model is not None and args.segmenter != "learned":
-        raise ValueError("--segmenter-model is for --segmenter learned")
-    if model is not None:
-        check_network(model, "--segmenter-model")
-    if args.short_side is not None and args.segmenter != "learned":
-        raise ValueError("--short-side is for --segmenter learned")
-    if args.short_side is not None and args.short_side < 16:
-        raise ValueError(f"--short-side must be at least 16 pixels, got {args.short_side}")
     if args.open_radius < 0:
         raise ValueError(f"--open-radius must be >= 0, got {args.open_radius}")
     if args.nodes < 2:
@@ -491,22 +433,12 @@ def _settings(args: argparse.Namespace) -> _Settings:
     others = {p.resolve() for p in (out, annotated) if p is not None}
     if nodes_out is not None and nodes_out.resolve() in others:
         raise ValueError(f"--nodes-out {nodes_out} is another output's file")
+    from dyndlo_vision.commands._options import segmenter_config
     from dyndlo_vision.tracking.pipeline import PipelineConfig
-    from dyndlo_vision.tracking.segmenters import SegmenterConfig
     from dyndlo_vision.tracking.tracker import Plane
 
-    if hsv is not None:
-        segmenter = SegmenterConfig(
-            "hsv", hsv_lower=tuple(int(c) for c in hsv[0]), hsv_upper=tuple(int(c) for c in hsv[1])
-        )
-    elif args.segmenter == "learned":
-        segmenter = SegmenterConfig(
-            "learned", model=None if model is None else str(model), short_side=args.short_side
-        )
-    else:
-        segmenter = SegmenterConfig(
-            "background", background=str(args.background or "auto"), open_radius=int(args.open_radius)
-        )
+    segmenter = segmenter_config(args, background=str(args.background or "auto"),
+                                 open_radius=int(args.open_radius))
     pipeline = PipelineConfig(
         segmenter=segmenter,
         nodes=int(args.nodes),

@@ -33,12 +33,14 @@ def parse_assignments(items: list[str] | None, flag: str) -> dict[str, Any]:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``train``."""
+    from dyndlo_vision.commands import _options as options
     from dyndlo_vision.policies import ALGORITHMS
-    from dyndlo_vision.robots.feasibility import ROBOT_ARMS
     from dyndlo_vision.tasks.registry import TASKS
 
-    p.add_argument("--task", choices=sorted(TASKS), default="tip-control", help="the task to learn")
-    p.add_argument("--multi-step", action="store_true", help="re-plan every 0.04 s (default: plan once)")
+    p.epilog = ("Random cables (--randomize-cable, --cable-ranges) are drawn every 10 training episodes; the "
+                "evaluations during training keep the nominal cable.")
+    options.add_task(p)
+    options.add_multi_step(p)
     p.add_argument(
         "--algo",
         choices=sorted(ALGORITHMS),
@@ -61,37 +63,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--hp", action="append", metavar="KEY=VALUE", help="override a hyperparameter (repeatable)"
     )
-    p.add_argument(
-        "--env-option",
-        action="append",
-        metavar="KEY=VALUE",
-        help="task option passed to gym.make, e.g. target=down (repeatable)",
-    )
-    p.add_argument(
-        "--obs-noise", default=None,
-        help="observation-noise model file (JSON) to train with, or a shipped one: 'packaged' (tip control's "
-        "one-camera tracker) or 'vaulting-two-cameras' (the vault loop's two-camera tracker)",
-    )
-    p.add_argument("--randomize-cable", action="store_true",
-                   help="draw a new cable (length, mass, E, damping) every 10 training episodes")
+    options.add_env_option(p)
+    options.add_obs_noise(p)
+    options.add_cable_options(p)
     p.add_argument(
         "--demonstrations", type=int, default=0, metavar="N",
         help="SAC, single-step task IV or vaulting: seed the replay buffer with N perturbed episodes of "
              "the task's scripted baseline (geometric lift; scripted vault) before learning (default 0, as "
              "in the paper)",
     )
-    p.add_argument("--robot", choices=sorted(ROBOT_ARMS), default=None,
-                   help="single-TCP tasks: a plan this arm cannot follow (IK with the tool down, joint "
-                        "position, speed and acceleration limits, as its driver checks) is refused: the "
-                        "episode ends there with the avoid condition 'joints'")
+    options.add_robot(p)
     p.add_argument("--eval-freq", type=int, default=2000, help="evaluate every N steps (default 2000)")
     p.add_argument("--eval-episodes", type=int, default=20,
                    help="episodes per evaluation (seeds seed + 10000 on)")
     p.add_argument(
         "--checkpoint-freq", type=int, default=2000, help="checkpoint every N steps (default 2000)"
     )
-    p.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    options.add_resume(p)
+    options.add_quiet(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -105,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
 
     entry = task_entry(args.task)
     algo = args.algo or entry.algo
-    out = Path(args.out or f"runs/{entry.hyperparams_key(args.multi_step)}-{algo}-s{args.seed}")
+    out = Path(args.out or f"runs/{entry.hyperparams_key(bool(args.multi_step))}-{algo}-s{args.seed}")
     config = _resumed_config(args, out) if args.resume else _new_config(args, algo)
     try:
         summary = train(config, out, resume=args.resume, progress_bar=not args.quiet)
@@ -123,15 +112,18 @@ def run(args: argparse.Namespace) -> int:
 
 def _new_config(args: argparse.Namespace, algo: str) -> RunConfig:
     """The RunConfig of a new run: the YAML entry of the task and mode, overridden by the options."""
-    from dyndlo_vision.learning.config import RunConfig, load_hyperparams
+    from dyndlo_vision.commands._options import random_cables
+    from dyndlo_vision.learning.config import RANDOMIZE_CABLE_EVERY, RunConfig, load_hyperparams
     from dyndlo_vision.tasks.noise import resolve_noise_model_path
 
     obs_noise = resolve_noise_model_path(args.obs_noise)
-    entry = load_hyperparams(algo, args.task, args.multi_step)
+    cables = random_cables(args, every_episodes=RANDOMIZE_CABLE_EVERY)
+    multi_step = bool(args.multi_step)
+    entry = load_hyperparams(algo, args.task, multi_step)
     hyperparams = {**entry["hyperparams"], **parse_assignments(args.hp, "--hp")}
     return RunConfig(
         task=args.task,
-        multi_step=args.multi_step,
+        multi_step=multi_step,
         algo=algo,
         timesteps=args.timesteps if args.timesteps is not None else int(entry["n_timesteps"]),
         seed=args.seed,
@@ -141,7 +133,8 @@ def _new_config(args: argparse.Namespace, algo: str) -> RunConfig:
         hyperparams=hyperparams,
         env_options=parse_assignments(args.env_option, "--env-option"),
         obs_noise=obs_noise,
-        randomize_cable=args.randomize_cable,
+        randomize_cable=cables is not None,
+        cable_ranges="training" if cables is None else cables.ranges,
         eval_freq=args.eval_freq,
         eval_episodes=args.eval_episodes,
         checkpoint_freq=args.checkpoint_freq,

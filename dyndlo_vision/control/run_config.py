@@ -20,7 +20,7 @@ Schema (``examples/run-gofa-dry.yaml`` documents it field by field)::
       plan_lead_s: 0.08           # re-plans start at least this long after the state they are made from
     camera:
       source: simulated | device | realsense | video
-      calibration: camera.json    # PinholeCamera JSON (dyndlo-vision calib / calibrate); world = task world
+      calibration: camera.json    # PinholeCamera JSON (dyndlo-vision calibrate [--scene]); world = task world
       device: 0                   # device only: index or stream URL
       path: run.mp4               # video only
       fps: 25                     # video only (optional: the file's time stamps otherwise)

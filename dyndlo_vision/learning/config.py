@@ -11,14 +11,19 @@ import json
 from dataclasses import asdict, dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import yaml
 
 from dyndlo_vision.policies import ALGORITHMS
 from dyndlo_vision.tasks.registry import TASKS, check_robot, task_entry
 
+if TYPE_CHECKING:
+    from dyndlo_vision.tasks.wrappers import RandomCables
+
 HYPERPARAMS_VERSION = 1
+#: A randomised training cable is redrawn every this many episodes (a new cable is a new MuJoCo model).
+RANDOMIZE_CABLE_EVERY = 10
 #: Tasks with a scripted baseline whose episodes can seed SAC's replay buffer (``learning.demonstrations``).
 DEMONSTRABLE_TASKS = tuple(name for name, entry in TASKS.items() if entry.demonstrator is not None)
 
@@ -66,6 +71,8 @@ class RunConfig:
             the shipped one, or None.
         randomize_cable: Draw a new cable (length, mass, E, damping) every 10 training episodes
             (``dyndlo_vision.tasks.wrappers.CableRandomization``; evaluation keeps the nominal cable).
+        cable_ranges: With ``randomize_cable``, the named ranges the cables are drawn from
+            (``dyndlo_vision.tasks.wrappers.CABLE_RANGES``: ``"training"``, the default, or ``"beyond"``).
         eval_freq: Evaluate every this many environment steps.
         eval_episodes: Episodes per evaluation.
         checkpoint_freq: Save a resumable checkpoint every this many environment steps.
@@ -87,6 +94,7 @@ class RunConfig:
     env_options: dict[str, Any] = field(default_factory=dict)
     obs_noise: str | None = None
     randomize_cable: bool = False
+    cable_ranges: str = "training"
     eval_freq: int = 2000
     eval_episodes: int = 20
     checkpoint_freq: int = 2000
@@ -108,6 +116,13 @@ class RunConfig:
         if self.vec_env == "batch" and self.robot is not None:
             raise ValueError(f"vec_env='batch' does not judge plans on a real arm (robot={self.robot!r}); "
                              "use 'subproc' or 'dummy'")
+        from dyndlo_vision.tasks.wrappers import CABLE_RANGES
+
+        if self.cable_ranges not in CABLE_RANGES:
+            raise ValueError(f"cable_ranges={self.cable_ranges!r}; expected one of {list(CABLE_RANGES)}")
+        if self.cable_ranges != "training" and not self.randomize_cable:
+            raise ValueError(f"cable_ranges={self.cable_ranges!r} draws random cables: it needs "
+                             "randomize_cable=True")
         if not isinstance(self.demonstrations, int) or self.demonstrations < 0:
             raise ValueError(f"demonstrations={self.demonstrations!r}; expected a non-negative integer")
         if self.demonstrations and self.algo != "sac":
@@ -118,6 +133,14 @@ class RunConfig:
                 f"demonstrations are available for single-step {list(DEMONSTRABLE_TASKS)} only (a scripted "
                 f"baseline plans the whole episode), got task={self.task!r}, multi_step={self.multi_step}"
             )
+
+    @property
+    def random_cables(self) -> RandomCables | None:
+        """The training environments' cable randomisation (None: the nominal cable)."""
+        from dyndlo_vision.tasks.wrappers import RandomCables
+
+        ranges = RandomCables(self.cable_ranges, every_episodes=RANDOMIZE_CABLE_EVERY)
+        return ranges if self.randomize_cable else None
 
     @property
     def env_id(self) -> str:

@@ -10,12 +10,10 @@ from typing import Any
 
 import gymnasium as gym
 
-from dyndlo_vision.learning.config import RunConfig
+from dyndlo_vision.learning.config import RANDOMIZE_CABLE_EVERY, RunConfig
 
 #: Per-episode info keys recorded by the Monitor wrapper (monitor.csv) next to reward and length.
 MONITOR_KEYWORDS = ("is_success",)
-#: A randomised training cable is redrawn every this many episodes (a new cable is a new MuJoCo model).
-RANDOMIZE_CABLE_EVERY = 10
 #: The vectorised environments ``make_vec_env`` builds: one process per environment, all in this process, or
 #: one batched environment (the physics of all in one call on C threads).
 VEC_ENV_KINDS = ("subproc", "dummy", "batch")
@@ -36,12 +34,11 @@ def make_training_env(
 
     from dyndlo_vision.tasks.registry import make_env as make_task_env
 
-    randomize = config.randomize_cable if randomize is None else randomize
     env = make_task_env(
         config.task,
         multi_step=config.multi_step,
         render_mode=render_mode,
-        randomize_cable_every=RANDOMIZE_CABLE_EVERY if randomize else None,
+        **_cable_options(config, randomize),
         obs_noise=Path(config.obs_noise) if config.obs_noise else None,
         robot=config.robot,
         **config.env_options,
@@ -49,6 +46,19 @@ def make_training_env(
     keywords = MONITOR_KEYWORDS + (("joint_feasible",) if config.robot else ())
     return Monitor(env, str(monitor_file) if monitor_file else None, info_keywords=keywords,
                    override_existing=not append_monitor)
+
+
+def _cable_options(config: RunConfig, randomize: bool | None) -> dict[str, Any]:
+    """The environment's cable randomisation: the run's (``randomize`` None), none (False), or the run's
+    ranges even if it trains on the nominal cable (True)."""
+    from dyndlo_vision.tasks.wrappers import RandomCables
+
+    cables = config.random_cables
+    if randomize is not None and not randomize:
+        cables = None
+    elif randomize and cables is None:
+        cables = RandomCables(config.cable_ranges, every_episodes=RANDOMIZE_CABLE_EVERY)
+    return {} if cables is None else cables.env_options(config.task)
 
 
 def env_factory(
@@ -114,11 +124,10 @@ def _batched_vec_env(
     if config.robot is not None:
         raise ValueError(f"--vec-env batch does not judge plans on a real arm (--robot {config.robot}); use "
                          "--vec-env subproc or dummy")
-    randomize = config.randomize_cable if randomize is None else randomize
     episodes = BatchedEpisodes(
         make_task(config.task, multi_step=config.multi_step, **config.env_options),
         n_envs,
-        randomize_cable_every=RANDOMIZE_CABLE_EVERY if randomize else None,
+        **_cable_options(config, randomize),
         obs_noise=Path(config.obs_noise) if config.obs_noise else None,
     )
     vec = BatchedVecEnv(episodes)

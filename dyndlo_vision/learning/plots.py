@@ -36,7 +36,8 @@ def group_name(config: dict) -> str:
     if config.get("obs_noise"):
         parts.append("noisy obs")
     if config.get("randomize_cable"):
-        parts.append("random cable")
+        ranges = config.get("cable_ranges", "training")
+        parts.append("random cable" if ranges == "training" else f"random cable ({ranges})")
     return " ".join(parts)
 
 

@@ -18,7 +18,7 @@ moves. :class:`StudentFeatures` appends what a student's metadata asks for; :cla
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, SupportsFloat
 
@@ -35,11 +35,13 @@ __all__ = [
     "NoisyObservation",
     "PDloHistory",
     "PDloHistoryWrapper",
+    "RandomCables",
     "StudentFeatures",
     "StudentFeaturesWrapper",
     "draw_cable",
     "cable_for_seed",
     "corrupt_observation",
+    "describe_cable_ranges",
     "observation_layout",
 ]
 
@@ -166,6 +168,58 @@ def cable_ranges_for(task: str, name: str) -> dict[str, tuple[float, float]]:
     if name not in CABLE_RANGES:
         raise ValueError(f"cable ranges {name!r}; expected one of {sorted(CABLE_RANGES)}")
     return dict(TASK_CABLE_RANGES.get((task, name), CABLE_RANGES[name]))
+
+
+def describe_cable_ranges(ranges: dict[str, tuple[float, float]]) -> str:
+    """``ranges`` in words, e.g. ``length 0.9-1.1x, mass 0.7-1.3x, Young's modulus and damping 0.5-2x``."""
+    words = {"length_m": "length", "mass_kg": "mass", "radius_m": "radius", "young_pa": "Young's modulus",
+             "poisson": "Poisson's ratio", "damping_s": "damping"}
+    groups: dict[tuple[float, float], list[str]] = {}
+    for name, span in ranges.items():
+        groups.setdefault(tuple(span), []).append(words.get(name, name))  # type: ignore[arg-type]
+    return ", ".join(f"{' and '.join(names)} {lo:g}-{hi:g}x" for (lo, hi), names in groups.items())
+
+
+@dataclass(frozen=True)
+class RandomCables:
+    """Cable randomisation as a run asks for it, checked when made: a new cable every ``every_episodes``
+    episodes, drawn from the episode's seed (:class:`CableRandomization`) within the named ranges
+    (:data:`CABLE_RANGES`, as :func:`cable_ranges_for` gives them for a task). A run on the nominal cable
+    has none (None).
+
+    Attributes:
+        ranges: ``"training"`` (:data:`DEFAULT_CABLE_RANGES`) or ``"beyond"``
+            (:data:`BEYOND_TRAINING_CABLE_RANGES`).
+        every_episodes: Draw a new cable every this many episodes (1: every episode; training: 10).
+    """
+
+    ranges: str = "training"
+    every_episodes: int = 1
+
+    def __post_init__(self) -> None:
+        if self.ranges not in CABLE_RANGES:
+            raise ValueError(f"cable ranges {self.ranges!r}; expected one of {sorted(CABLE_RANGES)}")
+        if isinstance(self.every_episodes, bool) or not isinstance(self.every_episodes, int) \
+                or self.every_episodes < 1:
+            raise ValueError(f"a new cable every {self.every_episodes!r} episodes; expected an integer >= 1")
+
+    def factors(self, task: str) -> dict[str, tuple[float, float]]:
+        """The ranges as drawn for ``task``.
+
+        Raises:
+            ValueError: The task's scene cannot take the shortest cable of the ranges (vaulting).
+        """
+        ranges = cable_ranges_for(task, self.ranges)
+        if task == "vaulting":
+            from dyndlo_vision.tasks.vaulting import check_cable_lengths
+
+            check_cable_lengths(ranges["length_m"][0], f"cable ranges {self.ranges!r}")
+        return ranges
+
+    def env_options(self, task: str) -> dict[str, Any]:
+        """The keyword arguments of :func:`~dyndlo_vision.tasks.registry.make_env` (and of
+        :class:`~dyndlo_vision.tasks.batched.BatchedEpisodes`) that draw these cables for ``task``."""
+        return {"randomize_cable_every": self.every_episodes, "cable_ranges": self.factors(task)}
 
 
 #: The cable parameters a factor can scale: the continuous physical ones (not the discretisation or model).

@@ -558,7 +558,8 @@ def test_a_failed_first_round_does_not_block_running_again(tmp_path, monkeypatch
 def test_cli_distill_shows_progress_unless_quiet(tmp_path, monkeypatch, capsys) -> None:
     monkeypatch.setattr(distill_module, "collect", _fake_collect)
     out = tmp_path / "run"
-    argv = ["distill", "--first-round-episodes", "2", "--episodes", "3", "--workers", "1", "--epochs", "2"]
+    argv = ["distill", "--first-round-episodes", "2", "--dagger-episodes", "3", "--workers", "1", "--epochs",
+            "2"]
     assert main([*argv, "--rounds", "1", "--out", str(out)]) == 0
     lines = capsys.readouterr().err.replace("\r", "\n").splitlines()
     assert any(
@@ -769,7 +770,8 @@ def test_a_late_commitment_is_not_searched_once_a_limit_is_broken() -> None:
 
 def test_teacher_commit_option_reaches_every_round_and_is_checked(tmp_path, monkeypatch) -> None:
     seen = _record_collect_option(monkeypatch, "commit_decision")
-    fast = ["--workers", "1", "--first-round-episodes", "2", "--episodes", "2", "--epochs", "1", "--quiet"]
+    fast = ["--workers", "1", "--first-round-episodes", "2", "--dagger-episodes", "2", "--epochs", "1",
+            "--quiet"]
     out = str(tmp_path / "r")
     assert main(["distill", *fast, "--rounds", "2", "--teacher-commit", "6", "--out", out]) == 0
     assert seen == [6, 6]
@@ -834,7 +836,8 @@ def test_shared_candidates_are_the_same_offsets_in_every_search(monkeypatch, can
 
 def test_search_candidates_option_reaches_the_collected_rounds(tmp_path, monkeypatch, capsys) -> None:
     seen = _record_collect_option(monkeypatch, "search_candidates")
-    fast = ["--workers", "1", "--first-round-episodes", "2", "--episodes", "2", "--epochs", "1", "--quiet"]
+    fast = ["--workers", "1", "--first-round-episodes", "2", "--dagger-episodes", "2", "--epochs", "1",
+            "--quiet"]
     out = str(tmp_path / "r")
     shared = ["--teacher-commit", "6", "--search-candidates", "shared"]
     assert main(["distill", *fast, *shared, "--out", out]) == 0

@@ -389,3 +389,35 @@ def test_each_task_trains_with_the_papers_algorithm_by_default(
     (config, out), = seen
     assert config.algo == algo and out == Path(f"runs/{task}-{algo}-s0")
     assert config.timesteps == load_hyperparams(algo, task, False)["n_timesteps"]  # the paper's budget
+
+
+def test_cable_ranges_reach_the_training_environments(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``train --cable-ranges beyond`` (as in demo, evaluate and distill) trains on cables drawn from the
+    wider ranges, every 10 episodes; config.json keeps the ranges, and one stored before they were an option
+    loads with the training ranges."""
+    from dyndlo_vision.learning.envs import make_training_env
+    from dyndlo_vision.tasks.wrappers import BEYOND_TRAINING_CABLE_RANGES
+
+    seen: list[RunConfig] = []
+
+    def capture(config: RunConfig, *args: object, **kwargs: object) -> None:
+        seen.append(config)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(train_module, "make_vec_env", capture)
+    out = tmp_path / "r"
+    argv = ["train", "--algo", "sac", "--timesteps", "50", "--cable-ranges", "beyond", "--out", str(out)]
+    assert main(argv) == 130
+    (config,) = seen
+    assert config.randomize_cable and config.cable_ranges == "beyond"
+    env = make_training_env(config)
+    wrapper = env.env  # inside the Monitor
+    assert wrapper.ranges == BEYOND_TRAINING_CABLE_RANGES and wrapper.every_episodes == 10
+    env.close()
+    older = {k: v for k, v in json.loads(config.to_json()).items() if k != "cable_ranges"}
+    (tmp_path / "config.json").write_text(json.dumps(older))
+    assert RunConfig.from_json(tmp_path / "config.json").cable_ranges == "training"
+    with pytest.raises(ValueError, match="cable_ranges='beyond' draws random cables: it needs"):
+        dataclasses.replace(config, randomize_cable=False)

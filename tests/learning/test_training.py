@@ -172,6 +172,12 @@ def test_evaluate_with_cable_randomization_draws_one_cable_per_episode_from_its_
     assert main(["evaluate", "tip-control-single-step", "--episodes", "1", "--out", str(report)]) == 0
     plain = json.loads(report.read_text())
     assert plain["randomize_cable"] is False and plain["episodes_detail"][0]["cable"] == {}
+    assert plain["cable_ranges"] is None and first["cable_ranges"] == "training"
+    # --cable-ranges beyond, as in demo, train and distill: the same seed, a cable from the wider ranges.
+    assert main([*args[:-1], "--cable-ranges", "beyond", "--episodes", "1", "--out", str(report)]) == 0
+    beyond = json.loads(report.read_text())
+    assert beyond["randomize_cable"] is True and beyond["cable_ranges"] == "beyond"
+    assert beyond["episodes_detail"][0]["cable"] != cables[0]
 
 
 def test_bad_policy_files_get_clear_errors(tmp_path: Path) -> None:

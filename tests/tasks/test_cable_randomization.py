@@ -96,3 +96,18 @@ def test_cable_for_seed_is_the_cable_a_seeded_reset_draws() -> None:
         assert info["cable"] == cable_for_seed(nominal, ranges, seed)
     assert cable_for_seed(nominal, ranges, 100000) != cable_for_seed(nominal, ranges, 100001)
     env.close()
+
+
+def test_random_cables_are_checked_when_made_and_draw_the_tasks_ranges() -> None:
+    """:class:`RandomCables`, the one setting behind every command's --randomize-cable and --cable-ranges."""
+    from dyndlo_vision.tasks.wrappers import BEYOND_TRAINING_CABLE_RANGES, RandomCables
+
+    assert RandomCables().env_options("tip-control") == {"randomize_cable_every": 1,
+                                                         "cable_ranges": DEFAULT_CABLE_RANGES}
+    beyond = RandomCables("beyond", every_episodes=10).env_options("vaulting")
+    assert beyond["randomize_cable_every"] == 10
+    assert beyond["cable_ranges"] == {**BEYOND_TRAINING_CABLE_RANGES, "length_m": (0.9, 1.2)}  # they fit
+    with pytest.raises(ValueError, match="cable ranges 'wide'; expected one of \\['beyond', 'training'\\]"):
+        RandomCables("wide")
+    with pytest.raises(ValueError, match="a new cable every 0 episodes; expected an integer >= 1"):
+        RandomCables(every_episodes=0)

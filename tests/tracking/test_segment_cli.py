@@ -105,30 +105,35 @@ def test_classical_segmenters_are_options(tmp_path: Path) -> None:
         doc = json.loads((out / "x_centerline.json").read_text())
         assert doc["segmenter"] == extra[1]
     assert _run(str(img), "--out", str(tmp_path / "h"), "--segmenter", "hsv", "--hsv-lower", "1,2") == 2
+    # The bounds are for --segmenter hsv: given to the default (learned) one they are refused, not ignored.
+    assert _run(str(img), "--out", str(tmp_path / "l"), "--hsv-lower", "0,120,80") == 2
 
 
 def test_shipped_networks_by_name(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """``--model`` takes a shipped network's name as well as a file; an unknown one is refused whole."""
+    """``--segmenter-model`` takes a shipped network's name as well as a file; an unknown one is refused
+    whole."""
     _photo(tmp_path / "a.png", (240, 320), 0)
     out = tmp_path / "out"
-    assert _run(str(tmp_path / "a.png"), "--out", str(out), "--model", "cable-segmenter-fine", "--quiet") == 0
+    fine = ["--segmenter-model", "cable-segmenter-fine"]
+    assert _run(str(tmp_path / "a.png"), "--out", str(out), *fine, "--quiet") == 0
     mask = cv2.imread(str(out / "a_mask.png"), cv2.IMREAD_UNCHANGED)
     assert _run(str(tmp_path / "a.png"), "--out", str(tmp_path / "o1"), "--quiet") == 0
     default = cv2.imread(str(tmp_path / "o1" / "a_mask.png"), cv2.IMREAD_UNCHANGED)
     assert mask.shape == default.shape == (240, 320) and mask.any()
     assert not np.array_equal(mask, default)  # another network ran
-    assert _run(str(tmp_path / "a.png"), "--out", str(tmp_path / "o2"), "--model", "cable-segmenter-xl") == 2
+    unknown = ["--segmenter-model", "cable-segmenter-xl"]
+    assert _run(str(tmp_path / "a.png"), "--out", str(tmp_path / "o2"), *unknown) == 2
     assert "cable-segmenter-fine" in capsys.readouterr().err  # the message lists the shipped names
     assert not (tmp_path / "o2").exists()
 
 
 def test_the_default_network_is_the_photo_network(tmp_path: Path) -> None:
-    """Without ``--model``, ``segment`` runs ``cable-segmenter-photo`` (the best on held-out photos), not the
-    loop's faster default ``cable-segmenter``."""
+    """Without ``--segmenter-model``, ``segment`` runs ``cable-segmenter-photo`` (the best on held-out
+    photos), not the loop's faster default ``cable-segmenter``."""
     _photo(tmp_path / "a.png", (300, 400), 3)
     masks = {}
-    for name, extra in (("default", []), ("photo", ["--model", "cable-segmenter-photo"]),
-                        ("first", ["--model", "cable-segmenter"])):
+    for name, extra in (("default", []), ("photo", ["--segmenter-model", "cable-segmenter-photo"]),
+                        ("first", ["--segmenter-model", "cable-segmenter"])):
         assert _run(str(tmp_path / "a.png"), "--out", str(tmp_path / name), "--quiet", *extra) == 0
         masks[name] = cv2.imread(str(tmp_path / name / "a_mask.png"), cv2.IMREAD_UNCHANGED)
     assert masks["default"].any() and np.array_equal(masks["default"], masks["photo"])

@@ -452,7 +452,7 @@ def sim_clip(tmp_path_factory: pytest.TempPathFactory) -> SimClip:
         base.frame_hook = None
         env.close()
     calib = root / "camera.json"
-    assert main(["calib", "--camera", "tracking", "--task", "tip-control", "--out", str(calib)]) == 0
+    assert main(["calibrate", "--scene", "tip-control", "--camera", "tracking", "--out", str(calib)]) == 0
     return SimClip(_write_mp4(root / "sim.mp4", frames), calib, tip_uv)
 
 
@@ -547,7 +547,7 @@ def test_on_the_demo_video_the_tip_is_never_confidently_wrong(tmp_path: Path) ->
     env.close()
     video, calib = tmp_path / "demo.mp4", tmp_path / "camera.json"
     write_video_atomic(video, frames, rgb=False)  # as the demo writes it
-    assert main(["calib", "--out", str(calib)]) == 0
+    assert main(["calibrate", "--scene", "tip-control", "--out", str(calib)]) == 0
     plane = ",".join(f"{c:g}" for c in (*MOTION_PLANE.normal, MOTION_PLANE.d))
     camera = PinholeCamera.from_json(calib)
     tip_uv = camera.project(np.array(record["trace"]["truth"]).reshape(-1, 3))
@@ -684,7 +684,7 @@ BAD_INPUTS = {
     ),
     "learned with a background": (
         ["{video}", "--segmenter", "learned", "--background", "median", "--out", "{out}"],
-        "takes neither --background",
+        "--background median is for --segmenter background, not learned",
     ),
     "segmenter model without learned": (
         ["{video}", "--segmenter-model", "{calib}", "--out", "{out}"],
@@ -744,28 +744,27 @@ BAD_INPUTS = {
         "non-zero",
     ),
     "calib without plane": (["{video}", "--calib", "{calib}", "--out", "{out}"], "go together"),
-    "hsv lower only": (["{video}", "--hsv-lower", "0,100,100", "--out", "{out}"], "go together"),
+    "hsv bound without hsv": (
+        ["{video}", "--hsv-lower", "0,100,100", "--out", "{out}"], "--hsv-lower is for --segmenter hsv"
+    ),
     "hsv out of range": (
-        ["{video}", "--hsv-lower", "200,0,0", "--hsv-upper", "10,255,255", "--out", "{out}"],
+        ["{video}", "--segmenter", "hsv", "--hsv-lower", "200,0,0", "--hsv-upper", "10,255,255", "--out",
+         "{out}"],
         "H in 0..179",
     ),
+    "hsv S,V crossed": (
+        ["{video}", "--segmenter", "hsv", "--hsv-lower", "0,200,0", "--hsv-upper", "10,100,255", "--out",
+         "{out}"],
+        "must not exceed --hsv-upper",
+    ),
     "background with hsv": (
-        [
-            "{video}",
-            "--hsv-lower",
-            "0,100,100",
-            "--hsv-upper",
-            "10,255,255",
-            "--background",
-            "auto",
-            "--out",
-            "{out}",
-        ],
-        "cannot be used with an HSV range",
+        ["{video}", "--segmenter", "hsv", "--background", "auto", "--out", "{out}"],
+        "--background auto is for --segmenter background, not hsv",
     ),
     "hsv malformed": (
-        ["{video}", "--hsv-lower", "1,2", "--hsv-upper", "10,255,255", "--out", "{out}"],
-        "3 comma-separated",
+        ["{video}", "--segmenter", "hsv", "--hsv-lower", "1,2", "--hsv-upper", "10,255,255", "--out",
+         "{out}"],
+        "three integers H,S,V",
     ),
     "fraction above 1": (["{video}", "--point", "1.5", "--out", "{out}"], "in \\[0, 1\\]"),
     "fraction below 0": (["{video}", "--point=-0.1", "--out", "{out}"], "in \\[0, 1\\]"),

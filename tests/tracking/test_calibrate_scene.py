@@ -1,8 +1,8 @@
-"""Tests of ``dyndlo-vision calib``: the calibration it writes is where MuJoCo renders the scene."""
+"""Tests of ``dyndlo-vision calibrate --scene``: the calibration of a simulated camera is where MuJoCo renders
+the scene."""
 
 from __future__ import annotations
 
-import argparse
 import json
 import re
 from pathlib import Path
@@ -42,7 +42,7 @@ def _render_scene(camera_name: str, width: int, height: int, targets: np.ndarray
 
 def _write_calib(tmp_path: Path, *args: str) -> PinholeCamera:
     out = tmp_path / "camera.json"
-    assert main(["calib", *args, "--out", str(out)]) == 0
+    assert main(["calibrate", *args, "--out", str(out)]) == 0
     return PinholeCamera.from_json(out)  # the loader track --calib uses
 
 
@@ -73,9 +73,9 @@ def test_calibration_projects_world_points_where_mujoco_renders_them(
 ) -> None:
     """The target sphere's silhouette is centred on its projected centre, and the cable on its projection.
 
-    The scene's cameras are the same in every task; the hooking case checks that --task builds that scene.
+    The scene's cameras are the same in every task; the hooking case checks that --scene builds that scene.
     """
-    args = ["--camera", camera, "--task", task]
+    args = ["--camera", camera, "--scene", task]
     if (width, height) != (640, 480):
         args += ["--width", str(width), "--height", str(height)]
     calib = _write_calib(tmp_path, *args)
@@ -130,7 +130,7 @@ def test_calibration_projects_world_points_where_mujoco_renders_them(
 
 def test_file_is_exactly_the_format_track_reads(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     out = tmp_path / "camera.json"
-    assert main(["calib", "--out", str(out)]) == 0
+    assert main(["calibrate", "--scene", "tip-control", "--out", str(out)]) == 0
     data = json.loads(out.read_text())
     assert sorted(data) == ["K", "R", "dist", "fps", "height", "t", "width"]
     assert (data["width"], data["height"], data["fps"], data["dist"]) == (640, 480, 25.0, [])
@@ -147,7 +147,8 @@ def test_file_is_exactly_the_format_track_reads(tmp_path: Path, capsys: pytest.C
 def test_overwrites_an_existing_file(tmp_path: Path) -> None:
     out = tmp_path / "camera.json"
     out.write_text("old")
-    assert main(["calib", "--width", "320", "--height", "240", "--out", str(out)]) == 0
+    assert main(["calibrate", "--scene", "tip-control", "--width", "320", "--height", "240", "--out",
+                 str(out)]) == 0
     assert PinholeCamera.from_json(out).width == 320
 
 
@@ -156,7 +157,7 @@ BAD_INPUTS = {
         ["--camera", "side"],
         r"--camera 'side' is not a camera.*\['front', 'tracking', 'oblique'\]",
     ),
-    "unknown task": (["--task", "knitting"], r"invalid choice: 'knitting'.*tip-control"),
+    "unknown task": (["--scene", "knitting"], r"invalid choice: 'knitting'.*tip-control"),
     "missing folder": (["--out", "{tmp}/no/such/camera.json"], r"folder .*no/such does not exist"),
     "out is a folder": (["--out", "{tmp}"], r"is a folder"),
     "zero width": (["--width", "0"], r"--width must be a positive number of pixels, got 0"),
@@ -164,6 +165,16 @@ BAD_INPUTS = {
     "too large for the scene": (["--width", "1280", "--height", "960"], r"at most 640x480"),
     "fps not finite": (["--fps", "nan"], r"--fps must be a positive finite number, got nan"),
     "fps zero": (["--fps", "0"], r"--fps must be a positive finite number"),
+    # One command, two modes: each refuses the other's options.
+    "photos with --scene": (
+        ["{tmp}"], r"--scene tip-control takes its camera from the scene, not from photos"
+    ),
+    "board with --scene": (["--board", "9x6"], r"--board is for photos of a board, not --scene"),
+    "camera without --scene": (["--no-scene", "{tmp}", "--camera", "tracking"],
+                               r"--camera is for a simulated camera: it needs --scene TASK"),
+    "no photos, no --scene": (
+        ["--no-scene"], r"give photos of a checkerboard \(IMAGE ...\), or --scene TASK"
+    ),
 }
 
 
@@ -175,8 +186,12 @@ def test_bad_input_exits_2_and_writes_nothing(
     argv = [a.format(tmp=tmp_path) for a in argv]
     if "--out" not in argv:
         argv += ["--out", str(tmp_path / "camera.json")]
+    if "--no-scene" in argv:
+        argv.remove("--no-scene")
+    elif "--scene" not in argv:
+        argv += ["--scene", "tip-control"]
     with pytest.raises(SystemExit) as exc:
-        main(["calib", *argv])
+        main(["calibrate", *argv])
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert re.search(message, err), err
@@ -185,11 +200,12 @@ def test_bad_input_exits_2_and_writes_nothing(
 
 def test_run_raises_value_error_for_an_unknown_task(tmp_path: Path) -> None:
     """Called directly (no argparse choices), the command still names the task and the valid ones."""
-    from dyndlo_vision.commands import calib
+    from dyndlo_vision.cli import build_parser
+    from dyndlo_vision.commands import calibrate
 
-    args = argparse.Namespace(
-        camera="tracking", task="knitting", width=640, height=480, fps=25.0, out=str(tmp_path / "c.json")
-    )
-    with pytest.raises(ValueError, match=r"--task 'knitting' is not a task; expected one of \['hooking'"):
-        calib.run(args)
+    argv = ["calibrate", "--scene", "tip-control", "--out", str(tmp_path / "c.json")]
+    args = build_parser().parse_args(argv)
+    args.scene = "knitting"
+    with pytest.raises(ValueError, match=r"--scene 'knitting' is not a task; expected one of \['hooking'"):
+        calibrate.run(args)
     assert list(tmp_path.iterdir()) == []
