@@ -180,8 +180,12 @@ def test_shipped_multi_step_vaulting_policy_meets_its_published_rate_on_unseen_c
                    cable_ranges=cable_ranges_for("vaulting", "beyond"), **meta["env_options"])
     model = policies.load("vaulting-multi-step", env=env)
     assert isinstance(model, policies.HistoryPolicy)
+    # 12 of the unseen cables: each episode settles a new cable on the floor (about 4 s) and runs up to 50
+    # decisions, the suite's longest test. A policy as good as the low end of its published interval falls
+    # below the threshold with probability 1e-3 at any count; a broken one fails.
+    seeds = UNSEEN_SEEDS[:12]
     hits = 0
-    for seed in UNSEEN_SEEDS:
+    for seed in seeds:
         obs, _ = env.reset(seed=seed)
         model.reset()
         done = False
@@ -190,4 +194,4 @@ def test_shipped_multi_step_vaulting_policy_meets_its_published_rate_on_unseen_c
             done = done or truncated
         hits += bool(info["is_success"])
     low = meta["evaluation"]["success_ci95"][0]
-    assert hits >= fewest_hits_expected(low, len(UNSEEN_SEEDS)), f"vaulting-multi-step: {hits}/20"
+    assert hits >= fewest_hits_expected(low, len(seeds)), f"vaulting-multi-step: {hits}/{len(seeds)}"

@@ -39,7 +39,13 @@ def test_gymnasium_env_checker(env_id: str, multi_step: bool) -> None:
         check_env(env, skip_render_check=True)
 
 
-@pytest.mark.parametrize("env_id,multi_step", CASES)
+#: SB3's checker on every case but the single-step vault: all tasks are one environment class, which the other
+#: cases check for SB3, and each single-step vault step is a whole episode on a newly settled cable (about a
+#: minute of the suite). Gymnasium's checker above still runs on it.
+SB3_CASES = [case for case in CASES if case != ("DynDLO/Vaulting-v0", False)]
+
+
+@pytest.mark.parametrize("env_id,multi_step", SB3_CASES)
 def test_sb3_env_checker(env_id: str, multi_step: bool) -> None:
     from stable_baselines3.common.env_checker import check_env
 
