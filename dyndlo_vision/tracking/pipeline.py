@@ -17,7 +17,8 @@ alone, one photo at a time):
    ends free at it: not at the image border, not inside a region too thick to be cable, and not shorter or
    longer than the cable (its length given, or learned from the frames where both ends are seen). A
    polyline shorter than a given cable length is continued straight to the tip when the robot's pose or the
-   gripper's template places the held end and at least 80 % of the cable is seen;
+   gripper's template places the held end and at least 80 % of the cable is seen. Without the robot's pose,
+   a tip where the clicked gripper's template matches is not measured;
 6. the Kalman filter (:mod:`~dyndlo_vision.tracking.filter`), updated at the frame's capture time.
 
 Each frame's :class:`FrameResult` says what happened and why; :meth:`CablePipeline.estimate` predicts the
