@@ -231,9 +231,14 @@ def test_ctrl_c_brakes_and_reports(tmp_path: Path, monkeypatch: pytest.MonkeyPat
     calls = {"n": 0}
 
     def interrupted(self: Any) -> Any:
+        # Pressed once the arm is moving (mid-plan), whenever that is: a frame count is not, on a loaded
+        # machine (the 25th frame came after the plan's end, the 6th before the arm moved).
         calls["n"] += 1
-        if calls["n"] == 6:  # mid-plan (early: a loaded machine reads fewer frames before the plan ends)
-            raise KeyboardInterrupt
+        if fakes and not calls.get("pressed"):
+            q = np.array([r.q for r in list(fakes[0].received)])
+            if len(q) > 1 and np.max(np.abs(q - q[0])) > 0.01:  # rad
+                calls["pressed"] = 1
+                raise KeyboardInterrupt
         return read(self)
 
     monkeypatch.setattr(dry_run.FollowingCamera, "read", interrupted)
