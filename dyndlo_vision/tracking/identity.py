@@ -353,21 +353,29 @@ class GripperTemplate:
             return None
         return rgb[v - r : v + r + 1, u - r : u + r + 1].astype(np.float32)
 
+    def _window_scores(
+        self, rgb: NDArray[np.uint8], centre: NDArray[np.float64], radius_px: float
+    ) -> tuple[NDArray[np.float32], int, int] | None:
+        """The template's correlation at every place within ``radius_px`` of ``centre`` (and the window's
+        corner, u0 and v0); None where the window is smaller than the template."""
+        import cv2
+
+        h, w = rgb.shape[:2]
+        s = int(math.ceil(radius_px)) + self.size // 2
+        u0, v0 = max(0, int(centre[0]) - s), max(0, int(centre[1]) - s)
+        u1, v1 = min(w, int(centre[0]) + s + 1), min(h, int(centre[1]) + s + 1)
+        if u1 - u0 < self.size or v1 - v0 < self.size:
+            return None
+        window = rgb[v0:v1, u0:u1].astype(np.float32)
+        return cv2.matchTemplate(window, self.template, cv2.TM_CCOEFF_NORMED), u0, v0
+
     def seen_near(self, rgb: NDArray[np.uint8], uv: NDArray[np.float64], radius_px: float) -> bool:
         """Whether the gripper's template matches (at least ``min_score``) somewhere within ``radius_px`` of
         ``uv``: a check, which changes nothing of the template's state."""
-        import cv2
-
         if self.template is None or not np.all(np.isfinite(uv)):
             return False
-        h, w = rgb.shape[:2]
-        s = int(math.ceil(radius_px)) + self.size // 2
-        u, v = int(round(float(uv[0]))), int(round(float(uv[1])))
-        u0, v0, u1, v1 = max(0, u - s), max(0, v - s), min(w, u + s + 1), min(h, v + s + 1)
-        if u1 - u0 < self.size or v1 - v0 < self.size:
-            return False
-        scores = cv2.matchTemplate(rgb[v0:v1, u0:u1].astype(np.float32), self.template, cv2.TM_CCOEFF_NORMED)
-        return bool(float(scores.max()) >= self.min_score)
+        found = self._window_scores(rgb, np.asarray(uv, dtype=np.float64), radius_px)
+        return found is not None and bool(float(found[0].max()) >= self.min_score)
 
     def locate(self, rgb: NDArray[np.uint8], t: float, search_px: float) -> NDArray[np.float64] | None:
         """The gripper's pixel in ``rgb`` (taken at ``t``), searched within ``search_px`` of its prediction;
@@ -377,16 +385,11 @@ class GripperTemplate:
         if self.template is None:
             return None
         dt = 0.0 if not math.isfinite(self.t) else min(t - self.t, 0.06)
-        centre = self.uv + self.velocity * dt
-        h, w = rgb.shape[:2]
-        r = self.size // 2
-        s = int(math.ceil(search_px)) + r
-        u0, v0 = max(0, int(centre[0]) - s), max(0, int(centre[1]) - s)
-        u1, v1 = min(w, int(centre[0]) + s + 1), min(h, int(centre[1]) + s + 1)
-        if u1 - u0 < self.size or v1 - v0 < self.size:
+        found = self._window_scores(rgb, self.uv + self.velocity * dt, search_px)
+        if found is None:
             return None
-        window = rgb[v0:v1, u0:u1].astype(np.float32)
-        scores = cv2.matchTemplate(window, self.template, cv2.TM_CCOEFF_NORMED)
+        scores, u0, v0 = found
+        r = self.size // 2
         _, best, _, (bu, bv) = cv2.minMaxLoc(scores)
         self.score = float(best)
         if not best >= self.min_score:
