@@ -33,6 +33,11 @@ CABLE_NAME = "cable"
 _SETTLED: OrderedDict[str, NDArray[np.float64]] = OrderedDict()
 SETTLED_CACHE_SIZE = 64
 FLOOR_NAME = "floor"
+#: Slices around and stacks along the spheres and capsules the renderer draws (MuJoCo's defaults: 28 and 16).
+#: The cable's capsules are 1-3 px wide in the loop camera and the gripper sphere about 15 px, so 16 x 8
+#: facets draw the same outline to a fifth of a pixel; off-screen software rendering of a frame is about a
+#: third cheaper (``benchmarks/loop_latency.py``, docs/results.md).
+RENDER_SLICES, RENDER_STACKS = 16, 8
 
 
 @dataclass(frozen=True)
@@ -304,7 +309,7 @@ def build_mjcf(config: SceneConfig) -> str:
   <visual>
     <global offwidth="{width}" offheight="{height}"/>
     <headlight ambient="0.35 0.35 0.35" diffuse="0.5 0.5 0.5"/>
-    <quality shadowsize="0" offsamples="0"/>
+    <quality shadowsize="0" offsamples="0" numslices="{RENDER_SLICES}" numstacks="{RENDER_STACKS}"/>
   </visual>
   <asset>
     <texture name="grid" type="2d" builtin="checker" rgb1="0.82 0.82 0.82" rgb2="0.78 0.78 0.78"

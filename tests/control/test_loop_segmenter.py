@@ -134,8 +134,10 @@ def test_the_loop_runs_the_segmenter_model_it_is_given() -> None:
         assert reach.follow_px == LOOP_FOLLOW_PX == 80  # follows the cable
         own = LearnedSegmenter(onnx_bytes(LOOP_NAME), short_side=720)(rgb)  # 480 rows seen as 720
         assert own.any()
-        np.testing.assert_array_equal(reach(rgb), own)
-        assert not np.array_equal(LearnedSegmenter(onnx_bytes(FINE_NAME), short_side=720)(rgb), own)
+        # The part is resized on its own, so a pixel whose logit is near 0 may flip (1 of 409 at seed 0).
+        assert np.count_nonzero(reach(rgb) != own) <= 0.01 * np.count_nonzero(own)
+        fine = LearnedSegmenter(onnx_bytes(FINE_NAME), short_side=720)(rgb)
+        assert np.count_nonzero(fine != own) > 0.2 * np.count_nonzero(own)  # another network is told apart
     finally:
         env.close()
 
