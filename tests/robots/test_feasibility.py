@@ -187,7 +187,7 @@ def test_limit_usage_hand_computed() -> None:
 
 def test_plan_feasibility_needs_a_start_and_joins_plans_at_the_arms_cycle():
     check = PlanFeasibility("gofa")
-    with pytest.raises(RuntimeError, match=r"PlanFeasibility\.start\(\) first"):
+    with pytest.raises(RuntimeError, match=r"^PlanFeasibility\.start\(\) first$"):
         check.check(np.array([0.0, 0.004]), np.array([HOME, HOME]))
     assert check.period_s == 0.004 and check.arm is ROBOT_ARMS["gofa"]
     check.start(2.0, HOME)
@@ -265,3 +265,49 @@ def test_a_tool_offset_reaches_the_arms_kinematics():
     plain, tool = arm.kinematics(), arm.kinematics(tcp_in_flange=pose_matrix((0.0, 0.0, 0.1)))
     q = plain.ik(HOME).q
     np.testing.assert_allclose(tool.fk(q)[0], plain.fk(q)[0] + [0.0, 0.0, -0.1], atol=1e-12)  # tool down
+
+
+def test_braking_tail_in_whole_seconds_gives_float_times():
+    """From 2 rad/s at 1 rad/s^2 a joint stops after 2 s and v^2 / (2 a) = 2 rad; integers in, floats out."""
+    qd = np.array([2, 0, 0, 0, 0, 0])
+    t, q = braking_tail(7, np.zeros(6, dtype=int), qd, np.ones(6, dtype=int), 1)
+    assert t.dtype == np.float64 and q.dtype == np.float64
+    np.testing.assert_array_equal(t, [8.0, 9.0])
+    np.testing.assert_allclose(q[:, 0], [1.5, 2.0])  # 2 (s - s^2 / 4) at s = 1, 2
+
+
+def test_joint_plan_seeds_the_ik_from_the_last_target_sent():
+    """The UR5e's wrist 3 turns +-360 deg: with it one turn round, the same TCP pose is reached by a
+    different joint vector. The plan must stay on the arm's turn (seeded from it), not jump a full turn."""
+    arm = robot_arm("ur5e")
+    kin = arm.kinematics()
+    q0 = kin.joint_trajectory(np.array([0.0]), HOME[None]).q[0]
+    q_turned = q0 - np.array([0, 0, 0, 0, 0, 2 * np.pi])
+    assert q_turned[5] > -2 * np.pi
+    np.testing.assert_allclose(kin.fk(q_turned)[0], HOME, atol=1e-9)
+    t, p = straight_line(0.0, HOME, HOME + [0.02, 0.0, 0.0], 0.5, arm.period_s)
+    plan = joint_plan(kin, t, p, [-arm.period_s, 0.0], [q_turned, q_turned], arm.period_s)
+    assert plan.report.ok, plan.report
+    assert np.all(plan.q[:, 5] < -np.pi)  # still a turn round
+    assert np.max(np.abs(plan.q[2] - q_turned)) < 1e-3  # the first new target is next to the last sent
+
+
+def test_a_plan_starting_where_the_arm_rests_is_judged_as_it_is_alone():
+    """A smooth move from rest, taking over where the arm rests: its first sample is the target already
+    sent, so joining it adds nothing (the same limit usage as the plan alone) and it is accepted. A plan of
+    a single step after the take-over is judged too."""
+    arm = robot_arm("gofa")
+    check = PlanFeasibility(arm)
+    check.start(1.0, HOME)
+    t, p = straight_line(1.0, HOME, HOME + [0.0, 0.0, 0.03], 0.25, arm.period_s)
+    kin = arm.kinematics()
+    q_rest = kin.joint_trajectory(np.array([1.0]), HOME[None]).q[0]
+    alone = limit_usage(arm.model(), t, kin.joint_trajectory(t, p, q_rest).q)
+    assert 0.3 < alone["acceleration_fraction"] < 0.5  # twice as much would still be allowed: the test
+    verdict = check.check(t, p)
+    assert verdict.ok, verdict.reason
+    for key in ("velocity_fraction", "acceleration_fraction", "position_margin_deg"):
+        assert verdict.usage[key] == pytest.approx(alone[key], rel=1e-3), key
+    check.start(3.0, HOME)
+    one_step = check.check(np.array([3.0, 3.0 + arm.period_s]), np.array([HOME, HOME]))
+    assert one_step.ok and one_step.usage["velocity_fraction"] == pytest.approx(0.0, abs=1e-6)

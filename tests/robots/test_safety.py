@@ -247,3 +247,45 @@ def test_a_clamped_robot_needs_a_positive_speed_limit_and_starts_with_an_empty_r
         ClampedRobot(_RecordingRobot(), BOX, 0.0)
     robot = ClampedRobot(_RecordingRobot(), BOX, 1.8)
     assert robot.last_report == ClampReport() and not robot.last_report.changed
+
+
+def test_a_box_with_a_missing_coordinate_is_refused_as_not_finite() -> None:
+    for lower, upper in (((None, 0.0, 0.0), (1.0, 1.0, 1.0)), ((0.0, 0.0, 0.0), (1.0, None, 1.0))):
+        with pytest.raises(ValueError, match=r"^WorkspaceBox corners must be 3 finite numbers each, got"):
+            WorkspaceBox(lower, upper)  # type: ignore[arg-type]
+
+
+def test_a_velocity_under_one_metre_per_second_is_still_scaled_to_the_limit() -> None:
+    box = WorkspaceBox((-1.0, -1.0, -1.0), (2.0, 2.0, 2.0))
+    v = np.array([[[0.48, 0.64, 0.0]]])  # 0.8 m/s against a 0.5 m/s limit
+    sp = Setpoints(t=np.array([0.0]), position=np.zeros((1, 1, 3)), velocity=v)
+    out, report = clamp_setpoints(sp, box, 0.5)
+    np.testing.assert_allclose(out.velocity[0, 0], [0.3, 0.4, 0.0])
+    assert report.velocities_clipped == 1 and report.max_speed_m_s == pytest.approx(0.8)
+
+
+def test_a_single_setpoint_outside_the_box_lands_on_its_faces() -> None:
+    sp = Setpoints(t=np.array([2.0]), position=np.array([[[1.2, 0.0, 0.05]]]), velocity=np.zeros((1, 1, 3)))
+    out, report = clamp_setpoints(sp, BOX, 1.8)
+    np.testing.assert_array_equal(out.position[0, 0], [0.9, 0.0, 0.1])  # on the x = 0.9 and z = 0.1 faces
+    np.testing.assert_array_equal(out.t, [2.0])
+    assert report.positions_moved_into_box == 1 and report.steps_rate_limited == 0
+    assert report.max_box_excess_m == pytest.approx(np.hypot(0.3, 0.05))
+
+
+def test_setpoints_in_whole_seconds_and_metres_come_back_as_floats() -> None:
+    box = WorkspaceBox((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
+    p = np.array([[[0, 0, 0]], [[2, 0, 0]], [[2, 0, 0]]])  # boxed to x = 1, reached at 0.5 m/s
+    sp = Setpoints(t=np.array([0, 1, 2]), position=p, velocity=np.zeros((3, 1, 3), dtype=int))
+    out, report = clamp_setpoints(sp, box, 0.5)
+    assert out.t.dtype == out.position.dtype == out.velocity.dtype == np.float64
+    np.testing.assert_array_equal(out.t, [0.0, 1.0, 2.0])
+    np.testing.assert_allclose(out.position[:, 0, 0], [0.0, 0.5, 1.0])
+    np.testing.assert_allclose(out.velocity[:, 0, 0], [0.0, 0.5, 0.5])
+    assert report.positions_moved_into_box == 2 and report.steps_rate_limited == 1  # the last at the limit
+
+
+def test_setpoints_for_no_gripper_pass_unchanged() -> None:
+    sp = Setpoints(t=np.array([0.0, 0.1]), position=np.zeros((2, 0, 3)), velocity=np.zeros((2, 0, 3)))
+    out, report = clamp_setpoints(sp, BOX, 1.8)
+    assert out is sp and report == ClampReport()
