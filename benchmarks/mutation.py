@@ -132,6 +132,7 @@ def mutmut_section(group: Group) -> str:
     lines = [
         "[tool.mutmut]",
         'source_paths = ["dyndlo_vision"]',
+        'also_copy = ["examples"]',
         f"only_mutate = {json.dumps(sorted(group.mutate))}",
         f"pytest_add_cli_args_test_selection = {json.dumps(group.tests)}",
         # The plugins that could reorder or cache tests are off; the project's warnings filter stays.
@@ -160,7 +161,7 @@ def prepare(group: Group, workdir: Path) -> None:
         shutil.rmtree(workdir)
     workdir.mkdir(parents=True)
     ignore = shutil.ignore_patterns("__pycache__", "*.pyc", ".pytest_cache")
-    for name in ("dyndlo_vision", "tests"):
+    for name in ("dyndlo_vision", "tests", "examples"):  # examples: the run configurations tests read
         shutil.copytree(ROOT / name, workdir / name, ignore=ignore)
     text = (ROOT / "pyproject.toml").read_text(encoding="utf-8")
     for header in ("tool.mutmut", "tool.dyndlo-vision"):
