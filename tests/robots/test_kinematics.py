@@ -14,11 +14,13 @@ from dyndlo_vision.robots.kinematics import (
     ArmModel,
     DHLink,
     IKError,
+    IKOptions,
     JointLimitError,
     _rotation_log,
     abb_gofa_crb15000,
     check_joint_limits,
     pose_matrix,
+    rotation_x,
     rotation_y,
     rotation_z,
     ur5e,
@@ -377,7 +379,8 @@ def test_poses_and_rotations_are_checked_with_their_names() -> None:
         ArmKinematics(arm, tcp_in_flange=bad_row)
     bad_t = np.eye(4)
     bad_t[1, 3] = np.inf
-    with pytest.raises(ValueError, match=r"^base_in_world translation must be finite, got \[0\.0, inf"):
+    finite = r"^base_in_world translation must be finite, got \[0\.0, inf, 0\.0\]$"
+    with pytest.raises(ValueError, match=finite):
         ArmKinematics(arm, base_in_world=bad_t)
     with pytest.raises(ValueError, match=r"^base_in_world rotation is not a rotation matrix"):
         ArmKinematics(arm, base_in_world=np.diag([1.0, 1.0, -1.0, 1.0]))
@@ -385,6 +388,9 @@ def test_poses_and_rotations_are_checked_with_their_names() -> None:
         ArmKinematics(arm, tool_rotation=np.eye(2))
     tool = pose_matrix((0.0, 0.0, 0.05))
     np.testing.assert_array_equal(ArmKinematics(arm, tcp_in_flange=tool).tcp_in_flange, tool)
+    # Integer matrices are taken as floats.
+    whole = ArmKinematics(arm, np.eye(4, dtype=int), np.eye(4, dtype=int), np.diag([1, -1, -1]))
+    assert whole.base_in_world.dtype == whole.tcp_in_flange.dtype == whole.tool_rotation.dtype == np.float64
     with pytest.raises(ValueError, match=r"^joint positions must be finite with last dimension 6, got shape"):
         ArmKinematics(arm).fk([0.0, 0.0, np.nan, 0.0, 0.0, 0.0])
 
@@ -414,3 +420,334 @@ def test_arm_models_and_ik_options_are_checked() -> None:
         IKOptions(damping_bias=-1e-9)
     with pytest.raises(ValueError, match=r"^IKOptions\.max_iterations must be >= 1, got 0$"):
         IKOptions(max_iterations=0)
+
+
+# --------------------------------------------------------------------------------- rotation log near pi
+def test_rotation_log_just_below_pi_keeps_the_axis_direction() -> None:
+    """Below pi the rotation vector is unique: angle times the axis it turns about, whichever sign the axis's
+    largest component has (near pi the axis comes from R + I, whose columns carry no sign)."""
+    for axis in ([0.0, 0.0, -1.0], [-0.48, 0.6, -0.64], [0.6, -0.8, 0.0], [0.48, -0.6, 0.64]):
+        for angle in (math.pi - 1e-8, math.pi - 4e-8, math.pi - 1e-6, math.pi - 1e-3):
+            rv = _rotation_log(_axis_angle(tuple(axis), angle))
+            np.testing.assert_allclose(rv, angle * np.array(axis), atol=1e-7)
+    # Mixed in a batch with a rotation far from pi: each keeps its own direction.
+    batch = np.stack([_axis_angle((0.0, 0.0, -1.0), math.pi - 1e-8), rotation_z(0.5)])
+    np.testing.assert_allclose(_rotation_log(batch), [[0, 0, -(math.pi - 1e-8)], [0, 0, 0.5]], atol=1e-7)
+
+
+# ------------------------------------------------------------------------------------ arm model, ik
+def test_arm_model_refuses_a_seed_below_a_lower_limit() -> None:
+    gofa = abb_gofa_crb15000()
+    for j in range(6):
+        seed = list(gofa.seed_rad)
+        seed[j] = gofa.lower_rad[j] - 0.01
+        with pytest.raises(ValueError, match=r"seed_rad .* is outside the joint limits"):
+            ArmModel(**{**gofa.__dict__, "seed_rad": tuple(seed)})
+
+
+@pytest.mark.parametrize("make_arm", ARMS)
+def test_ik_seeded_at_a_solution_returns_it_without_iterating(make_arm) -> None:
+    kin = ArmKinematics(make_arm())
+    for q in _well_conditioned(kin, np.random.default_rng(11), 5):
+        position, rotation = kin.fk(q)
+        res = kin.ik(position, q, rotation)
+        assert (res.iterations, res.converged) == (0, True)
+        np.testing.assert_array_equal(res.q, q)
+        assert res.position_error_m <= 1e-12 and res.rotation_error_rad <= 1e-12
+
+
+def test_ik_stops_as_soon_as_both_errors_are_within_their_tolerances() -> None:
+    options = IKOptions(position_tolerance_m=1e-3, rotation_tolerance_rad=1e-2)
+    kin = ArmKinematics(abb_gofa_crb15000(), options=options)
+    q = np.array([0.1, 0.2, -0.3, 0.4, 1.2, -0.5])
+    p, r = kin.fk(q)
+    # Within both tolerances from the start: the seed is the answer (errors 0.5 mm, 5 mrad about world x).
+    for target, rotation, e_pos, e_rot in (
+        (p + [5e-4, 0.0, 0.0], r, 5e-4, 0.0),
+        (p, rotation_x(5e-3) @ r, 0.0, 5e-3),
+        (p + [0.0, 3e-4, -4e-4], rotation_x(-3e-3) @ rotation_y(4e-3) @ r, 5e-4, 5e-3),
+    ):
+        res = kin.ik(target, q, rotation)
+        assert (res.iterations, res.converged) == (0, True)
+        np.testing.assert_array_equal(res.q, q)
+        assert res.position_error_m == pytest.approx(e_pos, rel=1e-6, abs=1e-15)
+        assert res.rotation_error_rad == pytest.approx(e_rot, rel=1e-3, abs=1e-15)
+    # Beyond either tolerance (2 mm; 20 mrad about x): it iterates, until within both.
+    for target, rotation in ((p + [2e-3, 0.0, 0.0], r), (p, rotation_x(2e-2) @ r), (p, rotation_y(2e-2) @ r)):
+        res = kin.ik(target, q, rotation)
+        assert res.iterations >= 1 and res.converged
+        assert res.position_error_m <= 1e-3 and res.rotation_error_rad <= 1e-2
+
+
+def _pose_errors(kin: ArmKinematics, q: np.ndarray, position, rotation) -> tuple[float, float]:
+    """TCP position error (m) and rotation angle (rad) of joints q from a target, by FK and the trace."""
+    p, r = kin.fk(q)
+    cos = (np.trace(np.asarray(rotation) @ r.T) - 1.0) / 2.0
+    return float(np.linalg.norm(np.asarray(position) - p)), math.acos(min(1.0, max(-1.0, cos)))
+
+
+def test_ik_reports_its_iterations_and_remaining_errors_when_it_runs_out_of_iterations() -> None:
+    arm = abb_gofa_crb15000()
+    target = [0.4, -0.3, 0.6]  # 5 iterations from the arm's seed
+    assert ArmKinematics(arm).ik(target).iterations > 3
+    kin = ArmKinematics(arm, options=IKOptions(max_iterations=3))
+    res = kin.ik(target)
+    assert (res.iterations, res.converged) == (3, False)
+    e_pos, e_rot = _pose_errors(kin, res.q, target, TOOL_DOWN)
+    assert res.position_error_m == pytest.approx(e_pos, rel=1e-9)
+    assert res.rotation_error_rad == pytest.approx(e_rot, rel=1e-6)
+    assert e_pos > 1e-9 and e_rot > 1e-8
+    # Converged means both errors within their tolerances: a position within 1 m is not enough ...
+    tilted = rotation_z(0.2) @ rotation_y(0.3) @ TOOL_DOWN
+    loose = ArmKinematics(arm, options=IKOptions(position_tolerance_m=1.0, max_iterations=1))
+    res = loose.ik(target, rotation=tilted)
+    assert res.iterations == 1 and res.position_error_m < 1.0 and res.rotation_error_rad > 1e-8
+    assert not res.converged
+    # ... and neither is an orientation within 1 rad with the position off.
+    still = ArmKinematics(arm, options=IKOptions(rotation_tolerance_rad=1.0, max_iterations=1))
+    res = still.ik(target, rotation=tilted)
+    assert res.iterations == 1 and res.rotation_error_rad < 1.0 and res.position_error_m > 1e-9
+    assert not res.converged
+
+
+def test_ik_out_of_reach_returns_the_best_compromise_of_the_weighted_errors() -> None:
+    """An unreachable target: the configuration returned minimises |position error|^2 + (w * angle)^2,
+    w = rotation_weight_m (metres worth one radian): its finite-difference gradient vanishes."""
+    arm = abb_gofa_crb15000()
+    for weight, target in ((0.2, [1.2, 0.9, 0.8]), (0.2, [2.0, 0.0, 0.6]), (0.5, [0.3, 1.5, 0.3])):
+        kin = ArmKinematics(arm, options=IKOptions(rotation_weight_m=weight))
+        res = kin.ik(target)
+        assert not res.converged
+
+        def cost(q: np.ndarray, kin=kin, target=target, weight=weight) -> float:
+            e_pos, e_rot = _pose_errors(kin, q, target, TOOL_DOWN)
+            return e_pos**2 + (weight * e_rot) ** 2
+
+        h = 1e-6
+        grad = [(cost(res.q + h * e) - cost(res.q - h * e)) / (2 * h) for e in np.eye(6)]
+        assert np.all(res.q > kin.lower) and np.all(res.q < kin.upper)  # an interior minimum
+        np.testing.assert_allclose(grad, 0.0, atol=1e-6)
+        assert cost(res.q) == pytest.approx(res.position_error_m**2 + (weight * res.rotation_error_rad) ** 2)
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_ik_never_leaves_the_joint_limits(sign: float) -> None:
+    """Axis 6 of the GoFa turns +-180 deg. A target whose nearest solution lies past that limit: the joint
+    stays at it (no solution within the limits nearby). A seed 360 deg beyond the limit, at a solution: it is
+    clipped first, and the IK turns the joint back to the same pose within the limits."""
+    kin = ArmKinematics(abb_gofa_crb15000())
+    q = np.array([0.1, 0.2, -0.3, 0.4, 1.2, sign * math.pi])
+    beyond = q + [0, 0, 0, 0, 0, sign * 0.1]
+    res = kin.ik(*kin.fk(beyond)[:1], seed=q, rotation=kin.fk(beyond)[1])
+    assert not res.converged
+    assert np.all(res.q >= kin.lower) and np.all(res.q <= kin.upper)
+    assert res.q[5] == sign * math.pi
+    inside = q.copy()
+    inside[5] = sign * 2.0
+    position, rotation = kin.fk(inside)
+    res = kin.ik(position, inside + [0, 0, 0, 0, 0, sign * 2 * math.pi], rotation)
+    assert res.converged
+    np.testing.assert_allclose(res.q, inside, atol=1e-9)
+
+
+@pytest.mark.parametrize("make_arm", ARMS)
+def test_ik_with_heavier_damping_still_converges_only_slower(make_arm) -> None:
+    plain = ArmKinematics(make_arm())
+    damped = ArmKinematics(make_arm(), options=IKOptions(damping_bias=1e-2))
+    for target in (TCP_HOME_M, [0.5, 0.3, 0.3], [0.4, -0.3, 0.6]):
+        fast, slow = plain.ik(target), damped.ik(target)
+        assert fast.converged and slow.converged
+        assert slow.iterations > fast.iterations
+        np.testing.assert_allclose(damped.fk(slow.q)[0], target, atol=1e-9)
+
+
+# ------------------------------------------------------------------------------------- joint trajectory
+def test_joint_trajectory_refuses_bad_times_and_positions() -> None:
+    kin = ArmKinematics(ur5e())
+    home = np.array(TCP_HOME_M)
+    shapes = r"^need t \(N,\) and positions \(N, 3\), got shapes "
+    for t, positions, message in (
+        (np.zeros((2, 1)), np.tile(home, (2, 1)), shapes + r"\(2, 1\) and \(2, 3\)$"),
+        (np.zeros(0), np.zeros((0, 3)), shapes + r"\(0,\) and \(0, 3\)$"),
+        (np.arange(3.0), np.tile(home, (2, 1)), shapes + r"\(3,\) and \(2, 3\)$"),
+        (np.arange(2.0), np.zeros((2, 2)), shapes + r"\(2,\) and \(2, 2\)$"),
+        ([0.0, np.nan], np.tile(home, (2, 1)), r"^t and positions must be finite$"),
+        ([0.0, 0.1], [home, [0.4, np.inf, 0.5]], r"^t and positions must be finite$"),
+        ([0.0, 0.0], np.tile(home, (2, 1)), r"^t must be strictly increasing$"),
+        ([0.0, 0.1, 0.05], np.tile(home, (3, 1)), r"^t must be strictly increasing$"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            kin.joint_trajectory(t, positions)
+
+
+def test_joint_trajectory_of_one_sample_and_of_integer_times() -> None:
+    kin = ArmKinematics(abb_gofa_crb15000())
+    one = kin.joint_trajectory([0.5], [TCP_HOME_M])
+    np.testing.assert_allclose(kin.fk(one.q)[0], [TCP_HOME_M], atol=1e-9)
+    slow = kin.joint_trajectory([0, 1, 2], [TCP_HOME_M, np.add(TCP_HOME_M, 0.01), np.add(TCP_HOME_M, 0.02)])
+    assert slow.t.dtype == np.float64 and slow.t.tolist() == [0.0, 1.0, 2.0]
+
+
+def test_joint_trajectory_keeps_the_seeds_configuration() -> None:
+    """The GoFa reaches its TCP home also with the wrist flipped (axis 5 negated, axes 4 and 6 half a turn
+    round): seeded there, the whole trajectory stays in that configuration."""
+    kin = ArmKinematics(abb_gofa_crb15000())
+    home = kin.ik(TCP_HOME_M).q
+    guess = home + [0.0, 0.0, 0.0, math.pi, 0.0, math.pi]
+    guess[4] = -home[4]
+    guess[[3, 5]] = (guess[[3, 5]] + math.pi) % (2 * math.pi) - math.pi
+    res = kin.ik(TCP_HOME_M, guess)
+    assert res.converged
+    flipped = res.q
+    assert abs(flipped[4] + home[4]) < 0.2 and abs(abs(flipped[3] - home[3]) - math.pi) < 0.2
+    t = np.linspace(0.0, 0.5, 26)
+    path = np.array(TCP_HOME_M) + np.outer(t, [0.1, 0.1, -0.1])
+    traj = kin.joint_trajectory(t, path, flipped)
+    np.testing.assert_allclose(traj.q[0], flipped, atol=1e-6)
+    assert np.max(np.abs(np.diff(traj.q, axis=0))) < 0.05
+    assert np.all(np.sign(traj.q[:, 4]) == np.sign(flipped[4]))
+    np.testing.assert_allclose(kin.fk(traj.q)[0], path, atol=1e-9)
+
+
+def test_joint_trajectory_solves_one_sample_per_coarse_step_in_sequence(monkeypatch) -> None:
+    """The samples solved one after the other are the first, the last and the first at or after each multiple
+    of coarse_step_s from the start; the first starts from the seed, the second from the first's solution,
+    each later one from the straight-line extrapolation of the two before it (uneven steps here)."""
+    kin = ArmKinematics(abb_gofa_crb15000(), options=IKOptions(coarse_step_s=1 / 16))
+    offsets = np.array([0, 1, 2, 4, 5, 7, 9, 10, 12, 15, 16, 17, 21])
+    t = 1.0 + offsets / 32  # exact binary fractions: no rounding at the coarse steps
+    s = t - 1.0
+    path = np.array(TCP_HOME_M) + np.stack([0.2 * s, 0.1 * np.sin(3 * s), -0.3 * s**2], 1)
+    seed = kin.ik(path[0]).q
+    calls = []
+    solve_one = kin._solve_one
+
+    def recording(q, p_des, r_des):
+        res = solve_one(q, p_des, r_des)
+        calls.append((q.copy(), p_des.copy(), res.q.copy()))
+        return res
+
+    monkeypatch.setattr(kin, "_solve_one", recording)
+    traj = kin.joint_trajectory(t, path, seed)
+    coarse = [0, 2, 3, 5, 6, 7, 8, 9, 10, 12]  # offsets 0, 2, 4, 7, 9, 10, 12, 15, 16 and 21 (for 18 and 20)
+    assert len(calls) == len(coarse)
+    for (_, p_des, q_sol), i in zip(calls, coarse, strict=True):
+        np.testing.assert_array_equal(p_des, path[i])
+        np.testing.assert_array_equal(traj.q[i], q_sol)
+    np.testing.assert_array_equal(calls[0][0], seed)
+    np.testing.assert_array_equal(calls[1][0], calls[0][2])
+    for k in range(2, len(coarse)):
+        i, i1, i2 = coarse[k], coarse[k - 1], coarse[k - 2]
+        rate = (t[i] - t[i1]) / (t[i1] - t[i2])
+        np.testing.assert_allclose(calls[k][0], calls[k - 1][2] + rate * (calls[k - 1][2] - calls[k - 2][2]),
+                                   rtol=0, atol=1e-15)
+    np.testing.assert_allclose(kin.fk(traj.q)[0], path, atol=1e-9)
+
+
+def test_joint_trajectory_when_the_coarse_grid_rounds_past_the_last_time() -> None:
+    """0.48 s + 40 steps of 4 ms: np.arange's last multiple of 40 ms from the start rounds past the last
+    sample time; that is the last sample, not one after it."""
+    kin = ArmKinematics(abb_gofa_crb15000())
+    t = 0.48 + 0.004 * np.arange(41)
+    assert np.arange(t[0], t[-1], 0.04)[-1] > t[-1]
+    path = np.array(TCP_HOME_M) + np.outer(t - t[0], [0.1, 0.0, 0.0])
+    traj = kin.joint_trajectory(t, path, kin.ik(path[0]).q)
+    np.testing.assert_allclose(kin.fk(traj.q)[0], path, atol=1e-9)
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_joint_trajectory_refuses_a_path_that_takes_a_joint_past_its_limit(sign: float) -> None:
+    """Axis 5 of the GoFa at constant speed through its limit (+-180 deg), axis 3 making up for it so that the
+    tool keeps its orientation: the first sample past the limit has no solution within the limits, even
+    though extrapolating the samples before it lands exactly on the joints past the limit."""
+    arm = abb_gofa_crb15000()
+    t = np.arange(8) * 0.0625
+    limit = arm.upper_rad[4] if sign > 0 else arm.lower_rad[4]
+    q = np.tile([0.0, 0.3, -0.2, 0.0, 0.0, 0.0], (t.size, 1))
+    q[:, 4] = limit - sign * 0.3 + sign * 0.1 * np.arange(t.size)  # at the limit at 0.1875 s, past it after
+    q[:, 2] -= q[:, 4] - q[0, 4]  # axes 2, 3 and 5 are parallel here: their sum sets the tool's pitch
+    positions, rotations = ArmKinematics(arm).fk(q)
+    np.testing.assert_allclose(rotations, np.broadcast_to(rotations[0], rotations.shape), atol=1e-12)
+    options = IKOptions(position_tolerance_m=1e-6, rotation_tolerance_rad=1e-6, coarse_step_s=0.0625)
+    kin = ArmKinematics(arm, tool_rotation=rotations[0], options=options)
+    ok = kin.joint_trajectory(t[:4], positions[:4], q[0])
+    np.testing.assert_allclose(ok.q, q[:4], atol=1e-6)
+    with pytest.raises(IKError, match=r"no IK solution at t=0\.2500 s"):
+        kin.joint_trajectory(t, positions, q[0])
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_joint_trajectory_from_a_seed_past_the_limits_starts_within_them(sign: float) -> None:
+    """A seed with axis 6 a full turn beyond its limit is the same pose: the trajectory starts from the seed
+    clipped to the limits and reaches that pose within them."""
+    arm = abb_gofa_crb15000()
+    inside = np.array([0.1, 0.2, -0.3, 0.4, 1.2, sign * 2.0])
+    kin = ArmKinematics(arm, tool_rotation=ArmKinematics(arm).fk(inside)[1])
+    t = np.linspace(0.0, 0.1, 6)
+    path = kin.fk(inside)[0] + np.outer(t, [0.0, 0.0, 0.1])
+    traj = kin.joint_trajectory(t, path, inside + [0, 0, 0, 0, 0, sign * 2 * math.pi])
+    assert np.all(traj.q >= kin.lower) and np.all(traj.q <= kin.upper)
+    np.testing.assert_allclose(traj.q[0], inside, atol=1e-9)
+
+
+def test_joint_trajectory_names_a_single_unreachable_sample_between_the_coarse_ones() -> None:
+    """One sample out of reach between two coarse ones at the TCP home: it is refined from the home joints
+    (both neighbours' solution), and the error gives the residual of the best configuration found from there,
+    the same as ik's, in millimetres and radians."""
+    kin = ArmKinematics(abb_gofa_crb15000())
+    home = kin.ik(TCP_HOME_M).q
+    t = 0.004 * np.arange(21)
+    path = np.tile(TCP_HOME_M, (21, 1))
+    path[6] = [0.0, 2.00004, 0.6]  # 24 ms: not a coarse sample
+    best = kin.ik(path[6], home)
+    assert not best.converged and best.position_error_m > 0.5 and best.rotation_error_rad > 0.1
+    residual = f"{best.position_error_m * 1e3:.3g} mm, {best.rotation_error_rad:.3g} rad"
+    named = r"at t=0\.0240 s for TCP position \[0\.0, 2\.0, 0\.6\] m \(residual "
+    named += residual.replace(".", r"\.")
+    with pytest.raises(IKError, match=named):
+        kin.joint_trajectory(t, path, home)
+
+
+@pytest.mark.parametrize("make_arm", ARMS)
+def test_the_batched_refinement_takes_the_same_steps_as_the_single_solver(make_arm) -> None:
+    """The samples between the coarse ones are refined all at once: each problem of the batch goes through
+    the same iterations as it would alone (same joints, errors and iteration count), whatever the others do:
+    converged from the start, converging at different iterations, out of reach, or stopped at a limit."""
+    arm = make_arm()
+    kin = ArmKinematics(arm)
+    rng = np.random.default_rng(12)
+    q_star = np.stack(_well_conditioned(kin, rng, 6))
+    p, r = kin.fk(q_star)
+    seeds = np.clip(q_star + rng.uniform(-0.4, 0.4, q_star.shape), kin.lower, kin.upper)
+    seeds[0] = q_star[0]  # at the solution already
+    p[1] += [4e-4, 0.0, 0.0]  # within 1 mm of the seed ...
+    seeds[1] = q_star[1]
+    r[2] = rotation_x(4e-3) @ r[2]  # ... within 10 mrad
+    seeds[2] = q_star[2]
+    p[3] = [2.0, 0.5, 0.6]  # out of reach
+    seeds[5, 5] = kin.upper[5]  # at a limit, and the solution a little past it
+    q_star[5, 5] = kin.upper[5]
+    p[5], r[5] = kin.fk(q_star[5] + [0, 0, 0, 0, 0, 0.1])
+    for options in (IKOptions(), IKOptions(position_tolerance_m=1e-3, rotation_tolerance_rad=1e-2),
+                    IKOptions(max_iterations=4), IKOptions(damping_bias=1e-2, rotation_weight_m=0.5)):
+        kin = ArmKinematics(arm, options=options)
+        for rotations in (r, TOOL_DOWN):
+            q, err, used = kin._solve(seeds.copy(), p, rotations, options.max_iterations)
+            assert q.shape == (6, 6) and err.shape == (6, 6)
+            for i in range(6):
+                one = kin._solve_one(seeds[i], p[i], rotations if rotations.ndim == 2 else rotations[i])
+                assert used[i] == one.iterations, (options, i)
+                # Not converged after 100 iterations in a flat valley: rounding drifts further, still small.
+                close = 1e-9 if one.converged else 1e-3
+                np.testing.assert_allclose(q[i], one.q, rtol=0, atol=close)
+                e_pos, e_rot = np.linalg.norm(err[i, :3]), np.linalg.norm(err[i, 3:])
+                assert e_pos == pytest.approx(one.position_error_m, rel=10 * close, abs=1e-15)
+                assert e_rot == pytest.approx(one.rotation_error_rad, rel=10 * close, abs=1e-15)
+            assert np.all(q >= kin.lower) and np.all(q <= kin.upper)
+            converged = (np.linalg.norm(err[:, :3], axis=1) <= options.position_tolerance_m) & (
+                np.linalg.norm(err[:, 3:], axis=1) <= options.rotation_tolerance_rad
+            )
+            assert not converged[3]
+            if options.position_tolerance_m == 1e-3 and rotations is r:
+                assert used[:3].tolist() == [0, 0, 0]  # within the tolerances from the start: untouched
+                np.testing.assert_array_equal(q[:3], seeds[:3])
