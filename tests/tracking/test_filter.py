@@ -555,6 +555,16 @@ def test_a_frame_delivered_twice_is_applied_twice_without_warnings() -> None:
         for z in ([5.0, 0.0, 0.0], [5.0, 0.0, 0.0], [5.0, 1.0, 0.0]):  # the same outlier, then another
             assert not f.update(z, 0.08)
     assert (f.n_rejected, f.n_reinit) == (3, 0)
+    # Even with no speed limit (reinit_speed = inf), two rejections at one time are no pair to re-initialise
+    # from (their speed is infinite); the next agreeing one is.
+    g = PointFilter(sigma_accel=1.0, sigma_meas=0.01, reinit_speed=math.inf)
+    g.update([0.0, 0.0, 0.0], 0.0)
+    assert not g.update([5.0, 0.0, 0.0], 0.08)
+    assert not g.update([6.0, 1.0, -1.0], 0.08)  # moved on every axis
+    assert g.n_reinit == 0
+    assert g.update([6.0, 1.5, -1.0], 0.12)
+    assert g.n_reinit == 1
+    np.testing.assert_allclose(g.estimate(0.12).velocity, [0.0, 12.5, 0.0], rtol=1e-12)
 
 
 def test_lost_exactly_beyond_max_coast_s() -> None:
