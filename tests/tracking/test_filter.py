@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -14,6 +15,7 @@ from dyndlo_vision.tracking import LATENT_LOOP_FILTER, LOOP_FILTER, FilterParams
 from dyndlo_vision.tracking.filter import (
     MultiPointFilter,
     PointFilter,
+    _OneNode,
     _propagate_batch,
     cv_process_noise,
     cv_transition,
@@ -405,3 +407,310 @@ def test_point_filter_deepcopy_is_independent() -> None:
     g = copy.deepcopy(f)
     g.update([0.001, 0, 0], 0.04)
     assert f.n_accepted == 1 and g.n_accepted == 2
+
+
+# Hand-computed cases. One axis of the model with sigma_meas = 0.5, init_speed_sigma = 1, sigma_accel = 4 and
+# frames 0.5 s apart: all numbers are binary fractions, so the filter's arithmetic is exact.
+_EXACT = {"sigma_meas": 0.5, "init_speed_sigma": 1.0, "sigma_accel": 4.0, "max_coast_s": 2.0}
+
+
+def _per_axis(block) -> np.ndarray:
+    """(6, 6) covariance with the same (2, 2) block [[pos, pos-vel], [pos-vel, vel]] on each axis."""
+    return np.kron(np.asarray(block, dtype=float), np.eye(3))
+
+
+def test_prediction_and_update_follow_the_closed_form() -> None:
+    """Initialised at 0 (P = diag(0.25, 1)), predicted 0.5 s: F P F^T = [[0.5, 0.5], [0.5, 1]],
+    Q = 16 [[dt^4/4, dt^3/2], [dt^3/2, dt^2]] = [[0.25, 1], [1, 4]], so P = [[0.75, 1.5], [1.5, 5]] and
+    S = 0.75 + 0.25 = 1: the gain is [0.75, 1.5], and the update leaves P - K S K^T = [[0.1875, 0.375],
+    [0.375, 2.75]]."""
+    f = PointFilter(**_EXACT)
+    assert f.update([0.0, 0.0, 0.0], 0.0)
+    assert f.last_nis == 0.0 and f.n_accepted == 1
+    e = f.estimate(0.0)
+    np.testing.assert_array_equal(e.covariance, _per_axis([[0.25, 0.0], [0.0, 1.0]]))
+    np.testing.assert_array_equal(f.estimate(0.5).covariance, _per_axis([[0.75, 1.5], [1.5, 5.0]]))
+    assert f.update([1.0, -2.0, 0.0], 0.5)
+    assert f.last_nis == 5.0  # |y|^2 / S with S = 1
+    e = f.estimate(0.5)
+    np.testing.assert_array_equal(e.position, [0.75, -1.5, 0.0])
+    np.testing.assert_array_equal(e.velocity, [1.5, -3.0, 0.0])
+    np.testing.assert_array_equal(e.covariance, _per_axis([[0.1875, 0.375], [0.375, 2.75]]))
+    # x + v dt, and F P F^T + Q with Q(0.5) and Q(1) = 16 [[1/4, 1/2], [1/2, 1]].
+    e = f.estimate(1.0)
+    assert e.t == 1.0 and not e.lost
+    np.testing.assert_array_equal(e.position, [1.5, -3.0, 0.0])
+    np.testing.assert_array_equal(e.velocity, [1.5, -3.0, 0.0])
+    np.testing.assert_array_equal(e.covariance, _per_axis([[1.5, 2.75], [2.75, 6.75]]))
+    e = f.estimate(1.5)
+    np.testing.assert_array_equal(e.position, [2.25, -4.5, 0.0])
+    np.testing.assert_array_equal(e.covariance, _per_axis([[7.6875, 11.125], [11.125, 18.75]]))
+
+
+@pytest.mark.parametrize("accel_psd", [None, 6.0])
+def test_nodes_predicted_over_different_spans_each_get_their_own_noise(accel_psd) -> None:
+    """Node 0 initialised at 0, node 1 at 0.5, both read at 1: spans of 1 and 0.5 s. Piecewise noise
+    16 [[dt^4/4, dt^3/2], [dt^3/2, dt^2]]; continuous 6 [[dt^3/3, dt^2/2], [dt^2/2, dt]]."""
+    f = MultiPointFilter(2, accel_psd=accel_psd, **_EXACT)
+    f.update([[0.0, 0.0, 0.0], [np.nan] * 3], 0.0)
+    f.update([[np.nan] * 3, [1.0, 1.0, 1.0]], 0.5)
+    e = f.estimate(1.0)
+    assert e.t == 1.0
+    if accel_psd is None:
+        q1, q05 = [[4.0, 8.0], [8.0, 16.0]], [[0.25, 1.0], [1.0, 4.0]]
+    else:
+        q1, q05 = [[2.0, 3.0], [3.0, 6.0]], [[0.25, 0.75], [0.75, 3.0]]
+    p1 = np.array([[0.25 + 1.0, 1.0], [1.0, 1.0]]) + q1  # F P0 F^T over 1 s, plus Q(1)
+    p05 = np.array([[0.25 + 0.25, 0.5], [0.5, 1.0]]) + q05
+    np.testing.assert_allclose(e.covariances[0], _per_axis(p1), rtol=1e-14, atol=0)
+    np.testing.assert_allclose(e.covariances[1], _per_axis(p05), rtol=1e-14, atol=0)
+    # One node alone over exactly 1 s gets Q(1) too.
+    p1_alone = np.array([[1.25, 1.0], [1.0, 1.0]]) + q1
+    np.testing.assert_allclose(f.estimate(1.5).covariances[1], _per_axis(p1_alone), rtol=1e-14, atol=0)
+
+
+def test_gate_is_the_chi_square_quantile_with_three_degrees_of_freedom() -> None:
+    """P(chi2_3 <= x) = erf(sqrt(x / 2)) - sqrt(2 x / pi) exp(-x / 2)."""
+    for prob in (0.5, 0.99, 0.997):
+        x = MultiPointFilter(1, gate_prob=prob).gate_threshold
+        cdf = math.erf(math.sqrt(x / 2)) - math.sqrt(2 * x / math.pi) * math.exp(-x / 2)
+        assert cdf == pytest.approx(prob, abs=1e-12)
+    assert PointFilter().gate_threshold == pytest.approx(13.9314, abs=1e-4)
+
+
+def _gated_at_one(y: np.ndarray, gate_threshold: float | None = None) -> tuple[bool, PointFilter]:
+    """Measures y at 0.5 s after an initialisation at 0: the innovation covariance is exactly I, so the
+    squared Mahalanobis distance is |y|^2."""
+    f = PointFilter(**_EXACT)
+    if gate_threshold is not None:
+        f.points.gate_threshold = gate_threshold
+    f.update([0.0, 0.0, 0.0], 0.0)
+    return f.update(y, 0.5), f
+
+
+def test_gate_accepts_up_to_its_threshold_and_rejects_beyond() -> None:
+    r = math.sqrt(PointFilter().gate_threshold)
+    for direction in (np.array([1.0, 0.0, 0.0]), np.array([0.0, -0.6, 0.8])):
+        assert _gated_at_one(r * (1 - 1e-9) * direction)[0]
+        ok, f = _gated_at_one(r * (1 + 1e-9) * direction)
+        assert not ok and f.n_rejected == 1 and f.n_reinit == 0
+        np.testing.assert_array_equal(f.estimate(0.5).position, [0.0, 0.0, 0.0])  # rejected: coasted
+    # Exactly at the threshold (a round one, so that |y|^2 can equal it): accepted; one bit beyond: rejected.
+    assert _gated_at_one(np.array([2.0, 0.0, 0.0]), gate_threshold=4.0)[0]
+    ok, f = _gated_at_one(np.array([np.nextafter(2.0, 3.0), 0.0, 0.0]), gate_threshold=4.0)
+    assert not ok and f.last_nis > 4.0
+
+
+def test_two_agreeing_rejections_reinitialise_at_exactly_reinit_speed() -> None:
+    """Outliers 100 m off: the first rejection (N - 1) keeps the state; a second one that implies a speed of
+    at most reinit_speed (N = 2) re-initialises there with that velocity; a faster pair does not."""
+    f = PointFilter(sigma_accel=1.0, sigma_meas=0.01, reinit_speed=10.0, init_speed_sigma=3.0,
+                    max_coast_s=2.0)
+    f.update([0.0, 0.0, 0.0], 0.0)
+    assert not f.update([100.0, 0.0, 0.0], 0.25)
+    assert f.n_rejected == 1 and f.n_reinit == 0
+    np.testing.assert_array_equal(f.estimate(0.25).position, [0.0, 0.0, 0.0])
+    assert f.update([102.5, 0.0, 0.0], 0.5)  # 2.5 m in 0.25 s: exactly 10 m/s
+    assert (f.n_rejected, f.n_reinit, f.n_accepted) == (2, 1, 2)
+    assert f.last_nis > f.gate_threshold  # the distance of the measurement that re-initialised
+    e = f.estimate(0.5)
+    np.testing.assert_array_equal(e.position, [102.5, 0.0, 0.0])
+    np.testing.assert_array_equal(e.velocity, [10.0, 0.0, 0.0])
+    np.testing.assert_array_equal(e.covariance, np.diag([1e-4] * 3 + [9.0] * 3))
+    # Again: two agreeing outliers (at rest) re-initialise a second time.
+    assert not f.update([0.0, 0.0, 0.0], 0.75)
+    assert f.update([0.0, 0.0, 0.0], 1.0)
+    assert (f.n_rejected, f.n_reinit, f.n_accepted) == (4, 2, 3)
+    np.testing.assert_array_equal(f.estimate(1.0).velocity, [0.0, 0.0, 0.0])
+
+    g = PointFilter(sigma_accel=1.0, sigma_meas=0.01, reinit_speed=10.0, max_coast_s=2.0)
+    g.update([0.0, 0.0, 0.0], 0.0)
+    assert not g.update([100.0, 0.0, 0.0], 0.25)
+    assert not g.update([np.nextafter(102.5, 103.0), 0.0, 0.0], 0.5)  # a hair faster than 10 m/s
+    assert (g.n_rejected, g.n_reinit, g.n_accepted) == (2, 0, 1)
+    np.testing.assert_array_equal(g.estimate(0.5).position, [0.0, 0.0, 0.0])
+
+
+def test_reinitialisation_speed_is_per_node() -> None:
+    """Two nodes each jump and move on at 8 m/s (below reinit_speed = 10, though 11.3 m/s together): both
+    re-initialise."""
+    f = MultiPointFilter(2, sigma_accel=1.0, sigma_meas=0.01, reinit_speed=10.0, max_coast_s=2.0)
+    f.update(np.zeros((2, 3)), 0.0)
+    assert not f.update([[50.0, 0.0, 0.0], [0.0, 50.0, 0.0]], 0.25).any()
+    np.testing.assert_array_equal(f.update([[52.0, 0.0, 0.0], [0.0, 52.0, 0.0]], 0.5), [True, True])
+    np.testing.assert_array_equal(f.n_reinit, [1, 1])
+    np.testing.assert_array_equal(f.estimate(0.5).velocities, [[8.0, 0.0, 0.0], [0.0, 8.0, 0.0]])
+
+
+def test_a_frame_delivered_twice_is_applied_twice_without_warnings() -> None:
+    """Two measurements with the same capture time: both in order; rejected twice at the same time they imply
+    no speed (no re-initialisation) and no division warning."""
+    f = PointFilter(sigma_accel=1.0, sigma_meas=0.01)
+    f.update([0.0, 0.0, 0.0], 0.0)
+    assert f.update([0.001, 0.0, 0.0], 0.04)
+    assert f.update([0.001, 0.0, 0.0], 0.04)
+    assert f.n_accepted == 3
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for z in ([5.0, 0.0, 0.0], [5.0, 0.0, 0.0], [5.0, 1.0, 0.0]):  # the same outlier, then another
+            assert not f.update(z, 0.08)
+    assert (f.n_rejected, f.n_reinit) == (3, 0)
+    # Even with no speed limit (reinit_speed = inf), two rejections at one time are no pair to re-initialise
+    # from (their speed is infinite); the next agreeing one is.
+    g = PointFilter(sigma_accel=1.0, sigma_meas=0.01, reinit_speed=math.inf)
+    g.update([0.0, 0.0, 0.0], 0.0)
+    assert not g.update([5.0, 0.0, 0.0], 0.08)
+    assert not g.update([6.0, 1.0, -1.0], 0.08)  # moved on every axis
+    assert g.n_reinit == 0
+    assert g.update([6.0, 1.5, -1.0], 0.12)
+    assert g.n_reinit == 1
+    np.testing.assert_allclose(g.estimate(0.12).velocity, [0.0, 12.5, 0.0], rtol=1e-12)
+
+
+def test_lost_exactly_beyond_max_coast_s() -> None:
+    f = PointFilter(max_coast_s=0.25)
+    assert f.is_lost_at(0.0)  # never initialised
+    f.update([0.0, 0.0, 0.0], 0.5)
+    for t in (0.25, 0.5, 0.75):
+        assert not f.is_lost_at(t) and not f.estimate(t).lost
+    for t in (0.25 - 2**-54, np.nextafter(0.75, 1.0)):  # the nearest spans beyond 0.25 s
+        assert f.is_lost_at(t) and f.estimate(t).lost
+    assert not f.update(None, 0.75) and not f.is_lost
+    # Still tracked at exactly max_coast_s: a far measurement is gated, not taken as a re-acquisition.
+    assert not f.update([10.0, 0.0, 0.0], 0.75)
+    f.update(None, np.nextafter(0.75, 1.0))
+    assert f.is_lost
+    assert f.update([10.0, 0.0, 0.0], 0.8)  # lost: re-initialised without gating
+    assert f.last_nis == 0.0 and not f.is_lost
+
+
+def test_missed_frames_are_counted() -> None:
+    f = MultiPointFilter(2)
+    for k in range(3):
+        assert not f.update(None, 0.04 * k).any()
+    f.update([[0.0, 0.0, 0.0], [np.nan, 0.0, 0.0]], 0.12)
+    np.testing.assert_array_equal(f.n_missed, [3, 4])
+    assert f.n_missed.dtype == np.int64
+
+
+def test_fresh_and_reset_filters_know_nothing() -> None:
+    f = MultiPointFilter(3)
+    for _ in range(2):
+        assert not f.initialized.any() and f.is_lost_at(0.0).all()
+        np.testing.assert_array_equal(f.t_state, [-math.inf] * 3)
+        assert f.t_last_seen == -math.inf and np.isnan(f.last_nis).all()
+        assert f.last_accepted.dtype == bool and not f.last_accepted.any()
+        for counts in (f.n_accepted, f.n_rejected, f.n_missed, f.n_reinit):
+            assert counts.dtype == np.int64
+            np.testing.assert_array_equal(counts, 0)
+        f.update(np.zeros((3, 3)), 0.0)
+        f.update(np.full((3, 3), 9.0), 0.04)
+        f.update(None, 0.08)
+        f.reset()
+    p = PointFilter()
+    p.update([0.0, 0.0, 0.0], 0.0)
+    p.update([5.0, 0.0, 0.0], 0.04)
+    p.update(None, 0.08)
+    counts = (p.n_accepted, p.n_rejected, p.n_missed, p.n_reinit)
+    assert counts == (1, 1, 1, 0) and all(isinstance(c, int) for c in counts)
+    p.reset()
+    assert p.t_state == -math.inf and not p.initialized and p.is_lost_at(0.0)
+
+
+def test_invalid_arguments_are_refused() -> None:
+    with pytest.raises(ValueError, match="n_points"):
+        MultiPointFilter(0)
+    f = PointFilter()
+    for t in (math.nan, math.inf):
+        with pytest.raises(ValueError, match="finite"):
+            f.update([0.0, 0.0, 0.0], t)
+
+
+def test_visibility_given_as_integers_or_a_column() -> None:
+    z = np.arange(9.0).reshape(3, 3)
+    for visible in ([1, 0, 1], [[True], [False], [True]], np.array([[1], [0], [1]])):
+        f = MultiPointFilter(3)
+        np.testing.assert_array_equal(f.update(z, 0.0, visible=visible), [True, False, True])
+        np.testing.assert_array_equal(f.initialized, [True, False, True])
+
+
+def test_measurement_covariance_is_used() -> None:
+    """A given R initialises the position covariance and weighs the update: with P_pos = R = diag(a) before
+    the update (same time), the gain is 1/2 per axis."""
+    R = np.diag([1e-4, 4e-4, 9e-4])
+    p = PointFilter()
+    p.update([0.0, 0.0, 0.0], 0.0, R=R)
+    np.testing.assert_array_equal(p.estimate(0.0).covariance[:3, :3], R)
+    assert p.update([0.01, 0.02, 0.03], 0.0, R=R)
+    np.testing.assert_allclose(p.estimate(0.0).position, [0.005, 0.01, 0.015], rtol=1e-12)
+    np.testing.assert_allclose(p.estimate(0.0).covariance[:3, :3], R / 2, rtol=1e-12)
+    # One covariance per node.
+    m = MultiPointFilter(2)
+    Rs = np.stack([R, 4 * R])
+    m.update(np.zeros((2, 3)), 0.0, R=Rs)
+    np.testing.assert_array_equal(m.estimate(0.0).covariances[:, :3, :3], Rs)
+    m.update(np.full((2, 3), 0.01), 0.0, R=R)
+    np.testing.assert_allclose(m.estimate(0.0).positions[:, 0], [0.005, 0.008], rtol=1e-12)  # gains 1/2, 4/5
+
+
+def _late_run(order, R_of=None, **overrides):
+    f = PointFilter(**overrides)
+    results = {}
+    for t in order:
+        z = np.array([0.6 * t + 0.001 * math.sin(40 * t), -0.3 * t, 0.2])
+        results[t] = f.update(z, t, R=None if R_of is None else R_of(t))
+    return f, results
+
+
+def test_replayed_late_measurement_with_its_covariance_equals_in_order() -> None:
+    """The replay window keeps the snapshot before every measurement captured within history_s of the latest:
+    with history_s = 0.25, updates at 0, 0.25 and 0.5 keep those of 0.25 and 0.5, so one captured at 0.375
+    arriving last is replayed exactly, each measurement with its own covariance."""
+    def R_of(t):
+        return np.eye(3) * (1e-5 * (1 + 8 * t))
+
+    in_order, _ = _late_run([0.0, 0.25, 0.375, 0.5], R_of, history_s=0.25, max_coast_s=1.0)
+    late, res = _late_run([0.0, 0.25, 0.5, 0.375], R_of, history_s=0.25, max_coast_s=1.0)
+    assert res[0.375]
+    a, b = in_order.estimate(0.5), late.estimate(0.5)
+    np.testing.assert_array_equal(b.position, a.position)
+    np.testing.assert_array_equal(b.covariance, a.covariance)
+    assert late.n_accepted == in_order.n_accepted == 4
+    # Without the covariances the result differs (the test above would notice a dropped R).
+    plain, _ = _late_run([0.0, 0.25, 0.375, 0.5], history_s=0.25, max_coast_s=1.0)
+    assert not np.array_equal(plain.estimate(0.5).covariance, a.covariance)
+
+
+def test_measurement_older_than_the_history_is_dropped() -> None:
+    """Updates at 0 and 0.5 with history_s = 0.25: the snapshot of 0 is forgotten, so a measurement
+    captured at 0.125 (0.375 s old) is dropped and changes nothing."""
+    f, _ = _late_run([0.0, 0.5], history_s=0.25, max_coast_s=1.0)
+    before = f.estimate(0.5)
+    m = f.points
+    acc = m.update(np.array([[0.075, -0.0375, 0.2]]), 0.125)
+    assert acc.dtype == bool and not acc.any()
+    after = f.estimate(0.5)
+    np.testing.assert_array_equal(after.position, before.position)
+    np.testing.assert_array_equal(after.covariance, before.covariance)
+    assert f.n_accepted == 2
+
+
+def test_estimates_of_uninitialised_nodes_are_nan_and_carry_the_query_time() -> None:
+    f = MultiPointFilter(2)
+    f.update([[0.0, 0.0, 0.0], [np.nan] * 3], 0.0)
+    e = f.estimate(0.04)
+    assert e.t == 0.04
+    assert np.isfinite(e.velocities[0]).all() and np.isfinite(e.covariances[0]).all()
+    assert np.isnan(e.velocities[1]).all() and np.isnan(e.covariances[1]).all()
+    p = f.estimate_point(0, 0.08)
+    assert p.t == 0.08 and not p.lost
+
+
+def test_one_node_attributes_read_node_zero() -> None:
+    class Holder:
+        count = _OneNode()
+
+        def __init__(self) -> None:
+            self.points = type("P", (), {"count": np.array([7, 8])})()
+
+    assert Holder().count == 7
