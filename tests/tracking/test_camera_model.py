@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -317,3 +318,117 @@ def test_distorted_pixels_that_are_nan_stay_nan(distorted_camera: PinholeCamera)
     xn = distorted_camera.normalized_coords([[320.0, 240.0], [np.nan, 10.0]])
     assert np.isfinite(xn[0]).all() and np.isnan(xn[1]).all()
     assert distorted_camera.normalized_coords(np.zeros((0, 2))).shape == (0, 2)
+
+
+# ----------------------------------------------------------------------------- rays and planes, by hand
+def _down_camera() -> PinholeCamera:
+    """2 m above the origin looking straight down: the ray through pixel (50 + 100 a, 40 + 100 b) runs along
+    (a, -b, -1) in the world; the one through the principal point (50, 40) exactly along -z."""
+    K = np.array([[100.0, 0.0, 50.0], [0.0, 100.0, 40.0], [0.0, 0.0, 1.0]])
+    return PinholeCamera(101, 81, K, np.zeros(0), np.diag([1.0, -1.0, -1.0]), np.array([0.0, 0.0, 2.0]))
+
+
+def test_a_plane_normal_as_a_column_or_a_row_is_the_same_plane() -> None:
+    cam = _down_camera()
+    for normal in ([0.0, 0.0, 2.0], [[0.0], [0.0], [2.0]], [[0.0, 0.0, 2.0]], [0, 0, 1]):
+        np.testing.assert_allclose(cam.intersect_plane([[60.0, 20.0]], normal, 0.0), [[0.2, 0.4, 0.0]])
+
+
+def test_the_parallel_limit_is_1e_9_of_the_normal_whatever_its_scale() -> None:
+    cam = _down_camera()
+    axis = [[50.0, 40.0]]  # the ray straight down
+    for k in (1e-6, 1.0, 1e6):
+        # cos(ray, normal) = 5e-10: parallel at every scale of the normal.
+        with pytest.raises(ValueError, match="parallel"):
+            cam.intersect_plane(axis, np.array([1.0, 0.0, 5e-10]) * k, 0.0)
+        # cos = 2e-9: meets the plane x + 2e-9 (z - 1) = 0 at (0, 0, 1).
+        np.testing.assert_allclose(cam.intersect_plane(axis, np.array([1.0, 0.0, 2e-9]) * k, -2e-9 * k),
+                                   [[0.0, 0.0, 1.0]], atol=1e-9)
+    # Exactly at the limit (|ray . n| = 1e-9 |n|) is not parallel yet.
+    at_limit = cam.intersect_plane(axis, [1.0, 0.0, 1e-9], -1e-9)
+    np.testing.assert_allclose(at_limit, [[0.0, 0.0, 1.0]], atol=1e-9)
+
+
+def test_a_plane_through_the_camera_centre_is_refused_one_closer_than_a_metre_is_not() -> None:
+    cam = _down_camera()
+    with pytest.raises(ValueError, match=r"behind the camera .*pixel \(50,40\) \(ray parameter 0 m <= 0\)"):
+        cam.intersect_plane([[50.0, 40.0]], [0.0, 0.0, 1.0], -2.0)  # z = 2: the camera's own height
+    # z = 1.5, half a metre below the camera.
+    np.testing.assert_allclose(cam.intersect_plane([[50.0, 40.0], [60.0, 20.0]], [0.0, 0.0, 1.0], -1.5),
+                               [[0.0, 0.0, 1.5], [0.05, 0.1, 1.5]], atol=1e-12)
+
+
+def test_the_error_names_the_first_pixel_whose_ray_misses() -> None:
+    cam = _down_camera()
+    uv = [[50.0, 40.0], [100.0, 40.0], [150.0, 40.0]]  # rays along (0,0,-1), (0.5,0,-1), (1,0,-1)
+    # Normal (1, 0, 0.5) is perpendicular to the second ray only.
+    with pytest.raises(ValueError, match=r"parallel to the camera ray through pixel \(100,40\)"):
+        cam.intersect_plane(uv, [1.0, 0.0, 0.5], 0.0)
+    # The plane z = 1 - 3x: the first ray meets it 1 m down, the second and third behind the camera.
+    with pytest.raises(ValueError, match=r"behind the camera along the ray through pixel \(100,40\)"):
+        cam.intersect_plane(uv, [3.0, 0.0, 1.0], -1.0)
+
+
+def test_integer_pixels_undistort_like_float_pixels(distorted_camera: PinholeCamera) -> None:
+    uv = [[320, 240], [10, 20], [600, 450]]
+    np.testing.assert_array_equal(distorted_camera.normalized_coords(uv),
+                                  distorted_camera.normalized_coords(np.asarray(uv, dtype=float)))
+    # Far from the centre, barrel distortion (k1 < 0) pulls pixels in: undistorted, they lie further out.
+    xn = distorted_camera.normalized_coords(uv)
+    assert abs(xn[1, 0]) > abs((10 - distorted_camera.K[0, 2]) / distorted_camera.K[0, 0])
+
+
+# ----------------------------------------------------------------------------- the calibration file
+def test_the_calibration_file_is_indented_json_with_fps_last(tmp_path) -> None:
+    cam = PinholeCamera(**{**_down_camera().to_dict(), "fps": 30.0})
+    path = tmp_path / "cam.json"
+    cam.to_json(path)
+    text = path.read_text(encoding="utf-8")
+    assert text.startswith('{\n  "width": 101,\n  "height": 81,\n  "K": [\n    [\n      100.0,\n      0.0,\n')
+    assert text.endswith('\n  "t": [\n    0.0,\n    0.0,\n    2.0\n  ],\n  "fps": 30.0\n}\n')
+
+
+def test_the_calibration_is_written_next_to_its_file_and_renamed_over_it(tmp_path, monkeypatch) -> None:
+    import os
+
+    from dyndlo_vision.tracking import camera_model
+
+    path = tmp_path / "cam.json"
+    renames = []
+    real_replace = os.replace
+
+    def replace(src, dst):
+        renames.append((Path(src), Path(dst)))
+        real_replace(src, dst)
+
+    monkeypatch.setattr(camera_model.os, "replace", replace)
+    _down_camera().to_json(path)
+    [(tmp, dst)] = renames
+    assert dst == path and tmp.parent == tmp_path  # same folder: the rename is atomic
+    assert tmp.name.startswith(".cam.json.") and tmp.name.endswith(".tmp")  # hidden, named after its file
+    assert PinholeCamera.from_json(path).to_dict() == _down_camera().to_dict()
+
+
+def test_a_failed_write_keeps_the_old_calibration_and_leaves_no_temporary_file(tmp_path, monkeypatch) -> None:
+    from dyndlo_vision.tracking import camera_model
+
+    path = tmp_path / "cam.json"
+    look_at_camera().to_json(path)
+    before = path.read_text(encoding="utf-8")
+
+    def replace(src, dst):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(camera_model.os, "replace", replace)
+    with pytest.raises(OSError, match="disk full"):
+        _down_camera().to_json(path)
+    assert path.read_text(encoding="utf-8") == before
+    assert list(tmp_path.iterdir()) == [path]
+
+
+def test_a_bad_calibration_file_is_named_in_the_error(tmp_path) -> None:
+    path = tmp_path / "left.json"
+    path.write_text(json.dumps({**_down_camera().to_dict(), "width": 0}), encoding="utf-8")
+    with pytest.raises(CalibrationError) as exc:
+        PinholeCamera.from_json(path)
+    assert str(exc.value) == f"{path}: width must be a positive int, got 0"

@@ -79,3 +79,119 @@ def test_lift_with_plane_parallel_raises(camera: PinholeCamera) -> None:
     normal = np.cross(d[0], [0.0, 0.0, 1.0])
     with pytest.raises(ValueError, match="parallel"):
         lift_with_plane(uv, camera, (normal, 0.0))
+
+
+# ----------------------------------------------------------------------------- lifting, by hand
+def _tiny_camera(width: int = 4, height: int = 4) -> PinholeCamera:
+    """Camera frame = world frame, f = 10 px: pixel (u, v) at depth z lifts to
+    ((u - cx) z / 10, (v - cy) z / 10, z)."""
+    K = np.array([[10.0, 0.0, (width - 1) / 2], [0.0, 10.0, (height - 1) / 2], [0.0, 0.0, 1.0]])
+    return PinholeCamera(width, height, K, np.zeros(0), np.eye(3), np.zeros(3))
+
+
+def _at_depth(uv: list[list[float]], z: list[float], c: float = 1.5) -> np.ndarray:
+    uv_a, z_a = np.asarray(uv, dtype=float), np.asarray(z, dtype=float)
+    return np.column_stack(((uv_a - c) * z_a[:, None] / 10.0, z_a))
+
+
+def test_lift_with_depth_reads_the_pixel_each_coordinate_rounds_to() -> None:
+    rows, cols = np.mgrid[0:4, 0:4]
+    depth = 0.5 + 0.1 * rows + 0.01 * cols  # under a metre, every pixel different
+    uv = [[2.4, 0.6], [0.6, 2.4], [-0.4, 3.4], [3.4, -0.4], [np.nan, 1.0]]
+    # (col, row) = (2, 1), (1, 2), (0, 3), (3, 0): the image's first and last rows and columns included.
+    expected = _at_depth(uv[:4], [0.62, 0.71, 0.80, 0.53])
+    lifted = lift_with_depth(uv, depth, _tiny_camera(), window=0)
+    np.testing.assert_allclose(lifted[:4], expected, atol=1e-12)
+    assert np.isnan(lifted[4]).all()
+    # A depth image with a channel axis, (H, W, 1), reads the same.
+    np.testing.assert_allclose(lift_with_depth(uv, depth[:, :, None], _tiny_camera(), window=0), lifted)
+
+
+def test_lift_with_depth_gives_nan_for_pixels_off_the_image() -> None:
+    depth = np.full((4, 4), 0.5)
+    # Columns -1 and 4, rows -1 and 4 after rounding; the last one is inside.
+    uv = [[-0.6, 1.0], [3.6, 1.0], [1.0, -0.6], [1.0, 3.6], [-0.6, -0.6], [1.0, 1.0]]
+    lifted = lift_with_depth(uv, depth, _tiny_camera())
+    assert np.isnan(lifted[:5]).all()
+    np.testing.assert_allclose(lifted[5], [-0.025, -0.025, 0.5], atol=1e-12)
+
+
+@pytest.mark.parametrize("transpose", [False, True])
+def test_lift_with_depth_cuts_the_window_at_the_border_instead_of_wrapping(transpose: bool) -> None:
+    rows = np.mgrid[0:4, 0:4][0]
+    depth = 0.5 + 0.1 * rows  # depth grows down the image (or to the right, transposed)
+    uv = np.array([[1.0, 0.0], [1.0, 3.0]])
+    if transpose:
+        depth, uv = depth.T, uv[:, ::-1]
+    # The 3x3 window at the first row holds rows (0, 0, 1): median 0.5; at the last row (2, 3, 3): 0.8.
+    np.testing.assert_allclose(lift_with_depth(uv, depth, _tiny_camera())[:, 2], [0.5, 0.8], atol=1e-12)
+
+
+def test_lift_with_depth_takes_the_median_of_the_3x3_window_by_default() -> None:
+    depth = np.full((7, 7), 0.5)
+    depth[2, 2:5] = 2.0  # background above the cable pixel (3, 3) ...
+    depth[3, 2] = 2.0  # ... and to its left: 4 of its 9 window pixels
+    cam, uv = _tiny_camera(7, 7), [[3.0, 3.0]]
+    assert lift_with_depth(uv, depth, cam)[0, 2] == 0.5  # a minority: the cable's depth
+    depth[4, 2] = 2.0  # 5 of 9: the background's
+    assert lift_with_depth(uv, depth, cam)[0, 2] == 2.0
+    assert lift_with_depth(uv, depth, cam, window=0)[0, 2] == 0.5  # the pixel alone
+    assert lift_with_depth(uv, depth, cam, window=2)[0, 2] == 0.5  # 5 of 25
+
+
+def test_lift_with_depth_ignores_invalid_depths_in_the_window() -> None:
+    depth = np.full((4, 4), np.nan)
+    depth[1, 1], depth[1, 2], depth[2, 1] = 0.0, -1.0, np.inf
+    depth[2, 2], depth[0, 0] = 0.6, 0.9  # the only valid depths in (1, 1)'s window
+    lifted = lift_with_depth([[1.0, 1.0]], depth, _tiny_camera())
+    np.testing.assert_allclose(lifted, _at_depth([[1, 1]], [0.75]))
+    assert np.isnan(lift_with_depth([[1.0, 1.0]], depth, _tiny_camera(), window=0)).all()
+
+
+def test_lifting_takes_visibility_as_any_0_1_mask() -> None:
+    depth = np.full((4, 4), 0.5)
+    uv = [[1.0, 1.0], [2.0, 2.0], [1.0, 2.0]]
+    for visible in ([1, 0, 1], [[True], [False], [True]], np.array([1.0, 0.0, 1.0])):
+        lifted = lift_with_depth(uv, depth, _tiny_camera(), visible=visible)
+        np.testing.assert_allclose(lifted[[0, 2]], _at_depth([uv[0], uv[2]], [0.5, 0.5]), atol=1e-12)
+        assert np.isnan(lifted[1]).all()
+        on_plane = lift_with_plane(uv, _tiny_camera(), Plane(np.array([0.0, 0.0, 1.0]), -0.5), visible)
+        np.testing.assert_allclose(on_plane[[0, 2]], lifted[[0, 2]], atol=1e-12)
+        assert np.isnan(on_plane[1]).all()
+
+
+def _down_camera() -> PinholeCamera:
+    """2 m above the origin looking down: pixel (60, 20) sees along (0.1, 0.2, -1), (50, 40) straight down."""
+    K = np.array([[100.0, 0.0, 50.0], [0.0, 100.0, 40.0], [0.0, 0.0, 1.0]])
+    return PinholeCamera(101, 81, K, np.zeros(0), np.diag([1.0, -1.0, -1.0]), np.array([0.0, 0.0, 2.0]))
+
+
+def test_lift_with_plane_skips_invisible_and_nan_pixels() -> None:
+    uv = [[60.0, 20.0], [np.nan, 20.0], [50.0, 40.0], [60.0, 20.0]]
+    ground = Plane(np.array([0.0, 0.0, 1.0]), 0.0)
+    lifted = lift_with_plane(uv, _down_camera(), ground, visible=[True, True, True, False])
+    np.testing.assert_allclose(lifted[[0, 2]], [[0.2, 0.4, 0.0], [0.0, 0.0, 0.0]], atol=1e-12)
+    assert np.isnan(lifted[[1, 3]]).all()
+    np.testing.assert_allclose(lift_with_plane(uv, _down_camera(), ground)[[0, 2, 3]],
+                               [[0.2, 0.4, 0.0], [0.0, 0.0, 0.0], [0.2, 0.4, 0.0]], atol=1e-12)
+
+
+def test_lift_with_plane_moves_only_points_under_the_floor_onto_it() -> None:
+    uv, ground = [[60.0, 20.0], [50.0, 40.0]], (np.array([0.0, 0.0, 1.0]), 0.0)
+    # The floor z = 0.5 is above the plane z = 0: the rays meet it first.
+    high = lift_with_plane(uv, _down_camera(), ground, floor=Plane(np.array([0.0, 0.0, 1.0]), -0.5))
+    np.testing.assert_allclose(high, [[0.15, 0.3, 0.5], [0.0, 0.0, 0.5]], atol=1e-12)
+    # The floor z = -0.5 is under the plane: nothing changes.
+    low = lift_with_plane(uv, _down_camera(), ground, floor=Plane(np.array([0.0, 0.0, 1.0]), 0.5))
+    np.testing.assert_allclose(low, [[0.2, 0.4, 0.0], [0.0, 0.0, 0.0]], atol=1e-12)
+
+
+def test_a_node_is_measured_only_when_visible_and_finite() -> None:
+    xyz = np.array([[0.1, 0.2, 0.3], [np.nan, 0.0, 0.0], [0.4, 0.5, 0.6]])
+    m = Measurement(xyz, np.zeros((3, 2)), np.array([False, True, True]), 0.0)
+    assert m.point(0) is None  # hidden, even with a position
+    assert m.point(1) is None  # visible but not lifted
+    p = m.point()
+    np.testing.assert_array_equal(p, [0.4, 0.5, 0.6])
+    p[0] = 9.0
+    assert m.nodes_xyz[2, 0] == 0.4  # a copy
