@@ -329,3 +329,270 @@ def test_moving_targets_lost_counts_what_never_arrived() -> None:
     assert moving_targets_lost(q + rest, q + rest[:1]) == 0  # the last repeat overwritten: not a loss
     assert moving_targets_lost(q, q[:4] + q[5:]) == 1  # one moving target overwritten
     assert moving_targets_lost(q, list(reversed(q))) == 9  # out of order: only one matches in order
+
+
+HOME = np.array(TCP_HOME_M)
+BIG_BOX = WorkspaceBox((-2, -2, -2), (2, 2, 2))
+
+
+class _Hold:
+    """A plan that holds the point ``dx`` (m, along x) from home between ``t_start`` and ``t_end``: what is
+    sent follows from it by hand."""
+
+    def __init__(self, dx: float, t_start: float, t_end: float) -> None:
+        self.points = np.tile(HOME + [dx, 0.0, 0.0], (2, 1))
+        self.t_start, self.t_end = t_start, t_end
+
+    def position(self, t: np.ndarray) -> np.ndarray:
+        return np.tile(self.points[0], (np.size(t), 1))
+
+    def velocity(self, t: np.ndarray) -> np.ndarray:
+        return np.zeros((np.size(t), 3))
+
+    def shifted(self, dt: float) -> _Hold:
+        return _Hold(self.points[0, 0] - HOME[0], self.t_start + dt, self.t_end + dt)
+
+
+class _Planner:
+    """A replanner whose plans the test sets (home at rest before any)."""
+
+    def __init__(self) -> None:
+        self.trajectory: _Hold | None = None
+
+    def references(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        p = np.tile(HOME, (np.size(t), 1, 1))
+        return p, np.zeros_like(p)
+
+
+def _dx(sent: Setpoints) -> np.ndarray:
+    return sent.position[:, 0, 0] - HOME[0]
+
+
+def test_horizon_robot_switches_to_a_plan_at_its_start_and_forgets_superseded_ones() -> None:
+    driver, planner = _Driver(), _Planner()
+    robot = HorizonRobot(driver, planner, BIG_BOX, 10.0, lead_s=0.08)
+    k = np.arange(1, 200)
+    planner.trajectory = _Hold(0.0, 1.0 + 0.004 * 10, 1.6)
+    robot.send(NOTHING)
+    planner.trajectory = _Hold(0.01, 1.0 + 0.004 * 20, 1.6)  # starts on the 20th setpoint exactly
+    robot.send(NOTHING)
+    sent = driver.sent[-1]
+    np.testing.assert_array_equal(sent.t, 1.0 + 0.004 * k[:150])
+    np.testing.assert_allclose(_dx(sent), np.where(k[:150] >= 20, 0.01, 0.0), atol=1e-12)
+    # The second plan has started: the first is superseded, the second followed until the third starts.
+    driver.t = 1.0 + 0.004 * 25
+    planner.trajectory = _Hold(0.02, 1.0 + 0.004 * 40, 1.6)
+    robot.send(NOTHING)
+    sent = driver.sent[-1]
+    np.testing.assert_allclose(sent.t[[0, -1]], [1.104, 1.6])
+    np.testing.assert_allclose(_dx(sent), np.where(k[25:150] >= 40, 0.02, 0.01), atol=1e-12)
+    assert robot.sends == 3 and robot.plans_late == 0
+
+
+def test_horizon_robot_sends_to_the_plans_end_or_holds_it_a_quarter_second() -> None:
+    driver, planner = _Driver(), _Planner()
+    robot = HorizonRobot(driver, planner, BIG_BOX, 10.0, lead_s=0.08)
+    planner.trajectory = _Hold(0.01, 1.2, 1.5)  # ends 125 periods after the last target: no setpoint past it
+    robot.send(NOTHING)
+    sent = driver.sent[-1]
+    assert sent.t.size == 125 and sent.t[-1] == pytest.approx(1.5)
+    driver.t = 1.4
+    planner.trajectory = _Hold(0.01, 1.45, 1.5)  # ends in 0.1 s: held at its end to 0.25 s on the grid
+    robot.send(NOTHING)
+    sent = driver.sent[-1]
+    np.testing.assert_allclose(sent.t, 1.4 + 0.004 * np.arange(1, 64))
+    np.testing.assert_allclose(_dx(sent), 0.01)
+    np.testing.assert_array_equal(sent.velocity, 0.0)
+
+
+def test_horizon_robot_before_any_plan_sends_home_at_rest_once_and_counts_its_cycles() -> None:
+    driver = _Driver()
+    robot, replanner, spec = _horizon(driver)
+    robot.send(NOTHING)  # no plan yet (e.g. a loop that ended before planning): the arm held at home
+    sent = driver.sent[-1]
+    np.testing.assert_allclose(sent.t, 1.0 + 0.004 * np.arange(1, 64))  # 0.25 s, on the driver's grid
+    np.testing.assert_array_equal(sent.position, np.tile(HOME, (63, 1, 1)))
+    np.testing.assert_array_equal(sent.velocity, 0.0)
+    assert (robot.sends, robot.unchanged) == (1, 0)
+    robot.send(NOTHING)
+    assert len(driver.sent) == 1 and (robot.sends, robot.unchanged) == (1, 1)
+    replanner.replan(np.full(spec.size, 0.3), robot.state().t)
+    robot.send(NOTHING)
+    robot.send(NOTHING)
+    robot.send(NOTHING)
+    assert len(driver.sent) == 2 and (robot.sends, robot.unchanged, robot.clamped_sends) == (2, 3, 0)
+
+
+def test_horizon_robot_counts_the_sends_the_clamps_changed() -> None:
+    driver, planner = _Driver(), _Planner()
+    box = WorkspaceBox((-2, -2, -2), (HOME[0] + 0.005, 2, 2))
+    robot = HorizonRobot(driver, planner, box, 10.0, lead_s=0.08)
+    planner.trajectory = _Hold(0.01, 1.04, 1.6)  # 5 mm outside the box
+    robot.send(NOTHING)
+    np.testing.assert_allclose(_dx(driver.sent[-1])[-1], 0.005)
+    assert robot.clamped_sends == 1
+    planner.trajectory = _Hold(0.01, 1.08, 1.6)
+    robot.send(NOTHING)
+    assert robot.clamped_sends == 2 and robot.sends == 2
+
+
+def test_horizon_robot_reports_the_measured_tcp_stamped_ahead() -> None:
+    driver = _Driver()
+    velocity = np.array([[0.1, -0.2, 0.3]])
+    driver.state = lambda: TcpState(driver.position, velocity, driver.t)  # type: ignore[method-assign]
+    robot, replanner, spec = _horizon(driver)
+    s = robot.state()
+    np.testing.assert_array_equal(s.position, [TCP_HOME_M])
+    np.testing.assert_array_equal(s.velocity, velocity)
+    assert s.t == pytest.approx(1.25)
+    replanner.replan(np.full(spec.size, 0.3), s.t)
+    robot.send(NOTHING)
+    driver.t, driver.position = 1.3, np.array([[0.5, 0.01, 0.55]])
+    s = robot.state()  # a plan pending: still the measured TCP, at t + lead
+    np.testing.assert_array_equal(s.position, [[0.5, 0.01, 0.55]])
+    np.testing.assert_array_equal(s.velocity, velocity)
+    assert s.t == pytest.approx(1.38)
+
+
+def test_horizon_robot_lead_bounds() -> None:
+    driver = _Driver()
+    replanner = Replanner(TipControl(planar=True).action_spec(), np.array([TCP_HOME_M]))
+    robot = HorizonRobot(driver, replanner, BIG_BOX, 10.0, lead_s=0.0)  # no lead: allowed
+    assert robot.state().t == pytest.approx(1.25)  # the first plan still gets its own lead
+    replanner.replan(np.full(replanner.spec.size, 0.3), 1.25)
+    robot.send(NOTHING)
+    driver.t = 1.3
+    assert robot.state().t == 1.3
+    for bad in (-0.01, float("nan")):
+        with pytest.raises(ValueError, match="lead_s must be >= 0"):
+            HorizonRobot(driver, replanner, BIG_BOX, 10.0, lead_s=bad)
+
+
+def test_horizon_robot_sent_a_plan_without_reading_its_state_keeps_its_lead() -> None:
+    driver = _SlowDriver(send_s=0.1)
+    robot, replanner, spec = _horizon(driver)
+    replanner.replan(np.full(spec.size, 0.3), 1.25)  # no state() read: no cycle latency to learn from
+    robot.send(NOTHING)
+    assert len(driver.sent) == 1 and robot.lead_s == robot.lead_max_used_s == 0.08
+
+
+def test_a_plan_starting_exactly_when_the_driver_can_join_it_is_sent() -> None:
+    driver = _Driver()  # sends take no time: a plan can start one driver period after the last target
+    robot, replanner, spec = _horizon(driver)
+    first = replanner.replan(np.full(spec.size, 0.3), robot.state().t)
+    robot.send(NOTHING)
+    driver.t = 1.5
+    replanner.replan(np.full(spec.size, -0.3), 1.5 + 0.004 - 1e-6)  # just too early: dropped
+    robot.send(NOTHING)
+    assert len(driver.sent) == 1 and robot.plans_late == 1 and replanner.trajectory is first
+    second = replanner.replan(np.full(spec.size, -0.3), 1.5 + 0.004)
+    robot.send(NOTHING)
+    assert len(driver.sent) == 2 and robot.plans_late == 1
+    assert driver.sent[-1].t[0] == second.t_start and robot.max_late_s == pytest.approx(-0.004)
+
+
+def test_a_plan_is_sent_only_if_it_starts_after_the_longest_recent_send_with_margin() -> None:
+    driver = _SlowDriver(send_s=0.1)
+    robot, replanner, spec = _horizon(driver)
+    replanner.replan(np.full(spec.size, 0.3), robot.state().t)
+    robot.send(NOTHING)  # took 0.1 s: the next plan must start 1.25 * 0.1 + 0.004 s after the last target
+    driver.t, driver.send_s = 1.5, 0.0
+    replanner.replan(np.full(spec.size, -0.3), 1.62)
+    robot.send(NOTHING)
+    assert len(driver.sent) == 1 and robot.plans_late == 1
+    replanner.replan(np.full(spec.size, -0.3), 1.63)
+    robot.send(NOTHING)
+    assert len(driver.sent) == 2 and robot.plans_late == 1
+
+
+def test_a_later_plan_refused_at_the_join_after_its_start_is_dropped(
+        caplog: pytest.LogCaptureFixture) -> None:
+    driver = _SlowDriver()
+    robot, replanner, spec = _horizon(driver)
+    first = replanner.replan(np.full(spec.size, 0.3), robot.state().t)
+    robot.send(NOTHING)
+    driver.t = 1.5
+    replanner.replan(np.full(spec.size, -0.3), robot.state().t)  # starts at 1.58
+    driver.send_s, driver.refuse_joins = 0.2, 1  # the send ends at 1.7: refused at the join
+    with caplog.at_level("WARNING", logger="dyndlo_vision.control.horizon"):
+        robot.send(NOTHING)
+    assert len(driver.sent) == 1 and robot.plans_late == 1 and replanner.trajectory is first
+    assert "plan for t=1.580 s dropped" in caplog.text and "(lead 80 ms)" in caplog.text
+    replanner.replan(np.full(spec.size, 0.1), 1.7)  # the driver is at 1.7 already: late again
+    robot.send(NOTHING)
+    assert len(driver.sent) == 1 and robot.plans_late == 2 and replanner.trajectory is first
+
+
+class _SlowerDriver(_SlowDriver):
+    """Its k-th send takes ``send_s[k]`` of robot time."""
+
+    def __init__(self, send_s: list[float], refuse_joins: int) -> None:
+        super().__init__(refuse_joins=refuse_joins)
+        self.durations, self.tries = list(send_s), 0
+
+    def send(self, setpoints: Setpoints) -> None:
+        self.send_s = self.durations[self.tries]
+        self.tries += 1
+        super().send(setpoints)
+
+
+def test_a_first_plan_refused_at_the_join_at_its_start_is_tried_twice_the_send_later(
+        caplog: pytest.LogCaptureFixture) -> None:
+    driver = _SlowDriver(send_s=0.25, refuse_joins=1)
+    robot, replanner, spec = _horizon(driver)
+    replanner.replan(np.full(spec.size, 0.3), robot.state().t)  # starts at 1.25
+    with caplog.at_level("WARNING", logger="dyndlo_vision.control.horizon"):
+        robot.send(NOTHING)  # refused when the driver is at 1.25 exactly: too late, tried again from 1.75
+    assert "sending took 0.250 s" in caplog.text
+    assert len(driver.sent) == 1 and replanner.trajectory.t_start == pytest.approx(1.75)
+    assert robot.first_plan_delay_s == pytest.approx(0.5) and robot.max_late_s == pytest.approx(1.5 - 1.75)
+
+
+def test_a_first_plan_gets_four_tries_each_later_by_twice_the_last_send() -> None:
+    from dyndlo_vision.robots.kinematics import JointLimitError
+
+    durations = [0.3, 0.7, 1.5, 3.1, 0.1]
+    driver = _SlowerDriver(durations, refuse_joins=3)
+    robot, replanner, spec = _horizon(driver)
+    planned = replanner.replan(np.full(spec.size, 0.3), robot.state().t)  # starts at 1.25
+    robot.send(NOTHING)
+    # Refused at 1.3, 2.0 and 3.5, each after the start it was sent for (1.25, 1.3 + 0.6, 2.0 + 1.4);
+    # the fourth try starts at 3.5 + 3.0 and is accepted.
+    assert driver.tries == 4 and len(driver.sent) == 1
+    assert replanner.trajectory.t_start == pytest.approx(6.5)
+    assert robot.first_plan_delay_s == pytest.approx(6.5 - 1.25)
+    np.testing.assert_allclose(replanner.trajectory.points, planned.points)
+    driver = _SlowerDriver(durations, refuse_joins=4)
+    robot, replanner, spec = _horizon(driver)
+    replanner.replan(np.full(spec.size, 0.3), robot.state().t)
+    with pytest.raises(JointLimitError):  # no try was in time: the run stops, nothing sent
+        robot.send(NOTHING)
+    assert driver.tries == 4 and not driver.sent
+
+
+class _StreamingDriver(_Driver):
+    """A driver that streams on while the cycle computes: its last target moves two periods on whenever it
+    is read, along the setpoints it was sent."""
+
+    def commanded_state(self) -> TcpState:
+        self.t += 2 * self.period_s
+        if not self.sent:
+            return TcpState(self.position, np.zeros((1, 3)), self.t)
+        s = self.sent[-1]
+        p = [np.interp(self.t, s.t, s.position[:, 0, i]) for i in range(3)]
+        return TcpState(np.array([p]), np.zeros((1, 3)), self.t)
+
+
+def test_horizon_robot_clamps_from_the_target_its_setpoints_start_after() -> None:
+    driver = _StreamingDriver()
+    robot, replanner, spec = _horizon(driver)
+    first = replanner.replan(np.full(spec.size, 0.3), robot.state().t)
+    robot.send(NOTHING)
+    driver.t = 1.6  # the arm moving at about 0.6 m/s along the first plan
+    assert np.linalg.norm(first.velocity(np.array([1.6]))) > 0.3
+    second = replanner.replan(np.full(spec.size, -0.3), robot.state().t)
+    robot.send(NOTHING)
+    sent = driver.sent[-1]
+    assert robot.clamped_sends == 0
+    expected = np.where((sent.t < second.t_start)[:, None], first.position(sent.t), second.position(sent.t))
+    np.testing.assert_allclose(sent.position[:, 0], expected, atol=1e-12)

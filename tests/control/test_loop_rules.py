@@ -301,6 +301,7 @@ def test_the_reports_figures() -> None:
     ])
     np.testing.assert_array_equal(report.controller_ms(), [12.0, 30.0, 24.0])
     # A stage a cycle did not run counts as 0 ms there.
+    assert report.stage_percentiles(0) == {"camera": 10.0, "policy": 0.0}
     assert report.stage_percentiles(50) == {"camera": 20.0, "policy": 2.0}
     assert report.stage_percentiles(100) == {"camera": 30.0, "policy": 4.0}
     np.testing.assert_allclose(report.estimate_errors(), [0.05, 0.1])
