@@ -342,3 +342,172 @@ def test_turn_angles_and_directions_by_hand() -> None:
     np.testing.assert_array_equal(_direction(_Branch(np.zeros((2, 2)), [0, 0]), 0, 0.0, 6.0), [0.0, 0.0])
     assert _perfect_matchings([0, 1, 2, 3]) == [[(0, 1), (2, 3)], [(0, 2), (1, 3)], [(0, 3), (1, 2)]]
     assert _perfect_matchings([]) == [[]]
+
+
+def test_angles_need_both_components_of_both_vectors() -> None:
+    from dyndlo_vision.tracking.centerline import _angle_deg
+
+    assert _angle_deg(np.array([0.0, 1.0]), np.array([0.0, 3.0])) == pytest.approx(0.0, abs=1e-6)
+    # A 3-4-5 pair: cos = 24 / 25.
+    cos_345 = np.degrees(np.arccos(0.96))
+    assert _angle_deg(np.array([3.0, 4.0]), np.array([4.0, 3.0])) == pytest.approx(cos_345)
+    assert _angle_deg(np.array([1.0, 0.0]), np.array([2.0, 2.0])) == pytest.approx(45.0)
+
+
+def test_branch_directions_by_hand() -> None:
+    from dyndlo_vision.tracking.centerline import _Branch, _direction
+
+    # Unevenly spaced points: 12 px from end 0 is 2 px up the last leg, at (10, 2).
+    uneven = _Branch(np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [10.0, 0.0], [10.0, 8.0]]), [0, 1])
+    np.testing.assert_allclose(_direction(uneven, 0, 0.0, 12.0), np.array([10.0, 2.0]) / np.hypot(10, 2))
+    # A branch shorter than the measuring length is measured end to end.
+    short = _Branch(np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 3.0]]), [0, 1])
+    np.testing.assert_allclose(_direction(short, 0, 0.0, 100.0), np.array([1.0, 1.0]) / np.sqrt(2.0))
+    # At most a third of a branch is skipped: 4 px along +u then 8 px along +v, measured from 4 px to 8 px.
+    ell = _Branch(np.vstack([np.column_stack([np.arange(5.0), np.zeros(5)]),
+                             np.column_stack([np.full(8, 4.0), np.arange(1.0, 9.0)])]), [0, 1])
+    np.testing.assert_allclose(_direction(ell, 0, 100.0, 4.0), [0.0, 1.0], atol=1e-12)
+    # A one-pixel link between two nodes has a direction (measured over its last two thirds).
+    link = _Branch(np.array([[5.0, 5.0], [6.0, 5.0]]), [0, 1])
+    np.testing.assert_allclose(_direction(link, 0, 1.0, 6.0), [1.0, 0.0])
+    np.testing.assert_allclose(_direction(link, 1, 1.0, 6.0), [-1.0, 0.0])
+    # A loop measured all the way round comes back where it started: no direction (not NaN).
+    square = _Branch(np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 4.0], [0.0, 4.0], [0.0, 0.0]]), [0, 0])
+    d = _direction(square, 0, 0.0, 100.0)
+    assert d.shape == (2,)
+    np.testing.assert_array_equal(d, [0.0, 0.0])
+
+
+# ------------------------------------------------------------------ strands paired through a crossing
+
+
+def _crossing(arms: list[tuple[float, bool]], max_turn: float = 80.0) -> dict:
+    """Pairs the ports of one junction at (0, 0) with 30 px straight arms at the given angles (deg); an arm
+    flagged True is stored from its free end towards the junction (the junction at its end 1)."""
+    from dyndlo_vision.tracking.centerline import _Branch, _Graph, _pair_crossings
+
+    g = _Graph()
+    junction = None
+    t = np.arange(31.0)[:, None]
+    for angle, inward in arms:
+        a = np.radians(angle)
+        pts = t * np.array([np.cos(a), np.sin(a)]).round(12)  # exact along the axes
+        end = g.add_node(pts[-1], "end")  # the first node of the graph is a free end
+        if junction is None:
+            junction = g.add_node(np.zeros(2), "junction")
+        g.branches.append(_Branch(pts[::-1], [end, junction]) if inward else _Branch(pts, [junction, end]))
+    ports = g.ports()
+    out = _pair_crossings(g, ports, 1.0, 6.0, max_turn)
+    # As (branch, branch) pairs of the junction's arms.
+    return {bi: out[(bi, e)][0] for bi, e in ports[junction] if (bi, e) in out}
+
+
+def test_a_crossing_pairs_each_strand_straight_through() -> None:
+    # An X: a strand along u (arms 0 and 1) crossed at 60 deg by another (arms 2 and 3).
+    pairs = _crossing([(180.0, True), (0.0, False), (60.0, False), (240.0, True)])
+    assert pairs == {0: 1, 1: 0, 2: 3, 3: 2}
+    # Three strands through one point (a 6-way junction).
+    pairs = _crossing([(60.0 * k, k % 2 == 1) for k in range(6)])
+    assert pairs == {0: 3, 3: 0, 1: 4, 4: 1, 2: 5, 5: 2}
+
+
+def test_a_crossing_leaves_a_sharp_turn_unpaired() -> None:
+    # A strand straight through (20 and 200 deg) and a V (0 and 40 deg: a 140 deg turn): the strand pairs.
+    assert _crossing([(0.0, False), (20.0, True), (40.0, False), (200.0, True)]) == {1: 3, 3: 1}
+    # A turn of exactly the largest accepted turn pairs: east and north turn 90 deg.
+    arms = [(0.0, False), (90.0, True), (45.0, False), (225.0, True)]
+    assert _crossing(arms, max_turn=90.0) == {0: 1, 1: 0, 2: 3, 3: 2}
+    assert _crossing(arms, max_turn=89.9) == {2: 3, 3: 2}
+
+
+def test_only_four_and_six_way_junctions_are_paired() -> None:
+    # A T (3 ports) and four strands through one point (8 ports) are left to the walk's greedy choice.
+    assert _crossing([(0.0, False), (180.0, True), (90.0, False)]) == {}
+    assert _crossing([(a, i % 2 == 1) for i, a in enumerate(range(0, 360, 45))]) == {}
+
+
+# ------------------------------------------------------------------ resampling a path into nodes, more cases
+
+
+def test_a_two_point_path_gives_evenly_spaced_nodes_both_ways() -> None:
+    from dyndlo_vision.tracking.centerline import nodes_from_path
+
+    path = np.array([[0.0, 50.0], [100.0, 50.0]])
+    cl = nodes_from_path(path, np.ones(1, dtype=bool), 11, None, (100, 200), 2.0)
+    np.testing.assert_allclose(cl.nodes_uv, np.column_stack([10.0 * np.arange(11), np.full(11, 50.0)]))
+    assert cl.visible.all()
+    back = cl.reversed()
+    np.testing.assert_allclose(back.nodes_uv[:, 0], 100.0 - 10.0 * np.arange(11))
+    # A path one pixel long is still a path.
+    one_px = np.array([[10.0, 50.0], [11.0, 50.0]])
+    cl = nodes_from_path(one_px, np.ones(1, dtype=bool), 3, None, (100, 200), 2.0)
+    np.testing.assert_allclose(cl.nodes_uv[:, 0], [10.0, 10.5, 11.0])
+    assert cl.visible.all() and cl.length_px == 1.0
+    # An empty path: nothing seen (no error).
+    cl = nodes_from_path(np.zeros((0, 2)), np.zeros(0, dtype=bool), 4, None, (100, 200), 2.0)
+    assert not cl.any_visible and np.isnan(cl.nodes_uv).all()
+
+
+def test_nodes_from_path_takes_integer_pixels_and_an_rgb_image_shape() -> None:
+    from dyndlo_vision.tracking.centerline import nodes_from_path
+
+    path = np.column_stack([np.arange(1, 12), np.full(11, 50)])  # integer pixels, 10 px
+    vis = np.array([1, 1, 1, 1, 0, 0, 1, 1, 1, 1])  # 0/1 per segment
+    cl = nodes_from_path(path, vis, 3, None, (100, 200, 3), 2.0)
+    assert cl.path_uv.dtype == np.float64 and cl.path_visible.dtype == np.bool_
+    assert np.flatnonzero(~cl.path_visible).tolist() == [4, 5]
+    np.testing.assert_allclose(cl.nodes_uv[:, 0], [1.0, 6.0, 11.0])
+    assert cl.visible.tolist() == [True, False, True]
+    # u = 1 is within 3 px of the border; the shape is read as (H, W, channels).
+    assert cl.start_at_border and not cl.end_at_border
+
+
+def test_the_length_tolerance_and_the_observed_end_are_sharp() -> None:
+    from dyndlo_vision.tracking.centerline import CenterlineParams, nodes_from_path
+
+    path = _straight(0.0, 75.0, m=76)
+    vis = np.ones(75, dtype=bool)
+    prm = CenterlineParams(length_tolerance=0.25)
+    # Exactly 25 % short of 100 px: still the whole cable, nodes spread over the path.
+    cl = nodes_from_path(path, vis, 4, 100.0, (100, 200), 2.0, prm)
+    np.testing.assert_allclose(cl.nodes_uv[:, 0], [0.0, 25.0, 50.0, 75.0])
+    assert cl.visible.all()
+    # A node 0.4 px beyond the observed end is beyond it: NaN and invisible, not put on the end.
+    path = _straight(0.0, 100.0)
+    cl = nodes_from_path(path, np.ones(100, dtype=bool), 3, 200.8, (100, 200), 2.0)
+    assert cl.visible.tolist() == [True, False, False]
+    assert np.isnan(cl.nodes_uv[1:]).all()
+
+
+def test_an_end_node_on_a_bridged_gap_is_invisible_whichever_way_the_path_runs() -> None:
+    from dyndlo_vision.tracking.centerline import nodes_from_path
+
+    # A 10 px gap bridged from the start, then 90 px seen: nodes every 10 px.
+    path = np.vstack([[0.0, 50.0], _straight(10.0, 100.0, m=91)])
+    vis = np.ones(91, dtype=bool)
+    vis[0] = False
+    cl = nodes_from_path(path, vis, 11, None, (100, 200), 2.0)
+    assert cl.visible.tolist() == [False] + [True] * 10
+    back = cl.reversed()
+    np.testing.assert_allclose(back.nodes_uv[:, 0], 100.0 - 10.0 * np.arange(11))
+    assert back.visible.tolist() == [True] * 9 + [False] * 2  # node 9 takes the gap starting at it
+
+
+def test_a_reversed_centerline_keeps_its_path_and_swaps_the_border_flags() -> None:
+    from dyndlo_vision.tracking.centerline import nodes_from_path
+
+    path = _straight(50.0, 196.1)  # ends within the 3 px margin of the right border of a 200 px image
+    vis = np.ones(100, dtype=bool)
+    vis[20:30] = False
+    cl = nodes_from_path(path, vis, 6, None, (100, 200), 2.0)
+    assert (cl.start_at_border, cl.end_at_border) == (False, True)
+    back = cl.reversed()
+    np.testing.assert_array_equal(back.path_uv, path[::-1])
+    np.testing.assert_array_equal(back.path_visible, vis[::-1])
+    assert (back.start_at_border, back.end_at_border) == (True, False)
+    again = back.reversed()
+    np.testing.assert_allclose(again.nodes_uv, cl.nodes_uv)
+    assert again.visible.tolist() == cl.visible.tolist()
+    # With an image shape the flags are measured in that image: 400 px wide, neither end is near a border.
+    wide = cl.reversed(image_shape=(100, 400))
+    assert (wide.start_at_border, wide.end_at_border) == (False, False)

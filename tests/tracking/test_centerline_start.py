@@ -119,3 +119,122 @@ def test_a_blob_is_no_cable_but_a_short_thin_cable_is() -> None:
     cv2.line(short, (300, 200), (300, 230), 255, 5)  # 30 px long, 5 px wide
     cl = extract_centerline(short > 0, 20, anchor_uv=(300, 195))
     assert cl.any_visible and 20 < cl.length_px < 32
+
+
+# ---------------------------------------------------------------- the start rule on hand-made skeleton graphs
+
+
+def _graph(*strands: list[tuple[float, float]]):
+    """A skeleton graph of straight strands, each sampled every pixel (a polyline: one branch per strand)."""
+    from dyndlo_vision.tracking.centerline import _Branch, _Graph
+
+    g = _Graph()
+    for strand in strands:
+        pieces = []
+        for a, b in zip(strand[:-1], strand[1:], strict=True):
+            a, b = np.array(a, float), np.array(b, float)
+            n = max(1, int(round(np.hypot(*(b - a)))))
+            pieces.append(a + np.linspace(0.0, 1.0, n + 1)[:, None] * (b - a))
+        pts = np.vstack([pieces[0]] + [p[1:] for p in pieces[1:]])
+        g.branches.append(_Branch(pts, [g.add_node(pts[0], "end"), g.add_node(pts[-1], "end")]))
+    return g
+
+
+def _start(g, hint, width: float = 1.0):
+    """The first step (branch, end) and the length of the walk chosen."""
+    from dyndlo_vision.tracking.centerline import CenterlineParams, _choose_start
+
+    hint = None if hint is None else np.array(hint, float)
+    walk, _ = _choose_start(g, g.ports(), hint, width, CenterlineParams())
+    return walk.steps[0][:2], walk.length
+
+
+def test_the_walk_starts_at_the_free_end_nearest_the_hint_not_at_a_junction() -> None:
+    from dyndlo_vision.tracking.centerline import _Branch, _Graph
+
+    # A T: arms to (-50, 0) and (50, 0), a stem to (0, 30). The hint (0, 5) is nearest the junction, but the
+    # walk starts at a free end: the stem's, 25 px away (the arms' ends, 50 px away, are beyond 25 + 20 px).
+    g = _Graph()
+    j = g.add_node(np.zeros(2), "junction")
+    t = np.arange(51.0)[:, None]
+    for pts in (t * [-1.0, 0.0], t * [1.0, 0.0], t[:31] * [0.0, 1.0]):
+        g.branches.append(_Branch(pts, [j, g.add_node(pts[-1], "end")]))
+    assert _start(g, (0.0, 5.0)) == ((2, 1), pytest.approx(30.0))
+
+
+def test_the_distance_to_the_hint_is_measured_from_the_end_itself() -> None:
+    from dyndlo_vision.tracking.centerline import _Branch, _Graph
+
+    # A branch of two points (a direct link): its end 0 is 10 px from the hint, its end 1 200 px.
+    g = _Graph()
+    pts = np.array([[0.0, 10.0], [0.0, 200.0]])
+    g.branches.append(_Branch(pts, [g.add_node(pts[0], "end"), g.add_node(pts[1], "end")]))
+    assert _start(g, (0.0, 0.0))[0] == (0, 0)
+
+
+# A 30 px stub at the hint (a gripper blob cut off from the cable thins into one) pointing away from a 200 px
+# cable whose end lies ``gap`` px from the hint along u: the cable is taken when its end is within
+# max(20 px, 5 widths) of the stub's end, its walk being more than 1.5 times longer.
+STUB = [(0.0, 0.0), (0.0, -30.0)]
+
+
+def _cable(gap: float) -> list[tuple[float, float]]:
+    return [(gap, 0.0), (gap + 200.0, 0.0)]
+
+
+@pytest.mark.parametrize(
+    ("gap", "width", "cable"),
+    [(20.0, 1.0, True), (20.5, 1.0, False), (22.0, 5.0, True), (24.9, 5.0, True), (25.5, 5.0, False)],
+)
+def test_a_longer_walk_near_the_hint_beats_a_stub(gap: float, width: float, cable: bool) -> None:
+    start, length = _start(_graph(STUB, _cable(gap)), (0.0, 0.0), width)
+    assert (start, length) == (((1, 0), pytest.approx(200.0)) if cable else ((0, 0), pytest.approx(30.0)))
+
+
+def test_a_walk_exactly_one_and_a_half_times_longer_does_not_beat_the_nearest() -> None:
+    # A 10 px stub at the hint and a 15 px strand 15 px away: not more than 1.5 times longer, the stub stays.
+    assert _start(_graph([(0.0, 0.0), (0.0, -10.0)], [(15.0, 0.0), (30.0, 0.0)]), (0.0, 0.0)) == (
+        (0, 0), pytest.approx(10.0))
+    assert _start(_graph([(0.0, 0.0), (0.0, -10.0)], [(15.0, 0.0), (31.0, 0.0)]), (0.0, 0.0)) == (
+        (1, 0), pytest.approx(16.0))
+
+
+def test_without_a_hint_the_longest_strand_wins_over_more_clutter_than_is_tried() -> None:
+    # Four 20 px pieces of clutter (8 ends: as many as are tried) stored before a 300 px strand, 200 px apart.
+    clutter = [[(x, 0.0), (x, 20.0)] for x in (0.0, 200.0, 400.0, 600.0)]
+    start, length = _start(_graph(*clutter, [(0.0, 300.0), (300.0, 300.0)]), None)
+    assert start[0] == 4 and length == pytest.approx(300.0)
+
+
+def test_without_a_hint_the_longest_walk_wins_by_half_a_pixel() -> None:
+    # A 100 px strand, and 200 px below it a 100.5 px one broken by a 2 px crack (60 + 2 + 38.5 px).
+    g = _graph([(0.0, 0.0), (100.0, 0.0)], [(0.0, 200.0), (60.0, 200.0)], [(62.0, 200.0), (100.5, 200.0)])
+    start, length = _start(g, None)
+    assert start[0] in (1, 2) and length == pytest.approx(100.5)
+
+
+def test_a_cable_end_as_near_the_hint_as_a_stub_wins_whatever_the_order_of_the_ends() -> None:
+    import itertools
+
+    from dyndlo_vision.tracking.centerline import CenterlineParams, _choose_start
+
+    # The hint midway between a 30 px stub's end (-5, 0) and a 200 px cable's end (5, 0).
+    g = _graph([(-5.0, 0.0), (-5.0, -30.0)], [(5.0, 0.0), (205.0, 0.0)])
+    items = list(g.ports().items())
+    for order in itertools.permutations(range(len(items))):
+        walk, _ = _choose_start(g, dict(items[i] for i in order), np.zeros(2), 1.0, CenterlineParams())
+        assert walk.steps[0][:2] == (1, 0) and walk.length == pytest.approx(200.0), order
+
+
+@pytest.mark.parametrize("anchor", [(35, 60), None])
+def test_pinholes_near_both_ends_leave_no_free_end_but_the_cable_is_found(anchor) -> None:
+    """A pinhole a few pixels from each end of a thick cable closes a tiny loop there; pruned, it leaves each
+    end a junction with one branch: a skeleton without a free end, whose walk starts at one of those."""
+    m = np.zeros((120, 200), np.uint8)
+    cv2.line(m, (40, 60), (160, 60), 255, 9)
+    m[60, 43] = m[60, 157] = 0
+    cl = extract_centerline(m > 0, 10, anchor_uv=anchor)
+    assert cl.visible.all() and 105.0 < cl.length_px < 121.0
+    assert np.all(np.abs(cl.nodes_uv[:, 1] - 60.0) < 1.0)
+    if anchor is not None:
+        assert cl.nodes_uv[0, 0] < 50.0 and cl.nodes_uv[-1, 0] > 150.0
