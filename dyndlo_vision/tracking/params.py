@@ -61,6 +61,11 @@ class FilterParams:
             )
         if not 0 < self.gate_prob < 1:
             raise ValueError(f"gate_prob must be in (0, 1), got {self.gate_prob}")
+        for name in ("max_coast_s", "init_speed_sigma", "reinit_speed"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if not self.history_s >= 0:
+            raise ValueError(f"history_s must be >= 0, got {self.history_s}")
         for name in ("sigma_accel", "sigma_meas", "gate_prob", "max_coast_s", "init_speed_sigma", "history_s",
                      "reinit_speed"):
             object.__setattr__(self, name, float(getattr(self, name)))

@@ -385,6 +385,14 @@ def test_filter_params() -> None:
     for bad in ({"sigma_accel": 0.0}, {"sigma_meas": -1.0}, {"gate_prob": 1.0}):
         with pytest.raises(ValueError):
             FilterParams(**bad)
+    # Each setting that decides when a node is lost, re-initialised or replayed is refused, by name, where it
+    # would make no sense: a negative time, a zero or NaN speed.
+    for name, value, rule in (("max_coast_s", 0.0, "> 0"), ("max_coast_s", math.nan, "> 0"),
+                              ("init_speed_sigma", -1.0, "> 0"), ("reinit_speed", 0.0, "> 0"),
+                              ("history_s", -0.1, ">= 0"), ("history_s", math.nan, ">= 0")):
+        with pytest.raises(ValueError, match=f"^{name} must be {rule}, got {value}$"):
+            FilterParams(**{name: value})
+    assert FilterParams(history_s=0.0, reinit_speed=math.inf, max_coast_s=math.inf).history_s == 0.0
     with pytest.raises(TypeError):
         MultiPointFilter(2, sigma_acel=1.0)
     with pytest.raises(TypeError, match="by name"):
