@@ -34,6 +34,15 @@ def look_at_camera(
     return PinholeCamera(width, height, K, np.asarray(dist, float), R, -R @ eye_a, fps=25.0)
 
 
+
+def down_camera() -> PinholeCamera:
+    """2 m above the origin looking straight down: the ray through pixel (50 + 100 a, 40 + 100 b) runs along
+    (a, -b, -1) in the world (pixel (60, 20) along (0.1, 0.2, -1)); the one through the principal point
+    (50, 40) exactly along -z."""
+    K = np.array([[100.0, 0.0, 50.0], [0.0, 100.0, 40.0], [0.0, 0.0, 1.0]])
+    return PinholeCamera(101, 81, K, np.zeros(0), np.diag([1.0, -1.0, -1.0]), np.array([0.0, 0.0, 2.0]))
+
+
 def gt_params(points: np.ndarray, curve: np.ndarray) -> np.ndarray:
     """Arc-length position along ``curve`` of the nearest curve vertex to each point."""
     s = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(curve, axis=0).T))))

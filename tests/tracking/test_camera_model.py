@@ -11,7 +11,7 @@ import pytest
 
 from dyndlo_vision.tracking.camera_model import CalibrationError, PinholeCamera
 
-from .helpers import look_at_camera
+from .helpers import down_camera, look_at_camera
 
 
 def _points_in_view(cam: PinholeCamera, n: int = 200, seed: int = 0) -> np.ndarray:
@@ -321,21 +321,14 @@ def test_distorted_pixels_that_are_nan_stay_nan(distorted_camera: PinholeCamera)
 
 
 # ----------------------------------------------------------------------------- rays and planes, by hand
-def _down_camera() -> PinholeCamera:
-    """2 m above the origin looking straight down: the ray through pixel (50 + 100 a, 40 + 100 b) runs along
-    (a, -b, -1) in the world; the one through the principal point (50, 40) exactly along -z."""
-    K = np.array([[100.0, 0.0, 50.0], [0.0, 100.0, 40.0], [0.0, 0.0, 1.0]])
-    return PinholeCamera(101, 81, K, np.zeros(0), np.diag([1.0, -1.0, -1.0]), np.array([0.0, 0.0, 2.0]))
-
-
 def test_a_plane_normal_as_a_column_or_a_row_is_the_same_plane() -> None:
-    cam = _down_camera()
+    cam = down_camera()
     for normal in ([0.0, 0.0, 2.0], [[0.0], [0.0], [2.0]], [[0.0, 0.0, 2.0]], [0, 0, 1]):
         np.testing.assert_allclose(cam.intersect_plane([[60.0, 20.0]], normal, 0.0), [[0.2, 0.4, 0.0]])
 
 
 def test_the_parallel_limit_is_1e_9_of_the_normal_whatever_its_scale() -> None:
-    cam = _down_camera()
+    cam = down_camera()
     axis = [[50.0, 40.0]]  # the ray straight down
     for k in (1e-6, 1.0, 1e6):
         # cos(ray, normal) = 5e-10: parallel at every scale of the normal.
@@ -350,7 +343,7 @@ def test_the_parallel_limit_is_1e_9_of_the_normal_whatever_its_scale() -> None:
 
 
 def test_a_plane_through_the_camera_centre_is_refused_one_closer_than_a_metre_is_not() -> None:
-    cam = _down_camera()
+    cam = down_camera()
     with pytest.raises(ValueError, match=r"behind the camera .*pixel \(50,40\) \(ray parameter 0 m <= 0\)"):
         cam.intersect_plane([[50.0, 40.0]], [0.0, 0.0, 1.0], -2.0)  # z = 2: the camera's own height
     # z = 1.5, half a metre below the camera.
@@ -359,7 +352,7 @@ def test_a_plane_through_the_camera_centre_is_refused_one_closer_than_a_metre_is
 
 
 def test_the_error_names_the_first_pixel_whose_ray_misses() -> None:
-    cam = _down_camera()
+    cam = down_camera()
     uv = [[50.0, 40.0], [100.0, 40.0], [150.0, 40.0]]  # rays along (0,0,-1), (0.5,0,-1), (1,0,-1)
     # Normal (1, 0, 0.5) is perpendicular to the second ray only.
     with pytest.raises(ValueError, match=r"parallel to the camera ray through pixel \(100,40\)"):
@@ -380,7 +373,7 @@ def test_integer_pixels_undistort_like_float_pixels(distorted_camera: PinholeCam
 
 # ----------------------------------------------------------------------------- the calibration file
 def test_the_calibration_file_is_indented_json_with_fps_last(tmp_path) -> None:
-    cam = PinholeCamera(**{**_down_camera().to_dict(), "fps": 30.0})
+    cam = PinholeCamera(**{**down_camera().to_dict(), "fps": 30.0})
     path = tmp_path / "cam.json"
     cam.to_json(path)
     text = path.read_text(encoding="utf-8")
@@ -402,11 +395,11 @@ def test_the_calibration_is_written_next_to_its_file_and_renamed_over_it(tmp_pat
         real_replace(src, dst)
 
     monkeypatch.setattr(camera_model.os, "replace", replace)
-    _down_camera().to_json(path)
+    down_camera().to_json(path)
     [(tmp, dst)] = renames
     assert dst == path and tmp.parent == tmp_path  # same folder: the rename is atomic
     assert tmp.name.startswith(".cam.json.") and tmp.name.endswith(".tmp")  # hidden, named after its file
-    assert PinholeCamera.from_json(path).to_dict() == _down_camera().to_dict()
+    assert PinholeCamera.from_json(path).to_dict() == down_camera().to_dict()
 
 
 def test_a_failed_write_keeps_the_old_calibration_and_leaves_no_temporary_file(tmp_path, monkeypatch) -> None:
@@ -421,14 +414,14 @@ def test_a_failed_write_keeps_the_old_calibration_and_leaves_no_temporary_file(t
 
     monkeypatch.setattr(camera_model.os, "replace", replace)
     with pytest.raises(OSError, match="disk full"):
-        _down_camera().to_json(path)
+        down_camera().to_json(path)
     assert path.read_text(encoding="utf-8") == before
     assert list(tmp_path.iterdir()) == [path]
 
 
 def test_a_bad_calibration_file_is_named_in_the_error(tmp_path) -> None:
     path = tmp_path / "left.json"
-    path.write_text(json.dumps({**_down_camera().to_dict(), "width": 0}), encoding="utf-8")
+    path.write_text(json.dumps({**down_camera().to_dict(), "width": 0}), encoding="utf-8")
     with pytest.raises(CalibrationError) as exc:
         PinholeCamera.from_json(path)
     assert str(exc.value) == f"{path}: width must be a positive int, got 0"

@@ -11,6 +11,8 @@ from dyndlo_vision.tracking.segmentation import BackgroundSegmenter
 from dyndlo_vision.tracking.synthetic import render_cable
 from dyndlo_vision.tracking.tracker import Measurement, Plane, lift_with_depth, lift_with_plane
 
+from .helpers import down_camera
+
 
 def _planar_scene(camera: PinholeCamera) -> tuple[np.ndarray, np.ndarray]:
     """A 3D S-shaped cable on the world plane z = 0 and its image."""
@@ -160,29 +162,23 @@ def test_lifting_takes_visibility_as_any_0_1_mask() -> None:
         assert np.isnan(on_plane[1]).all()
 
 
-def _down_camera() -> PinholeCamera:
-    """2 m above the origin looking down: pixel (60, 20) sees along (0.1, 0.2, -1), (50, 40) straight down."""
-    K = np.array([[100.0, 0.0, 50.0], [0.0, 100.0, 40.0], [0.0, 0.0, 1.0]])
-    return PinholeCamera(101, 81, K, np.zeros(0), np.diag([1.0, -1.0, -1.0]), np.array([0.0, 0.0, 2.0]))
-
-
 def test_lift_with_plane_skips_invisible_and_nan_pixels() -> None:
     uv = [[60.0, 20.0], [np.nan, 20.0], [50.0, 40.0], [60.0, 20.0]]
     ground = Plane(np.array([0.0, 0.0, 1.0]), 0.0)
-    lifted = lift_with_plane(uv, _down_camera(), ground, visible=[True, True, True, False])
+    lifted = lift_with_plane(uv, down_camera(), ground, visible=[True, True, True, False])
     np.testing.assert_allclose(lifted[[0, 2]], [[0.2, 0.4, 0.0], [0.0, 0.0, 0.0]], atol=1e-12)
     assert np.isnan(lifted[[1, 3]]).all()
-    np.testing.assert_allclose(lift_with_plane(uv, _down_camera(), ground)[[0, 2, 3]],
+    np.testing.assert_allclose(lift_with_plane(uv, down_camera(), ground)[[0, 2, 3]],
                                [[0.2, 0.4, 0.0], [0.0, 0.0, 0.0], [0.2, 0.4, 0.0]], atol=1e-12)
 
 
 def test_lift_with_plane_moves_only_points_under_the_floor_onto_it() -> None:
     uv, ground = [[60.0, 20.0], [50.0, 40.0]], (np.array([0.0, 0.0, 1.0]), 0.0)
     # The floor z = 0.5 is above the plane z = 0: the rays meet it first.
-    high = lift_with_plane(uv, _down_camera(), ground, floor=Plane(np.array([0.0, 0.0, 1.0]), -0.5))
+    high = lift_with_plane(uv, down_camera(), ground, floor=Plane(np.array([0.0, 0.0, 1.0]), -0.5))
     np.testing.assert_allclose(high, [[0.15, 0.3, 0.5], [0.0, 0.0, 0.5]], atol=1e-12)
     # The floor z = -0.5 is under the plane: nothing changes.
-    low = lift_with_plane(uv, _down_camera(), ground, floor=Plane(np.array([0.0, 0.0, 1.0]), 0.5))
+    low = lift_with_plane(uv, down_camera(), ground, floor=Plane(np.array([0.0, 0.0, 1.0]), 0.5))
     np.testing.assert_allclose(low, [[0.2, 0.4, 0.0], [0.0, 0.0, 0.0]], atol=1e-12)
 
 
