@@ -374,7 +374,7 @@ class GripperTemplate:
         ``uv``: a check, which changes nothing of the template's state."""
         if self.template is None or not np.all(np.isfinite(uv)):
             return False
-        found = self._window_scores(rgb, np.asarray(uv, dtype=np.float64), radius_px)
+        found = self._window_scores(rgb, np.round(np.asarray(uv, dtype=np.float64)), radius_px)  # nearest px
         return found is not None and bool(float(found[0].max()) >= self.min_score)
 
     def locate(self, rgb: NDArray[np.uint8], t: float, search_px: float) -> NDArray[np.float64] | None:
