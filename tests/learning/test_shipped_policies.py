@@ -152,19 +152,22 @@ def test_shipped_vaulting_policy_vaults_and_replays_its_recorded_cables() -> Non
 
 @pytest.mark.slow
 def test_shipped_vaulting_policy_meets_its_published_rate_on_unseen_cables() -> None:
-    """Random cables drawn from seeds outside training and the published evaluation (90 % published)."""
+    """Random cables drawn from seeds outside training and the published evaluation (90 % published). 12 of
+    the unseen cables, as the multi-step vault: each episode settles a new cable on the floor (about 4 s of
+    physics per reset and per throw); the threshold follows the count."""
     from dyndlo_vision.tasks import make_env
 
     meta = policies.metadata("vaulting")
     env = make_env("vaulting", randomize_cable_every=1, **meta["env_options"])
     model = policies.load("vaulting", env=env)
+    seeds = UNSEEN_SEEDS[:12]
     hits = 0
-    for seed in UNSEEN_SEEDS:
+    for seed in seeds:
         obs, _ = env.reset(seed=seed)
         _, _, _, _, info = env.step(model.predict(obs, deterministic=True)[0])
         hits += bool(info["is_success"])
     low = meta["evaluation"]["success_ci95"][0]
-    assert hits >= fewest_hits_expected(low, len(UNSEEN_SEEDS)), f"vaulting: {hits}/{len(UNSEEN_SEEDS)}"
+    assert hits >= fewest_hits_expected(low, len(seeds)), f"vaulting: {hits}/{len(seeds)}"
 
 
 @pytest.mark.slow
