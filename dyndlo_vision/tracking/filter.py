@@ -358,7 +358,8 @@ class MultiPointFilter:
         """(N,) whether each node is lost at time ``t``: never initialised, or ``t`` more than
         ``max_coast_s`` from its last accepted measurement (after it: coasted too long; before it: a time on
         another clock)."""
-        return (~self.initialized) | (np.abs(t - self.t_state) > self.params.max_coast_s)
+        gap = np.subtract(t, self.t_state, out=np.zeros(self.t_state.shape), where=self.initialized)
+        return (~self.initialized) | (np.abs(gap) > self.params.max_coast_s)
 
     @property
     def is_lost(self) -> NDArray[np.bool_]:

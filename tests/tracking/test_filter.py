@@ -592,6 +592,19 @@ def test_lost_exactly_beyond_max_coast_s() -> None:
     assert f.last_nis == 0.0 and not f.is_lost
 
 
+def test_a_fresh_filter_is_lost_without_a_warning() -> None:
+    """Before any measurement every node is lost, at any time, with nothing computed from the never-set
+    times (-inf - -inf would warn); a node measured once is not lost beside one that never was."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        f = MultiPointFilter(2)
+        assert f.is_lost.all() and f.is_lost_at(0.0).all()
+        assert PointFilter().is_lost
+        f.update([[0.0, 0.0, 0.0], [np.nan, 0.0, 0.0]], 0.1)
+        np.testing.assert_array_equal(f.is_lost, [False, True])
+        np.testing.assert_array_equal(f.is_lost_at(0.1 + 2 * f.params.max_coast_s), [True, True])
+
+
 def test_missed_frames_are_counted() -> None:
     f = MultiPointFilter(2)
     for k in range(3):
