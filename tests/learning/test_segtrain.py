@@ -301,3 +301,42 @@ def test_balanced_external_sampling_draws_each_source_equally_often() -> None:
         draws = np.array([_draw_external(rng, by_source, balanced) for _ in range(4000)])
         assert abs(float(np.mean(draws >= 20)) - share) < 0.03, balanced
         assert set(draws.tolist()) == set(range(25))
+
+
+def test_scales_set_the_size_cables_are_trained_at(dataset: Path, tmp_path: Path,
+                                                   capsys: pytest.CaptureFixture[str],
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """``--scales`` bounds the resize before the crop (a 2 px line is 4 px at scale 2), reaches the run's
+    JSON, and a range out of order or bounds is refused naming the option, before anything is written."""
+    from dyndlo_vision.learning.segtrain import _augment
+
+    img = np.zeros((96, 96, 3), np.uint8)
+    img[40:42] = 255
+    mask = (img[..., 0] > 0).astype(np.uint8)
+    for scales, width in (((1.0, 1.0), 2), ((2.0, 2.0), 4)):
+        for seed in range(5):
+            _, label = _augment(np.random.default_rng(seed), img, mask, (48, 48), scales)
+            rows = label.sum(axis=0)
+            assert rows.max() == rows.min() == width or rows.max() == 0, (scales, rows)
+    from dyndlo_vision.learning import segtrain
+
+    seen = []
+
+    def spy(*args: object) -> object:
+        seen.append(args[4])
+        return _augment(*args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(segtrain, "_augment", spy)
+    out = tmp_path / "run"
+    assert main(["seg-train", "--data", str(dataset), "--out", str(out), "--quiet", "--steps", "1",
+                 "--batch", "2", "--scales", "0.9,1.2"]) == 0
+    assert seen == [(0.9, 1.2)] * 2
+    assert json.loads((out / "cable_segmenter.json").read_text())["train_config"]["scales"] == [0.9, 1.2]
+    for bad in ("1.2,0.9", "0.05,1", "1", "a,b"):
+        with pytest.raises(SystemExit) as exc:
+            main(["seg-train", "--data", str(dataset), "--out", str(tmp_path / "bad"), "--quiet",
+                  "--scales", bad])
+        assert exc.value.code == 2 and "--scales" in capsys.readouterr().err
+        assert not (tmp_path / "bad").exists()
+    with pytest.raises(ValueError, match="scales"):
+        train(dataset, tmp_path / "bad", TrainConfig(steps=1, scales=(1.5, 1.0)), progress=False)
