@@ -51,9 +51,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--widths", default="8,16,32", metavar="C1,C2,C3",
                    help="channels of the network's three levels (default 8,16,32, the shipped networks'); "
                    "narrower runs faster")
-    p.add_argument("--scales", default="0.6,1.5", metavar="LO,HI",
-                   help="each training image is resized by a factor drawn log-uniformly from LO-HI before "
-                   "it is cropped: the scales the network learns to see cables at (default 0.6,1.5)")
     p.add_argument("--init", metavar="CHECKPOINT.pt|NET.onnx|NAME",
                    help="start from these weights (fine-tuning): a seg-train checkpoint, an exported ONNX "
                    "network or a shipped one by name (cable-segmenter-photo, cable-segmenter, "
@@ -85,14 +82,7 @@ def run(args: argparse.Namespace) -> int:
         widths = ()
     if len(widths) != 3 or min(widths) < 1:
         raise ValueError(f"--widths must be three positive integers C1,C2,C3, got {args.widths!r}")
-    try:
-        scales = tuple(float(x) for x in str(args.scales).split(","))
-    except ValueError:
-        scales = ()
-    if len(scales) != 2 or not 0.1 <= scales[0] <= scales[1] <= 4.0:
-        raise ValueError(f"--scales must be LO,HI with 0.1 <= LO <= HI <= 4, got {args.scales!r}")
     cfg = TrainConfig(
-        scales=scales,  # type: ignore[arg-type]
         widths=widths,  # type: ignore[arg-type]
         steps=args.steps,
         batch=args.batch,
@@ -125,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
             f"interrupted; resume with: dyndlo-vision seg-train --resume --data {' '.join(args.data)} "
             f"--out {args.out} --steps {args.steps} --batch {args.batch} --lr {args.lr} --seed {args.seed} "
             f"--pos-weight {args.pos_weight} --arch {args.arch}"
-            f" --widths {args.widths} --scales {args.scales}{ext}",
+            f" --widths {args.widths}{ext}",
             file=sys.stderr,
         )
         return 130

@@ -280,11 +280,10 @@ def load_external(pairs: list[tuple[Path, Path]], short_side: int = 240) -> tupl
 
 
 def _augment(
-    rng: np.random.Generator, rgb: NDArray[np.uint8], mask: NDArray[np.uint8], crop: tuple[int, int],
-    scales: tuple[float, float] = (0.6, 1.5),
+    rng: np.random.Generator, rgb: NDArray[np.uint8], mask: NDArray[np.uint8], crop: tuple[int, int]
 ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
     ch, cw = crop
-    s = float(np.exp(rng.uniform(math.log(scales[0]), math.log(scales[1]))))
+    s = float(np.exp(rng.uniform(math.log(0.6), math.log(1.5))))
     h, w = rgb.shape[:2]
     s = max(s, ch / h + 1e-3, cw / w + 1e-3)
     size = (int(math.ceil(w * s)), int(math.ceil(h * s)))
@@ -334,9 +333,6 @@ class TrainConfig:
     #: a source with few photos, such as cables_dataset's 5 beside mBEST's 20, is seldom drawn).
     external_balanced: bool = False
     checkpoint_every: int = 250
-    #: Each training image is resized by a factor drawn log-uniformly from this range before it is cropped
-    #: (the scales the network learns to see cables at).
-    scales: tuple[float, float] = (0.6, 1.5)
     #: Batch norms in eval mode while training (their statistics fixed, scale and shift still trained): how a
     #: network read back from ONNX (:func:`net_from_onnx`) is fine-tuned.
     frozen_batch_norm: bool = False
@@ -345,8 +341,7 @@ class TrainConfig:
 def _with_widths(config: dict[str, Any]) -> dict[str, Any]:
     """A stored training config with ``widths`` as a tuple; options it predates at their defaults."""
     return {"frozen_batch_norm": False, "external_short_side": 240, "external_balanced": False, **config,
-            "widths": tuple(config.get("widths", DEFAULT_WIDTHS)),
-            "scales": tuple(config.get("scales", (0.6, 1.5)))}
+            "widths": tuple(config.get("widths", DEFAULT_WIDTHS))}
 
 
 def is_onnx_init(init: str | Path) -> bool:
@@ -501,8 +496,6 @@ def _check_config(config: TrainConfig, external: Path | None) -> None:
         raise ValueError(f"arch must be one of {ARCHITECTURES}, got {config.arch!r}")
     if len(config.widths) != 3 or not all(isinstance(c, int) and c >= 1 for c in config.widths):
         raise ValueError(f"widths must be three positive ints (c1, c2, c3), got {config.widths!r}")
-    if len(config.scales) != 2 or not 0.1 <= config.scales[0] <= config.scales[1] <= 4.0:
-        raise ValueError(f"scales must be LO <= HI within [0.1, 4], got {config.scales!r}")
     if config.arch == "cablenet-s2d4" and (config.crop_h % 16 or config.crop_w % 16):
         raise ValueError(
             f"cablenet-s2d4 needs crops in multiples of 16 px, got {config.crop_h}x{config.crop_w}"
@@ -567,10 +560,10 @@ def _batch(rng: np.random.Generator, config: TrainConfig, images: list[Any], mas
     for _ in range(config.batch):
         if ext_images and rng.random() < config.external_share:
             k = _draw_external(rng, by_source, config.external_balanced)
-            x, y = _augment(rng, ext_images[k], ext_masks[k], (config.crop_h, config.crop_w), config.scales)
+            x, y = _augment(rng, ext_images[k], ext_masks[k], (config.crop_h, config.crop_w))
         else:
             k = int(rng.integers(len(images)))
-            x, y = _augment(rng, images[k], masks[k], (config.crop_h, config.crop_w), config.scales)
+            x, y = _augment(rng, images[k], masks[k], (config.crop_h, config.crop_w))
         xs.append(x)
         ys.append(y)
     xb = torch.from_numpy(np.stack(xs))
