@@ -357,7 +357,9 @@ class MultiPointFilter:
     def is_lost_at(self, t: float) -> NDArray[np.bool_]:
         """(N,) whether each node is lost at time ``t``: never initialised, or ``t`` more than
         ``max_coast_s`` from its last accepted measurement (after it: coasted too long; before it: a time on
-        another clock)."""
+        another clock). A NaN time raises ValueError: no node can be said tracked at it."""
+        if math.isnan(t):
+            raise ValueError(f"t must be a time, got {t!r}")
         gap = np.subtract(t, self.t_state, out=np.zeros(self.t_state.shape), where=self.initialized)
         return (~self.initialized) | (np.abs(gap) > self.params.max_coast_s)
 
@@ -367,8 +369,14 @@ class MultiPointFilter:
         return self.is_lost_at(self.t_last_seen)
 
     def estimate(self, t_query: float) -> MultiEstimate:
-        """Predicts all nodes to ``t_query`` without changing the filter (NaN for nodes never initialised)."""
+        """Predicts all nodes to ``t_query`` without changing the filter (NaN for nodes never initialised).
+
+        Raises:
+            ValueError: ``t_query`` is not finite (a prediction to no time, which would be NaN yet not lost).
+        """
         t_query = float(t_query)
+        if not math.isfinite(t_query):
+            raise ValueError(f"t_query must be finite, got {t_query!r}")
         dt = np.where(self.initialized, t_query - self.t_state, 0.0)
         x, P = _propagate_batch(self.x, self.P, dt, self.params.sigma_accel, self.params.accel_psd)
         pos = x[:, :3].copy()

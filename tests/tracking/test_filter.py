@@ -605,6 +605,18 @@ def test_a_fresh_filter_is_lost_without_a_warning() -> None:
         np.testing.assert_array_equal(f.is_lost_at(0.1 + 2 * f.params.max_coast_s), [True, True])
 
 
+def test_a_prediction_to_no_time_is_refused() -> None:
+    """A NaN (or infinite) query time would predict NaN positions flagged as tracked: refused, naming it."""
+    f = PointFilter()
+    f.update([0.0, 0.0, 0.0], 0.5)
+    for t in (math.nan, math.inf):
+        with pytest.raises(ValueError, match="t_query must be finite"):
+            f.estimate(t)
+    with pytest.raises(ValueError, match="t must be a time, got nan"):
+        f.is_lost_at(math.nan)
+    assert f.is_lost_at(math.inf) and f.is_lost_at(-math.inf)  # infinitely far from the measurement
+
+
 def test_missed_frames_are_counted() -> None:
     f = MultiPointFilter(2)
     for k in range(3):
