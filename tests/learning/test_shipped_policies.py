@@ -126,7 +126,9 @@ def test_shipped_hooking_policy_hooks_on_the_nominal_cable_and_on_cables_it_neve
 @pytest.mark.slow
 def test_shipped_vaulting_policy_vaults_and_replays_its_recorded_cables() -> None:
     """Vaulting starts from one fixed state: the nominal cable is one episode. On random cables the policy
-    succeeds only on some (stiff cables need another throw); the first recorded episodes must replay."""
+    succeeds only on some (stiff cables need another throw); the first recorded episodes must replay, hits
+    and a miss alike. (A rate over unseen cables is not checked here: each vault settles a new cable, about
+    8 s a cable, and the dozen CI can afford would catch only what this replay catches, a broken policy.)"""
     from dyndlo_vision.tasks.wrappers import CableRandomization
 
     meta = policies.metadata("vaulting")
@@ -151,28 +153,8 @@ def test_shipped_vaulting_policy_vaults_and_replays_its_recorded_cables() -> Non
 
 
 @pytest.mark.slow
-def test_shipped_vaulting_policy_meets_its_published_rate_on_unseen_cables() -> None:
-    """Random cables drawn from seeds outside training and the published evaluation (90 % published). 12 of
-    the unseen cables, as the multi-step vault: each episode settles a new cable on the floor (about 4 s of
-    physics per reset and per throw); the threshold follows the count."""
-    from dyndlo_vision.tasks import make_env
-
-    meta = policies.metadata("vaulting")
-    env = make_env("vaulting", randomize_cable_every=1, **meta["env_options"])
-    model = policies.load("vaulting", env=env)
-    seeds = UNSEEN_SEEDS[:12]
-    hits = 0
-    for seed in seeds:
-        obs, _ = env.reset(seed=seed)
-        _, _, _, _, info = env.step(model.predict(obs, deterministic=True)[0])
-        hits += bool(info["is_success"])
-    low = meta["evaluation"]["success_ci95"][0]
-    assert hits >= fewest_hits_expected(low, len(seeds)), f"vaulting: {hits}/{len(seeds)}"
-
-
-@pytest.mark.slow
 def test_shipped_multi_step_vaulting_policy_meets_its_published_rate_on_unseen_cables() -> None:
-    """The re-planning vault (a P_DLO-history student) on cables of issue 16's vaulting ranges drawn from
+    """The re-planning vault (a P_DLO-history student) on cables of the vaulting "beyond" ranges drawn from
     unseen seeds, reset before every episode as evaluate and the demo do."""
     from dyndlo_vision.tasks import make_env
     from dyndlo_vision.tasks.wrappers import cable_ranges_for
