@@ -124,7 +124,6 @@ def test_expert_holds_the_end_of_the_plan(task: str) -> None:
     assert np.linalg.norm(end_velocity) < 0.1
 
 
-@pytest.mark.slow
 def test_expert_smoothing_gives_labels_a_student_can_fit_and_keeps_the_plan() -> None:
     """Many actions re-plan the rest of a plan almost equally well. Without smoothing, consecutive labels jump
     (mean squared change 0.4-1.2 on these random vault plans) although each fit is good; with it they change

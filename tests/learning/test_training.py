@@ -310,7 +310,6 @@ def test_demonstrations_seed_the_replay_buffer_with_baseline_episodes(tmp_path: 
     assert episodes == 3 + 4  # the demonstrations are real episodes, logged with the run's
 
 
-@pytest.mark.slow
 def test_vaulting_demonstrations_are_scripted_vaults(tmp_path: Path) -> None:
     from dyndlo_vision.tasks.baselines import FlickVault
 
