@@ -34,7 +34,6 @@ def look_at_camera(
     return PinholeCamera(width, height, K, np.asarray(dist, float), R, -R @ eye_a, fps=25.0)
 
 
-
 def down_camera() -> PinholeCamera:
     """2 m above the origin looking straight down: the ray through pixel (50 + 100 a, 40 + 100 b) runs along
     (a, -b, -1) in the world (pixel (60, 20) along (0.1, 0.2, -1)); the one through the principal point
