@@ -50,7 +50,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--widths", default="8,16,32", metavar="C1,C2,C3",
                    help="channels of the network's three levels (default 8,16,32, the shipped networks'); "
-                   "narrower runs faster")
+                   "narrower runs faster. With --init, twice the network's widths widen it: it starts out "
+                   "computing what it did")
     p.add_argument("--init", metavar="CHECKPOINT.pt|NET.onnx|NAME",
                    help="start from these weights (fine-tuning): a seg-train checkpoint, an exported ONNX "
                    "network or a shipped one by name (cable-segmenter-photo, cable-segmenter, "

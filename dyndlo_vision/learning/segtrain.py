@@ -523,10 +523,54 @@ def _init_weights(init: str | Path, config: TrainConfig) -> Any:
         init_widths = tuple(init_state.get("config", {}).get("widths", DEFAULT_WIDTHS))
     if init_arch != config.arch:
         raise ValueError(f"--init {init} holds a {init_arch} network; train it with --arch {init_arch}")
+    if tuple(config.widths) == tuple(2 * c for c in init_widths):
+        narrow = build_net(init_arch, *init_widths)
+        narrow.load_state_dict(init_weights)
+        return widened(narrow, init_arch, init_widths, config.seed).state_dict()
     if init_widths != tuple(config.widths):
+        doubled = ",".join(str(2 * c) for c in init_widths)
         raise ValueError(f"--init {init} holds a network of widths {init_widths}; train it with --widths "
-                         f"{','.join(map(str, init_widths))}")
+                         f"{','.join(map(str, init_widths))}, or {doubled} to widen it")
     return init_weights
+
+
+def widened(net: Any, arch: str, widths: tuple[int, int, int], seed: int = 0) -> Any:
+    """A :func:`build_net` network twice as wide as ``net`` (of ``arch`` and ``widths``) that computes the
+    same logits (Net2WiderNet): every hidden channel is copied, and each layer that reads a channel and its
+    copy gets the original weight split between the two at a random ratio in 0.4-0.6 (``seed``), so the pair
+    sums to what it was and learns apart. A wider network starts from what a narrower one has learnt."""
+    torch = _torch()
+    c1, c2, c3 = widths
+    w1 = 2 * c1 if arch == "cablenet-s2d4" else c1
+    wide = build_net(arch, 2 * c1, 2 * c2, 2 * c3).train(net.training)
+    gen = torch.Generator().manual_seed(int(seed))
+    # Each layer's input, as the parts it concatenates (None: the frame, which is not widened).
+    inputs = {"e1": None, "e2": [w1], "e3": [c2], "e4": [c3], "e5": [c3], "d2": [c3, c2], "d2b": [c2],
+              "d1": [c2, w1], "out": [w1]}
+
+    def split(weight: Any, parts: list[int]) -> Any:
+        """(O, sum(parts), k, k) -> (O, 2 sum(parts), k, k): each part's channels, then their copies."""
+        out, start = [], 0
+        for size in parts:
+            w = weight[:, start : start + size]
+            start += size
+            share = 0.4 + 0.2 * torch.rand(w.shape, generator=gen)
+            out += [w * share, w * (1.0 - share)]
+        return torch.cat(out, 1)
+
+    with torch.no_grad():
+        for name, parts in inputs.items():
+            old, new = getattr(net, name), getattr(wide, name)
+            conv, wide_conv = (old, new) if name == "out" else (old[0], new[0])
+            weight = conv.weight if parts is None else split(conv.weight, parts)
+            if name == "out":
+                wide_conv.weight.copy_(weight)
+                wide_conv.bias.copy_(conv.bias)
+                continue
+            wide_conv.weight.copy_(torch.cat([weight, weight], 0))
+            for attr in ("weight", "bias", "running_mean", "running_var"):
+                getattr(new[1], attr).copy_(torch.cat([getattr(old[1], attr)] * 2, 0))
+    return wide
 
 
 def _load_training_data(folders: list[Path], external: Path | None, config: TrainConfig) -> tuple[

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,7 @@ from dyndlo_vision.learning.segtrain import (
     full_res_logits,
     net_from_onnx,
     train,
+    widened,
 )
 from dyndlo_vision.tracking.learned import LearnedSegmenter, from_blocks, to_blocks
 
@@ -301,3 +303,42 @@ def test_balanced_external_sampling_draws_each_source_equally_often() -> None:
         draws = np.array([_draw_external(rng, by_source, balanced) for _ in range(4000)])
         assert abs(float(np.mean(draws >= 20)) - share) < 0.03, balanced
         assert set(draws.tolist()) == set(range(25))
+
+
+@pytest.mark.parametrize("arch", ARCHITECTURES)
+def test_a_widened_network_computes_the_same_and_its_copies_learn_apart(arch: str) -> None:
+    """``widened`` doubles every hidden layer without changing the logits; a channel and its copy get
+    different gradients, or they would stay copies for ever."""
+    import torch
+
+    widths = (4, 8, 16)
+    net = _random_eval_net(arch, 5, widths)
+    wide = widened(net, arch, widths, seed=1)
+    assert [m.weight.shape[0] for m in wide.modules() if isinstance(m, torch.nn.Conv2d)][:3] == (
+        [16, 16, 32] if arch == "cablenet-s2d4" else [8, 16, 32])  # doubled (s2d4: e1 is 2 c1 wide)
+    x = torch.from_numpy(np.random.default_rng(4).uniform(-0.5, 0.5, (2, 3, 64, 96)).astype(np.float32))
+    with torch.no_grad():
+        ref = full_res_logits(net, x, arch)
+        out = full_res_logits(wide, x, arch)
+    assert float(ref.abs().max()) > 0.1
+    assert float((out - ref).abs().max()) < 1e-4
+    full_res_logits(wide, x, arch).square().mean().backward()
+    grad = wide.e2[0].weight.grad
+    half = grad.shape[0] // 2
+    assert float((grad[:half] - grad[half:]).abs().max()) > 1e-3 * float(grad.abs().max())
+
+
+def test_seg_train_widens_a_network_half_as_wide(dataset: Path, tmp_path: Path) -> None:
+    """``--init`` a network with ``--widths`` twice its own starts from it, widened; any other widths are
+    refused, naming both."""
+    narrow = tmp_path / "narrow.onnx"
+    narrow.write_bytes(export_onnx(_random_eval_net("cablenet-s2d4", 6, (4, 8, 16))))
+    config = TrainConfig(steps=1, batch=1, crop_h=64, crop_w=64, lr=1e-9, widths=(8, 16, 32),
+                         frozen_batch_norm=True)
+    train(dataset, tmp_path / "wide", config, init=narrow, progress=False)
+    frame = np.random.default_rng(0).integers(0, 255, (96, 128, 3), np.uint8)
+    before = LearnedSegmenter(narrow.read_bytes(), short_side=None).logits(frame)
+    after = LearnedSegmenter((tmp_path / "wide" / "cable_segmenter.onnx").read_bytes(), short_side=None)
+    assert np.abs(after.logits(frame) - before).max() < 1e-3 * np.abs(before).max()
+    with pytest.raises(ValueError, match=r"widths \(4, 8, 16\).*--widths 4,8,16, or 8,16,32 to widen"):
+        train(dataset, tmp_path / "other", replace(config, widths=(8, 16, 16)), init=narrow, progress=False)
