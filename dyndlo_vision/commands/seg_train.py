@@ -54,10 +54,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "computing what it did")
     p.add_argument("--init", metavar="CHECKPOINT.pt|NET.onnx|NAME",
                    help="start from these weights (fine-tuning): a seg-train checkpoint, an exported ONNX "
-                   "network or a shipped one by name (cable-segmenter-photo, cable-segmenter, "
-                   "cable-segmenter-fine, cable-segmenter-loop); an ONNX network, or a checkpoint of a run "
-                   "from one, is fine-tuned with its batch norms frozen (the export folded their statistics "
-                   "away)")
+                   "network or a shipped one by name (cable-segmenter-photo-wide, cable-segmenter-photo, "
+                   "cable-segmenter, cable-segmenter-fine, cable-segmenter-loop); an ONNX network, or a "
+                   "checkpoint of a run from one, is fine-tuned with its batch norms frozen (the export "
+                   "folded their statistics away)")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     options.add_resume(p)
     options.add_quiet(p)

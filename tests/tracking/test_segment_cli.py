@@ -128,13 +128,15 @@ def test_shipped_networks_by_name(tmp_path: Path, capsys: pytest.CaptureFixture[
 
 
 def test_the_default_network_is_the_photo_network(tmp_path: Path) -> None:
-    """Without ``--segmenter-model``, ``segment`` runs ``cable-segmenter-photo`` (the best on held-out
-    photos), not the loop's faster default ``cable-segmenter``."""
+    """Without ``--segmenter-model``, ``segment`` runs ``cable-segmenter-photo-wide`` (the best on held-out
+    photos), not the loop's faster default ``cable-segmenter`` nor the narrower photo network."""
     _photo(tmp_path / "a.png", (300, 400), 3)
     masks = {}
-    for name, extra in (("default", []), ("photo", ["--segmenter-model", "cable-segmenter-photo"]),
+    for name, extra in (("default", []), ("photo", ["--segmenter-model", "cable-segmenter-photo-wide"]),
+                        ("narrow", ["--segmenter-model", "cable-segmenter-photo"]),
                         ("first", ["--segmenter-model", "cable-segmenter"])):
         assert _run(str(tmp_path / "a.png"), "--out", str(tmp_path / name), "--quiet", *extra) == 0
         masks[name] = cv2.imread(str(tmp_path / name / "a_mask.png"), cv2.IMREAD_UNCHANGED)
     assert masks["default"].any() and np.array_equal(masks["default"], masks["photo"])
+    assert not np.array_equal(masks["default"], masks["narrow"])
     assert not np.array_equal(masks["default"], masks["first"])
