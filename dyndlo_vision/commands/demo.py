@@ -87,6 +87,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``demo``."""
     from dyndlo_vision.commands import _options as options
     from dyndlo_vision.tasks.registry import task_entry
+    from dyndlo_vision.tracking.networks import LOOP_NAME
 
     p.epilog = ("The video and the plot show the first episode; metrics.json aggregates all of them, and "
                 "records each episode's cable and the ranges it was drawn from.")
@@ -143,7 +144,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "cycle); the loop's background is its scene rendered without the cable; with --observation tracked "
         "only",
     )
-    options.add_segmenter_model(p, default="cable-segmenter-loop")
+    options.add_segmenter_model(p, default=LOOP_NAME)
     p.add_argument(
         "--segmenter-scale",
         type=float,

@@ -24,11 +24,12 @@ SEGMENTERS = ("learned", "background", "hsv")
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``segment``."""
     from dyndlo_vision.commands import _options as options
+    from dyndlo_vision.tracking.networks import PHOTO_NAME
 
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="image files and/or folders of images")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
     options.add_segmenter(p, SEGMENTERS, "learned")
-    options.add_segmenter_model(p, default="cable-segmenter-photo")
+    options.add_segmenter_model(p, default=PHOTO_NAME)
     options.add_short_side(p)
     options.add_hsv_bounds(p)
     p.add_argument("--max-cables", type=int, default=8, help="most polylines per image")

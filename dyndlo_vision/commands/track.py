@@ -89,6 +89,7 @@ NODE_CSV_COLUMNS = ("frame", "time_s", "node", "visible", "u", "v", "x", "y", "z
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``track``."""
     from dyndlo_vision.commands import _options as options
+    from dyndlo_vision.tracking.networks import SHIPPED_NAME
 
     p.add_argument("video", metavar="VIDEO", help="video file OpenCV can read, or a folder of images")
     p.add_argument("--out", required=True, metavar="TRACK.csv", help="CSV to write (folder must exist)")
@@ -117,7 +118,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--second-anchor", metavar="U,V", help="--anchor for the second video")
     options.add_segmenter(p, ("learned", "background", "hsv"), "background")
-    options.add_segmenter_model(p, default="cable-segmenter")
+    options.add_segmenter_model(p, default=SHIPPED_NAME)
     options.add_short_side(p)
     options.add_hsv_bounds(p)
     p.add_argument(

@@ -197,3 +197,16 @@ def test_a_command_that_drifts_is_caught(field: str, command: str, value: Any) -
     setattr(action, field, value)
     problems, _ = differences(options_by_name(commands))
     assert any(p.startswith(f"{option} {field}") for p in problems), problems
+
+
+def test_the_segmenter_model_help_names_the_network_each_command_runs() -> None:
+    """``--segmenter-model``'s help states the default network from the constant the command runs with
+    (``segment``: the photo network; ``track``: ``onnx_bytes()``'s; ``demo``: the loop's), not a copy."""
+    from dyndlo_vision.tracking.networks import LOOP_NAME, PHOTO_NAME, SHIPPED_NAME
+
+    helps = {command: action.help for command, parser in parsers().items() for action in parser._actions
+             if "--segmenter-model" in action.option_strings}
+    expected = {"segment": PHOTO_NAME, "track": SHIPPED_NAME, "demo": LOOP_NAME}
+    assert set(helps) == set(expected)
+    for command, name in expected.items():
+        assert helps[command].endswith(f"; default: {name}"), (command, helps[command])
