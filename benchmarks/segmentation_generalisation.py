@@ -13,7 +13,8 @@ Every figure is per *kind*, never only pooled: a network that does well on avera
 * ``flat``: flat-coloured synthetic cables 1-11 px wide on plain walls (640x480): median DICE per width.
 * ``phase``: a straight 1.6 px line at each of the four horizontal offsets within the 4x4 pixel blocks a block
   network reads: the share of lines found (median probability > 0.5) at the worst and the best offset.
-* ``speed``: one-core milliseconds per 640x480 frame of the segmenter (cv2.dnn) and of the centreline.
+* ``speed``: milliseconds per 640x480 frame of the segmenter (ONNX Runtime on ``learned.ENGINE_THREADS``
+  threads) and, on one core, of the classical segmenter and the centreline.
 * ``whip``: rendered whip videos of a dark 2.5 px cable in three styles no generator draws (plain wall,
   wood grain with motion blur, a pole in front): mask DICE and tip figures.
 * ``loopcam``: the control loop's own camera (tip control, 640x480, a 1.6 px red cable): DICE and time at
@@ -375,8 +376,9 @@ def part_whip(seg, seed: int) -> dict:
 
 
 def part_speed(seg, seed: int, repeats: int = 200, seconds: float = 1.0) -> dict:
-    """Median ms per 640x480 frame on one core: the learned segmenter (cv2.dnn), the classical segmenter, and
-    the centreline on the learned mask, on the last frames of the plain whip video."""
+    """Median ms per 640x480 frame: the learned segmenter (ONNX Runtime, ``learned.ENGINE_THREADS`` threads),
+    and on one core the classical segmenter and the centreline on the learned mask, on the last frames of the
+    plain whip video."""
     frames, _, _, tcps, calib, length_m = whip_video("plain", seed, seconds=seconds)
     frames = frames[-10:]
     tcps = tcps[-10:]
@@ -398,7 +400,7 @@ def part_speed(seg, seed: int, repeats: int = 200, seconds: float = 1.0) -> dict
 
     masks = [seg(f) for f in frames]
     return {
-        "learned_cv2dnn_ms": med(lambda k: seg(frames[k])),
+        "learned_ms": med(lambda k: seg(frames[k])),
         "classical_ms": med(lambda k: classical(frames[k])),
         "centerline_ms": med(lambda k: centre(masks[k], k)),
         "learned_plus_centerline_ms": med(lambda k: centre(seg(frames[k]), k)),

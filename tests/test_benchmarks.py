@@ -24,6 +24,7 @@ MAINTAINED: dict[str, tuple[list[str], str]] = {
     "integrator_choice.py": (["--quick"], r"\| discrete \| 1 \| yes \|"),
     "task4_vs_geometric.py": (["time-oscillation-up", "--quick"], r'"residual_oscillation_m"'),
     "chain_robustness.py": (["--quick"], r"\| chain \| vaulting \| multi \| 1 \|"),
+    "segmenter_engines.py": (["--quick"], r"\| `cable-segmenter-loop` \| 48x120x160 \| .* \| 0\.0\d{3} % \|"),
 }
 #: The perception benchmarks: maintained too; tests/tracking/test_perception_benchmarks.py checks their quick
 #: runs.

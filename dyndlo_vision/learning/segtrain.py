@@ -7,9 +7,10 @@ blocks and gives 16 sub-pixel logits per block, so its mask has the frame's full
 side upsamples. A cable 1.6 px wide in a 640x480 frame, the loop's camera, is 0.4 px at ``cablenet``'s
 output when it runs at 320x240, and comes out in fragments.
 Training computes the loss on the logits at the input's resolution exactly as they are made at run time
-(:func:`full_res_logits`), so what is trained is what runs. Inference runs through ``cv2.dnn`` on the
-exported ONNX file (:class:`dyndlo_vision.tracking.learned.LearnedSegmenter`): on one core it runs several
-times faster than torch (``benchmarks/segmentation_generalisation.py``).
+(:func:`full_res_logits`), so what is trained is what runs. Inference runs through ONNX Runtime on the
+exported ONNX file (:class:`dyndlo_vision.tracking.learned.LearnedSegmenter`;
+``benchmarks/segmenter_engines.py`` compares it with OpenCV's ``cv2.dnn``, itself several times faster than
+torch on one core).
 
 Fine-tuning on labelled real photos (``--external``) mixes them into the batches; only the ``train`` half
 of :func:`external_split` is used, the other half is held out for reporting.

@@ -1,4 +1,4 @@
-"""The learned cable segmenter at run time: a small CNN (ONNX) evaluated with OpenCV's ``cv2.dnn``.
+"""The learned cable segmenter at run time: a small CNN (ONNX) evaluated with ONNX Runtime on the CPU.
 
 Pure computation on arrays: the network arrives as ONNX bytes (the shipped ones from
 :func:`dyndlo_vision.tracking.networks.onnx_bytes`). Two input layouts, told apart by the network's number
@@ -12,13 +12,15 @@ of input channels when it is loaded:
 * **RGB** (3 channels, ``cablenet``, shipped as ``cable-segmenter``, the default): the frame is resized to
   ``short_side`` (240), the logits (half that size) are resized bilinearly to the frame.
 
-cv2.dnn runs these networks several times faster than torch on one core, and torch is not needed at run
-time.
+ONNX Runtime runs these networks 1.5-2.0x as fast as OpenCV's ``cv2.dnn`` (which was faster than torch) on
+one thread and 1.2-1.9x on two, with the same logits to 2e-5 (``benchmarks/segmenter_engines.py``); torch is
+not needed at run time.
 """
 
 from __future__ import annotations
 
 from fractions import Fraction
+from typing import Any
 
 import cv2
 import numpy as np
@@ -33,6 +35,29 @@ BLOCK = 4
 _MULTIPLE = 16
 #: The logit given outside a computed region (no cable; far below any threshold, finite for resizing).
 OUTSIDE_LOGIT = -1.0e4
+#: Threads of a network's forward pass. Two: on two cores a 640x480 frame's forward pass takes 0.6-0.9x its
+#: time on one (``benchmarks/segmenter_engines.py``); each segmenter holds its own pool.
+ENGINE_THREADS = 2
+
+
+def onnx_session(onnx: bytes, threads: int = ENGINE_THREADS) -> Any:
+    """An ONNX Runtime CPU session for ``onnx`` with ``threads`` threads that sleep between calls (a spinning
+    pool would take the cores from the renderer and the rest of the loop).
+
+    Raises:
+        ValueError: bytes ONNX Runtime cannot load.
+    """
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = int(threads)
+    options.inter_op_num_threads = 1
+    options.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    options.log_severity_level = 3
+    try:
+        return ort.InferenceSession(bytes(onnx), options, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # ONNX Runtime raises its own exception types for unreadable models
+        raise ValueError(f"ONNX Runtime cannot read the segmenter's ONNX bytes: {exc}") from exc
 
 
 def to_blocks(rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
@@ -77,7 +102,7 @@ class LearnedSegmenter:
         min_area: Connected components of the mask smaller than this many pixels are dropped (0: off).
 
     Raises:
-        ValueError: ONNX bytes OpenCV cannot read, a network of neither layout, or bad settings.
+        ValueError: ONNX bytes ONNX Runtime cannot read, a network of neither layout, or bad settings.
     """
 
     def __init__(
@@ -96,10 +121,14 @@ class LearnedSegmenter:
             raise ValueError(f"short_side must be 'auto', None or an int >= 16, got {short_side!r}")
         if not np.isfinite(threshold):
             raise ValueError(f"threshold must be finite, got {threshold!r}")
-        try:
-            self._net = cv2.dnn.readNetFromONNX(np.frombuffer(bytes(onnx), np.uint8))
-        except cv2.error as exc:
-            raise ValueError(f"OpenCV cannot read the segmenter's ONNX bytes: {exc}") from exc
+        self._session = onnx_session(onnx)
+        inputs, outputs = self._session.get_inputs(), self._session.get_outputs()
+        if len(inputs) != 1 or len(outputs) != 1:
+            raise ValueError(
+                "the segmenter's network must have one input and one output, got "
+                f"{len(inputs)} and {len(outputs)}"
+            )
+        self._input = inputs[0].name
         self.blocks = self._probe_layout()
         if short_side == "auto":
             short_side = 480 if self.blocks else 240
@@ -107,13 +136,18 @@ class LearnedSegmenter:
         self.threshold = float(threshold)
         self.min_area = int(min_area)
 
+    def _forward(self, x: NDArray[np.float32]) -> NDArray[np.float32]:
+        """The network's output for the N x C x H x W input ``x``."""
+        return np.asarray(self._session.run(None, {self._input: x})[0], dtype=np.float32)
+
     def _probe_layout(self) -> bool:
         """True for the 48-channel block layout, False for RGB (one tiny forward pass of each)."""
         for channels, blocks in ((3 * BLOCK * BLOCK, True), (3, False)):
             try:
-                self._net.setInput(np.zeros((1, channels, 16, 16), np.float32))
-                out = self._net.forward()
-            except cv2.error:
+                out = self._forward(np.zeros((1, channels, 16, 16), np.float32))
+            except Exception:  # ONNX Runtime's error for an input of the wrong shape
+                continue
+            if out.ndim != 4:
                 continue
             if blocks and out.shape[1] == BLOCK * BLOCK:
                 return True
@@ -145,8 +179,7 @@ class LearnedSegmenter:
         h, w = small.shape[:2]
         ph, pw = -h % _MULTIPLE, -w % _MULTIPLE
         padded = cv2.copyMakeBorder(small, 0, ph, 0, pw, cv2.BORDER_REPLICATE) if ph or pw else small
-        self._net.setInput(to_blocks(padded))
-        return np.asarray(self._net.forward()[0], dtype=np.float32)
+        return self._forward(to_blocks(padded))[0]
 
     def grid_box(self, region: tuple[int, int, int, int] | None, height: int,
                  width: int) -> tuple[int, int, int, int] | None:
@@ -177,8 +210,7 @@ class LearnedSegmenter:
             h, w = small.shape[:2]
             return np.ascontiguousarray(from_blocks(self._block_logits(small))[:h, :w])
         blob = cv2.dnn.blobFromImage(small, 1.0 / 255.0, mean=(127.5, 127.5, 127.5), swapRB=False)
-        self._net.setInput(blob)
-        return np.asarray(self._net.forward()[0, 0], dtype=np.float32)
+        return self._forward(blob)[0, 0]
 
     def logits(self, rgb: NDArray[np.uint8],
                region: tuple[int, int, int, int] | None = None) -> NDArray[np.float32]:

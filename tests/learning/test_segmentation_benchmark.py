@@ -29,7 +29,7 @@ def test_the_quick_benchmark_reports_every_kind(tmp_path: Path) -> None:
         assert entry["n"] + entry["no_cable_samples"] == 2, style
         assert 0.0 <= entry["dice_mean"] <= 1.0 and 0.0 <= entry["near_empty_share"] <= 1.0
         assert (worst / f"worst_{style}.png").is_file()
-    assert report["speed"]["learned_cv2dnn_ms"] > 0
+    assert report["speed"]["learned_ms"] > 0
     if EXTERNAL.is_dir():  # both sources, both halves, each on its own
         summary = report["external"]["summary"]
         for source in ("mbest", "cables_dataset"):

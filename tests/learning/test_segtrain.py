@@ -1,4 +1,4 @@
-"""``seg-train``: a short run trains, checkpoints, resumes and exports an ONNX network cv2.dnn runs."""
+"""``seg-train``: a short run trains, checkpoints, resumes and exports an ONNX network ONNX Runtime runs."""
 
 from __future__ import annotations
 
@@ -59,7 +59,7 @@ def test_several_datasets_are_pooled(dataset: Path, tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("arch", ARCHITECTURES)
 def test_onnx_matches_torch(arch: str) -> None:
-    """What runs (cv2.dnn on the ONNX file, blocks laid out in numpy) is what was trained (torch)."""
+    """What runs (ONNX Runtime on the ONNX file, blocks laid out in numpy) is what was trained (torch)."""
     import torch
 
     torch.manual_seed(0)

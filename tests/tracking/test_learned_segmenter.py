@@ -1,4 +1,4 @@
-"""The shipped learned segmenter (ONNX through cv2.dnn) and the multi-cable polylines."""
+"""The shipped learned segmenter (ONNX through ONNX Runtime) and the multi-cable polylines."""
 
 from __future__ import annotations
 
@@ -188,6 +188,41 @@ def test_bad_input_is_refused(seg: LearnedSegmenter) -> None:
         LearnedSegmenter(b"x", short_side=4)
     with pytest.raises(FileNotFoundError, match="nowhere.onnx"):
         onnx_bytes("/nowhere.onnx")
+
+
+def _identity_onnx(channels: int, outputs: int = 1) -> bytes:
+    """An ONNX graph whose ``outputs`` outputs each repeat its 1 x ``channels`` x H x W input."""
+    pytest.importorskip("onnx")
+    from onnx import TensorProto, helper
+
+    x = helper.make_tensor_value_info("rgb", TensorProto.FLOAT, [1, channels, "h", "w"])
+    ys = [helper.make_tensor_value_info(f"y{k}", TensorProto.FLOAT, [1, channels, "h", "w"])
+          for k in range(outputs)]
+    nodes = [helper.make_node("Identity", ["rgb"], [f"y{k}"]) for k in range(outputs)]
+    graph = helper.make_graph(nodes, "identity", [x], ys)
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
+    model.ir_version = 8
+    return bytes(model.SerializeToString())
+
+
+def test_a_network_of_neither_layout_or_with_two_outputs_is_refused() -> None:
+    # 48 channels in, 48 out: the block layout's input, but not its 16 logits per block.
+    with pytest.raises(ValueError, match="neither 48-channel 4x4 blocks"):
+        LearnedSegmenter(_identity_onnx(48))
+    with pytest.raises(ValueError, match="neither 48-channel 4x4 blocks"):
+        LearnedSegmenter(_identity_onnx(5))
+    with pytest.raises(ValueError, match="one input and one output, got 1 and 2"):
+        LearnedSegmenter(_identity_onnx(3, outputs=2))
+    # Three channels in, one out: read as an RGB network.
+    from onnx import TensorProto, helper
+
+    x = helper.make_tensor_value_info("rgb", TensorProto.FLOAT, [1, 3, "h", "w"])
+    y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 1, "h", "w"])
+    node = helper.make_node("ReduceMean", ["rgb"], ["y"], axes=[1], keepdims=1)
+    model = helper.make_model(helper.make_graph([node], "mean", [x], [y]),
+                              opset_imports=[helper.make_opsetid("", 13)])
+    model.ir_version = 8
+    assert LearnedSegmenter(bytes(model.SerializeToString())).blocks is False
 
 
 def test_polylines_of_two_crossing_cables() -> None:
