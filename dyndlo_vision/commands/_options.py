@@ -214,7 +214,7 @@ def add_segmenter_model(p: _Parser, default: str) -> None:
         metavar="FILE.onnx|NAME",
         help="with --segmenter learned: the network, an ONNX file from seg-train or a shipped one by name: "
         "cable-segmenter-photo-wide (full resolution, the best on real photos), cable-segmenter-photo (half "
-        "as wide, 2x faster), cable-segmenter (half resolution, fastest), cable-segmenter-fine (full "
+        "as wide, 1.4x faster), cable-segmenter (half resolution, fastest), cable-segmenter-fine (full "
         "resolution, for cables 1-3 px wide) or cable-segmenter-loop "
         f"(cable-segmenter-fine tuned on the simulated loop's scenes); default: {default}",
     )
