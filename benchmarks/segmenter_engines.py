@@ -21,26 +21,16 @@ from typing import Any
 import cv2
 import numpy as np
 
-from dyndlo_vision.tracking.learned import LearnedSegmenter, onnx_session, to_blocks
+from dyndlo_vision.tracking.learned import LearnedSegmenter, onnx_session
 from dyndlo_vision.tracking.networks import SHIPPED_NAMES, onnx_bytes
 
 HEIGHT, WIDTH = 480, 640
 
 
-def network_input(seg: LearnedSegmenter, rgb: np.ndarray) -> np.ndarray:
-    """The N x C x H x W input ``seg`` feeds its network for the whole frame ``rgb``."""
-    small = seg._resized(rgb)
-    if seg.blocks:
-        h, w = small.shape[:2]
-        padded = cv2.copyMakeBorder(small, 0, -h % 16, 0, -w % 16, cv2.BORDER_REPLICATE)
-        return to_blocks(padded)
-    return cv2.dnn.blobFromImage(small, 1.0 / 255.0, mean=(127.5, 127.5, 127.5), swapRB=False)
-
-
 def compare(name: str, calls: int, rgb: np.ndarray) -> dict[str, Any]:
     """Interleaved timings (ms, medians after two warm-up calls) and the engines' agreement for ``name``."""
     onnx = onnx_bytes(name)
-    x = network_input(LearnedSegmenter(onnx), rgb)
+    x = LearnedSegmenter(onnx).network_input(rgb)
     dnn = cv2.dnn.readNetFromONNX(np.frombuffer(onnx, np.uint8))
     sessions = {threads: onnx_session(onnx, threads) for threads in (1, 2)}
     feed = sessions[1].get_inputs()[0].name

@@ -15,6 +15,7 @@ HELP = "train the learned cable segmenter on a seg-data dataset (resumable), exp
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``seg-train``."""
     from dyndlo_vision.commands import _options as options
+    from dyndlo_vision.tracking.networks import SHIPPED_NAMES
 
     p.add_argument("--data", required=True, nargs="+", metavar="DIR",
                    help="dataset(s) written by seg-data; several are pooled, every sample equally likely")
@@ -54,8 +55,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "computing what it did")
     p.add_argument("--init", metavar="CHECKPOINT.pt|NET.onnx|NAME",
                    help="start from these weights (fine-tuning): a seg-train checkpoint, an exported ONNX "
-                   "network or a shipped one by name (cable-segmenter-photo-wide, cable-segmenter-photo, "
-                   "cable-segmenter, cable-segmenter-fine, cable-segmenter-loop); an ONNX network, or a "
+                   f"network or a shipped one by name ({', '.join(SHIPPED_NAMES)}); an ONNX network, or a "
                    "checkpoint of a run from one, is fine-tuned with its batch norms frozen (the export "
                    "folded their statistics away)")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")

@@ -128,7 +128,7 @@ class LearnedSegmenter:
                 "the segmenter's network must have one input and one output, got "
                 f"{len(inputs)} and {len(outputs)}"
             )
-        self._input = inputs[0].name
+        self._input_name = inputs[0].name
         self.blocks = self._probe_layout()
         if short_side == "auto":
             short_side = 480 if self.blocks else 240
@@ -138,7 +138,7 @@ class LearnedSegmenter:
 
     def _forward(self, x: NDArray[np.float32]) -> NDArray[np.float32]:
         """The network's output for the N x C x H x W input ``x``."""
-        return np.asarray(self._session.run(None, {self._input: x})[0], dtype=np.float32)
+        return np.asarray(self._session.run(None, {self._input_name: x})[0], dtype=np.float32)
 
     def _probe_layout(self) -> bool:
         """True for the 48-channel block layout, False for RGB (one tiny forward pass of each)."""
@@ -174,12 +174,23 @@ class LearnedSegmenter:
             return rgb
         return cv2.resize(rgb, size, interpolation=cv2.INTER_AREA if size[0] < w else cv2.INTER_LINEAR)
 
-    def _block_logits(self, small: NDArray[np.uint8]) -> NDArray[np.float32]:
-        """(16, h, w) logits of a block network for the (resized) frame, edge-padded to a multiple of 16."""
+    def _input(self, small: NDArray[np.uint8]) -> NDArray[np.float32]:
+        """The 1 x C x H x W network input of a (resized) frame or part of one: a block network's blocks of
+        the part edge-padded to a multiple of 16, an RGB network's ``RGB / 255 - 0.5``."""
+        if not self.blocks:
+            return cv2.dnn.blobFromImage(small, 1.0 / 255.0, mean=(127.5, 127.5, 127.5), swapRB=False)
         h, w = small.shape[:2]
         ph, pw = -h % _MULTIPLE, -w % _MULTIPLE
         padded = cv2.copyMakeBorder(small, 0, ph, 0, pw, cv2.BORDER_REPLICATE) if ph or pw else small
-        return self._forward(to_blocks(padded))[0]
+        return to_blocks(padded)
+
+    def network_input(self, rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
+        """The 1 x C x H x W input the network gets for the whole RGB frame ``rgb`` (resized and laid out)."""
+        return self._input(self._resized(rgb))
+
+    def _block_logits(self, small: NDArray[np.uint8]) -> NDArray[np.float32]:
+        """(16, h, w) logits of a block network for the (resized) frame, edge-padded to a multiple of 16."""
+        return self._forward(self._input(small))[0]
 
     def grid_box(self, region: tuple[int, int, int, int] | None, height: int,
                  width: int) -> tuple[int, int, int, int] | None:
@@ -209,8 +220,7 @@ class LearnedSegmenter:
         if self.blocks:
             h, w = small.shape[:2]
             return np.ascontiguousarray(from_blocks(self._block_logits(small))[:h, :w])
-        blob = cv2.dnn.blobFromImage(small, 1.0 / 255.0, mean=(127.5, 127.5, 127.5), swapRB=False)
-        return self._forward(blob)[0, 0]
+        return self._forward(self._input(small))[0, 0]
 
     def logits(self, rgb: NDArray[np.uint8],
                region: tuple[int, int, int, int] | None = None) -> NDArray[np.float32]:
