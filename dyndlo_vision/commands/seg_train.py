@@ -53,6 +53,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="channels of the network's three levels (default 8,16,32, the shipped networks'); "
                    "narrower runs faster. With --init, twice the network's widths widen it: it starts out "
                    "computing what it did")
+    p.add_argument("--blocks", type=int, default=0, metavar="N",
+                   help="residual blocks at the network's coarsest level (default 0); each adds depth where "
+                   "cable is told from cable-like texture. With --init, more blocks than the network has "
+                   "deepen it: it starts out computing what it did")
     p.add_argument("--init", metavar="CHECKPOINT.pt|NET.onnx|NAME",
                    help="start from these weights (fine-tuning): a seg-train checkpoint, an exported ONNX "
                    f"network or a shipped one by name ({', '.join(SHIPPED_NAMES)}); an ONNX network, or a "
@@ -75,6 +79,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--external-share must be in [0, 1], got {args.external_share}")
     if not args.pos_weight > 0:
         raise ValueError(f"--pos-weight must be > 0, got {args.pos_weight}")
+    if args.blocks < 0:
+        raise ValueError(f"--blocks must be >= 0, got {args.blocks}")
     if args.threads < 1:
         raise ValueError(f"--threads must be >= 1, got {args.threads}")
     try:
@@ -85,6 +91,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--widths must be three positive integers C1,C2,C3, got {args.widths!r}")
     cfg = TrainConfig(
         widths=widths,  # type: ignore[arg-type]
+        blocks=args.blocks,
         steps=args.steps,
         batch=args.batch,
         lr=args.lr,
@@ -116,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
             f"interrupted; resume with: dyndlo-vision seg-train --resume --data {' '.join(args.data)} "
             f"--out {args.out} --steps {args.steps} --batch {args.batch} --lr {args.lr} --seed {args.seed} "
             f"--pos-weight {args.pos_weight} --arch {args.arch}"
-            f" --widths {args.widths}{ext}",
+            f" --widths {args.widths} --blocks {args.blocks}{ext}",
             file=sys.stderr,
         )
         return 130

@@ -1,6 +1,8 @@
 """Training of the learned cable segmenter on ``seg-data`` datasets, ONNX export.
 
-Two architectures (:func:`build_net`), both small encoder-decoders (about 30 k parameters):
+Two architectures (:func:`build_net`), both small encoder-decoders (about 30 k parameters at the default
+widths; ``--widths`` and ``--blocks`` make them wider and deeper, and with ``--init`` start from a narrower or
+shallower network's function: :func:`widened`, :func:`deepened`):
 ``cablenet-s2d4`` (``seg-train``'s default; shipped as ``cable-segmenter-fine``) takes the frame as 4x4
 blocks and gives 16 sub-pixel logits per block, so its mask has the frame's full resolution; ``cablenet``
 (shipped as ``cable-segmenter``, the default network) gives logits at half its input, which the run-time
@@ -70,7 +72,7 @@ S2D_BLOCK = 4
 DEFAULT_WIDTHS = (8, 16, 32)
 
 
-def build_net(arch: str = "cablenet", c1: int = 8, c2: int = 16, c3: int = 32) -> Any:
+def build_net(arch: str = "cablenet", c1: int = 8, c2: int = 16, c3: int = 32, blocks: int = 0) -> Any:
     """The network of architecture ``arch`` (see :data:`ARCHITECTURES`; torch is imported only here).
 
     ``cablenet``: three stride-2 convolutions to 1/8 of the input, two dilated convolutions (dilation 2 and
@@ -79,9 +81,14 @@ def build_net(arch: str = "cablenet", c1: int = 8, c2: int = 16, c3: int = 32) -
     (N x 48 x H/4 x W/4, channel ``c * 16 + 4 * i + j`` = colour ``c`` of pixel ``(i, j)`` of the block, as
     ``torch.nn.functional.pixel_unshuffle``), a 1x1 convolution mixes each block, two stride-2
     convolutions go to 1/16 of the frame, and the output is 16 logits per block (``pixel_shuffle`` order).
+    ``blocks``: residual blocks (two 3x3 convolutions of ``c3`` channels, the second's output added to the
+    block's input) after the dilated convolutions, at the coarsest level, where a stretch of the frame is
+    told apart as cable or not; each adds about ``18 c3**2`` parameters.
     """
     if arch not in ARCHITECTURES:
         raise ValueError(f"arch must be one of {ARCHITECTURES}, got {arch!r}")
+    if isinstance(blocks, bool) or not isinstance(blocks, int) or blocks < 0:
+        raise ValueError(f"blocks must be an int >= 0, got {blocks!r}")
     torch = _torch()
     nn = torch.nn
     functional = torch.nn.functional
@@ -94,26 +101,41 @@ def build_net(arch: str = "cablenet", c1: int = 8, c2: int = 16, c3: int = 32) -
     def up(x: Any) -> Any:
         return functional.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
 
-    blocks = arch == "cablenet-s2d4"
-    w1 = 2 * c1 if blocks else c1  # width of the finest level
+    s2d = arch == "cablenet-s2d4"
+    w1 = 2 * c1 if s2d else c1  # width of the finest level
+
+    class Residual(nn.Module):  # type: ignore[misc,name-defined]
+        """``relu(x + bn(conv(relu(bn(conv(x))))))``: the identity while the second batch norm's scale and
+        shift are 0, which is how :func:`deepened` adds one."""
+
+        def __init__(self, c: int) -> None:
+            super().__init__()
+            self.a = cbr(c, c)
+            self.b = nn.Sequential(nn.Conv2d(c, c, 3, 1, padding=1, bias=False), nn.BatchNorm2d(c))
+
+        def forward(self, x: Any) -> Any:
+            return functional.relu(x + self.b(self.a(x)))
 
     class CableNet(nn.Module):  # type: ignore[misc,name-defined]
         def __init__(self) -> None:
             super().__init__()
-            if blocks:  # 4x4 blocks in: one 1x1 convolution mixes each block's 48 values
+            if s2d:  # 4x4 blocks in: one 1x1 convolution mixes each block's 48 values
                 self.e1 = cbr(3 * S2D_BLOCK * S2D_BLOCK, w1, k=1)
             else:  # RGB in: a stride-2 convolution to half the input
                 self.e1 = cbr(3, w1, s=2)
             self.e2, self.e3 = cbr(w1, c2, s=2), cbr(c2, c3, s=2)
             self.e4, self.e5 = cbr(c3, c3, d=2), cbr(c3, c3, d=4)
+            # Registered between e5 and d2, the order they run in: net_from_onnx pairs modules and the ONNX
+            # file's convolutions by position.
+            self.ctx = nn.Sequential(*[Residual(c3) for _ in range(blocks)])
             self.d2, self.d2b = cbr(c3 + c2, c2, k=1), cbr(c2, c2)
             self.d1 = cbr(c2 + w1, w1, k=1)
-            self.out = nn.Conv2d(w1, S2D_BLOCK * S2D_BLOCK if blocks else 1, 1)
+            self.out = nn.Conv2d(w1, S2D_BLOCK * S2D_BLOCK if s2d else 1, 1)
 
         def forward(self, x: Any) -> Any:
             e1 = self.e1(x)
             e2 = self.e2(e1)
-            e = self.e5(self.e4(self.e3(e2)))
+            e = self.ctx(self.e5(self.e4(self.e3(e2))))
             d = self.d2b(self.d2(torch.cat([up(e), e2], 1)))
             return self.out(self.d1(torch.cat([up(d), e1], 1)))
 
@@ -158,8 +180,9 @@ def export_onnx(net: Any) -> bytes:
     return buf.getvalue()
 
 
-def net_from_onnx(data: bytes) -> tuple[Any, str, tuple[int, int, int]]:
-    """The :func:`build_net` network an exported ONNX file holds (``net``, ``arch``, ``widths``).
+def net_from_onnx(data: bytes) -> tuple[Any, str, tuple[int, int, int], int]:
+    """The :func:`build_net` network an exported ONNX file holds (``net``, ``arch``, ``widths``,
+    ``blocks``).
 
     The export folded each batch norm into its convolution, so the weights come back as the folded
     convolution and a batch norm that is the identity plus the folded bias (mean 0, variance 1 - eps,
@@ -181,14 +204,20 @@ def net_from_onnx(data: bytes) -> tuple[Any, str, tuple[int, int, int]]:
     except Exception as e:  # protobuf's DecodeError and kin
         raise ValueError(f"not an ONNX file ({type(e).__name__}: {e})") from e
     weights = {t.name: np.array(numpy_helper.to_array(t)) for t in model.graph.initializer}
+    # The exporter keeps one copy of equal tensors (zero biases, the zeroed convolutions of a block just added
+    # by deepened) and names the others through Identity nodes.
+    weights.update({n.output[0]: weights[n.input[0]] for n in model.graph.node
+                    if n.op_type == "Identity" and n.input and n.input[0] in weights})
     convs = [n for n in model.graph.node if n.op_type == "Conv"]
-    if len(convs) != 9 or not all(len(n.input) == 3 and n.input[1] in weights for n in convs):
-        raise ValueError(f"not a cablenet ONNX file: {len(convs)} convolutions, expected 9 with weights and "
-                         "bias")
+    if len(convs) < 9 or len(convs) % 2 == 0 or not all(len(n.input) == 3 and n.input[1] in weights
+                                                          for n in convs):
+        raise ValueError(f"not a cablenet ONNX file: {len(convs)} convolutions, expected 9 (and two more per "
+                         "residual block) with weights and bias")
+    blocks = (len(convs) - 9) // 2
     shapes = [weights[n.input[1]].shape for n in convs]
     arch = "cablenet-s2d4" if shapes[0][1] == 3 * S2D_BLOCK * S2D_BLOCK else "cablenet"
     widths = (shapes[0][0] // 2 if arch == "cablenet-s2d4" else shapes[0][0], shapes[1][0], shapes[2][0])
-    net = build_net(arch, *widths)
+    net = build_net(arch, *widths, blocks=blocks)
     modules = [m for m in net.modules() if isinstance(m, torch.nn.Conv2d)]
     norms = [m for m in net.modules() if isinstance(m, torch.nn.BatchNorm2d)]
     if [tuple(m.weight.shape) for m in modules] != [tuple(s) for s in shapes]:
@@ -205,7 +234,7 @@ def net_from_onnx(data: bytes) -> tuple[Any, str, tuple[int, int, int]]:
                 bn.bias.copy_(bias)
             else:  # the output convolution
                 module.bias.copy_(bias)
-    return net.eval(), arch, widths
+    return net.eval(), arch, widths, blocks
 
 
 def net_in_channels(net: Any) -> int:
@@ -325,6 +354,8 @@ class TrainConfig:
     arch: str = "cablenet-s2d4"
     #: Channels (c1, c2, c3) of :func:`build_net`'s levels.
     widths: tuple[int, int, int] = DEFAULT_WIDTHS
+    #: Residual blocks at the coarsest level (:func:`build_net`).
+    blocks: int = 0
     #: Share of each batch drawn from the external train split (0: synthetic only).
     external_share: float = 0.0
     #: The external photos are resized to this short side before augmentation (the scale the network will
@@ -341,7 +372,8 @@ class TrainConfig:
 
 def _with_widths(config: dict[str, Any]) -> dict[str, Any]:
     """A stored training config with ``widths`` as a tuple; options it predates at their defaults."""
-    return {"frozen_batch_norm": False, "external_short_side": 240, "external_balanced": False, **config,
+    return {"frozen_batch_norm": False, "external_short_side": 240, "external_balanced": False, "blocks": 0,
+            **config,
             "widths": tuple(config.get("widths", DEFAULT_WIDTHS))}
 
 
@@ -408,7 +440,7 @@ def train(
     folders = [Path(f) for f in (data if isinstance(data, (list, tuple)) else [data])]
     images, masks, ext_images, ext_masks, by_source = _load_training_data(folders, external, config)
     out.mkdir(parents=True, exist_ok=True)
-    net = build_net(config.arch, *config.widths)
+    net = build_net(config.arch, *config.widths, blocks=config.blocks)
     opt = torch.optim.Adam(net.parameters(), lr=config.lr)
     step = 0
     history: list[dict[str, float]] = []
@@ -497,6 +529,8 @@ def _check_config(config: TrainConfig, external: Path | None) -> None:
         raise ValueError(f"arch must be one of {ARCHITECTURES}, got {config.arch!r}")
     if len(config.widths) != 3 or not all(isinstance(c, int) and c >= 1 for c in config.widths):
         raise ValueError(f"widths must be three positive ints (c1, c2, c3), got {config.widths!r}")
+    if isinstance(config.blocks, bool) or not isinstance(config.blocks, int) or config.blocks < 0:
+        raise ValueError(f"blocks must be an int >= 0, got {config.blocks!r}")
     if config.arch == "cablenet-s2d4" and (config.crop_h % 16 or config.crop_w % 16):
         raise ValueError(
             f"cablenet-s2d4 needs crops in multiples of 16 px, got {config.crop_h}x{config.crop_w}"
@@ -512,7 +546,7 @@ def _init_weights(init: str | Path, config: TrainConfig) -> Any:
         if not config.frozen_batch_norm:
             raise ValueError(f"--init {init} is an ONNX network, whose batch-norm statistics the export "
                              "folded away: fine-tune it with frozen_batch_norm=True")
-        init_net, init_arch, init_widths = net_from_onnx(onnx_bytes(init))
+        init_net, init_arch, init_widths, init_blocks = net_from_onnx(onnx_bytes(init))
         init_weights = init_net.state_dict()
     else:
         init_state = torch.load(Path(init), weights_only=False)
@@ -522,9 +556,21 @@ def _init_weights(init: str | Path, config: TrainConfig) -> Any:
         init_weights = init_state["net"]
         init_arch = init_state.get("config", {}).get("arch", "cablenet")  # before the choice: cablenet
         init_widths = tuple(init_state.get("config", {}).get("widths", DEFAULT_WIDTHS))
+        init_blocks = int(init_state.get("config", {}).get("blocks", 0))
     if init_arch != config.arch:
         raise ValueError(f"--init {init} holds a {init_arch} network; train it with --arch {init_arch}")
+    if config.blocks != init_blocks:
+        if config.blocks < init_blocks or tuple(config.widths) != tuple(init_widths):
+            raise ValueError(f"--init {init} holds a network of widths {init_widths} with {init_blocks} "
+                             f"residual blocks; train it with --blocks {init_blocks} or more and --widths "
+                             f"{','.join(map(str, init_widths))} (more blocks deepen it)")
+        shallow = build_net(init_arch, *init_widths, blocks=init_blocks)
+        shallow.load_state_dict(init_weights)
+        return deepened(shallow, init_arch, init_widths, init_blocks, config.blocks, config.seed).state_dict()
     if tuple(config.widths) == tuple(2 * c for c in init_widths):
+        if init_blocks:
+            raise ValueError(f"--init {init} has {init_blocks} residual blocks: widening is for networks "
+                             "without (--blocks 0)")
         narrow = build_net(init_arch, *init_widths)
         narrow.load_state_dict(init_weights)
         return widened(narrow, init_arch, init_widths, config.seed).state_dict()
@@ -533,6 +579,26 @@ def _init_weights(init: str | Path, config: TrainConfig) -> Any:
         raise ValueError(f"--init {init} holds a network of widths {init_widths}; train it with --widths "
                          f"{','.join(map(str, init_widths))}, or {doubled} to widen it")
     return init_weights
+
+
+def deepened(net: Any, arch: str, widths: tuple[int, int, int], blocks: int, to_blocks: int,
+             seed: int = 0) -> Any:
+    """A :func:`build_net` network with ``to_blocks`` residual blocks instead of ``net``'s ``blocks`` that
+    computes the same logits (Net2DeeperNet): the added blocks get random convolutions (``seed``) and a
+    second batch norm of scale and shift 0, so each starts as the identity and learns from there."""
+    torch = _torch()
+    if to_blocks < blocks:
+        raise ValueError(f"deepened: to_blocks must be >= blocks ({blocks}), got {to_blocks}")
+    with torch.random.fork_rng():  # the added blocks' draws leave the caller's random stream as it was
+        torch.manual_seed(int(seed))
+        deep = build_net(arch, *widths, blocks=to_blocks).train(net.training)
+    missing, unexpected = deep.load_state_dict(net.state_dict(), strict=False)
+    assert not unexpected and all(k.startswith("ctx.") for k in missing), (missing, unexpected)
+    with torch.no_grad():
+        for block in list(deep.ctx)[blocks:]:
+            block.b[1].weight.zero_()
+            block.b[1].bias.zero_()
+    return deep
 
 
 def widened(net: Any, arch: str, widths: tuple[int, int, int], seed: int = 0) -> Any:
@@ -621,7 +687,8 @@ def _metadata(config: TrainConfig, net: Any, folders: list[Path], samples: int, 
     """What ``cable_segmenter.json`` says of the network and how it was trained."""
     torch = _torch()
     return {
-        "architecture": f"{config.arch}(c1={config.widths[0]}, c2={config.widths[1]}, c3={config.widths[2]})",
+        "architecture": f"{config.arch}(c1={config.widths[0]}, c2={config.widths[1]}, c3={config.widths[2]}"
+        + (f", blocks={config.blocks})" if config.blocks else ")"),
         "parameters": int(sum(p.numel() for p in net.parameters())),
         "input": _LAYOUTS[config.arch],
         "train_config": asdict(config),

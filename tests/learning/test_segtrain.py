@@ -15,6 +15,7 @@ from dyndlo_vision.learning.segtrain import (
     ARCHITECTURES,
     TrainConfig,
     build_net,
+    deepened,
     export_onnx,
     external_split,
     full_res_logits,
@@ -176,12 +177,13 @@ def test_widths_build_train_and_guard_init(dataset: Path, tmp_path: Path,
     train(dataset, run, cfg, resume=True, progress=False)
 
 
-def _random_eval_net(arch: str, seed: int, widths: tuple[int, int, int] = (8, 16, 32)) -> object:
+def _random_eval_net(arch: str, seed: int, widths: tuple[int, int, int] = (8, 16, 32), blocks: int = 0
+                     ) -> object:
     """A network with batch-norm statistics and affines away from the identity (eval mode)."""
     import torch
 
     torch.manual_seed(seed)
-    net = build_net(arch, *widths)
+    net = build_net(arch, *widths, blocks=blocks)
     for m in net.modules():
         if isinstance(m, torch.nn.BatchNorm2d):
             m.running_mean.uniform_(-0.2, 0.2)
@@ -191,16 +193,17 @@ def _random_eval_net(arch: str, seed: int, widths: tuple[int, int, int] = (8, 16
     return net.eval()
 
 
-@pytest.mark.parametrize("arch", ARCHITECTURES)
-def test_a_network_read_back_from_onnx_computes_the_same(arch: str) -> None:
+@pytest.mark.parametrize(("arch", "blocks"), [(arch, 0) for arch in ARCHITECTURES] + [("cablenet-s2d4", 2)])
+def test_a_network_read_back_from_onnx_computes_the_same(arch: str, blocks: int) -> None:
     """``net_from_onnx`` undoes the export (batch norms folded into the convolutions): same architecture,
-    widths and logits, so the shipped networks can be fine-tuned without their checkpoints."""
+    widths, residual blocks and logits, so the shipped networks can be fine-tuned without their
+    checkpoints."""
     import torch
 
     widths = (6, 12, 24)
-    net = _random_eval_net(arch, 3, widths)
-    back, got_arch, got_widths = net_from_onnx(export_onnx(net))
-    assert (got_arch, got_widths) == (arch, widths)
+    net = _random_eval_net(arch, 3, widths, blocks)
+    back, got_arch, got_widths, got_blocks = net_from_onnx(export_onnx(net))
+    assert (got_arch, got_widths, got_blocks) == (arch, widths, blocks)
     x = torch.from_numpy(np.random.default_rng(2).uniform(-0.5, 0.5, (1, 3, 64, 96)).astype(np.float32))
     with torch.inference_mode():
         ref = full_res_logits(net, x, arch)
@@ -239,7 +242,7 @@ def test_fine_tuning_an_onnx_network_keeps_its_batch_norms_frozen(dataset: Path,
                  "--steps", "1", "--batch", "2", "--lr", "1e-12", "--init", str(onnx_file)]) == 0
     meta = json.loads((tmp_path / "ft" / "cable_segmenter.json").read_text())
     assert meta["train_config"]["frozen_batch_norm"] is True
-    tuned, _, _ = net_from_onnx((tmp_path / "ft" / "cable_segmenter.onnx").read_bytes())
+    tuned, _, _, _ = net_from_onnx((tmp_path / "ft" / "cable_segmenter.onnx").read_bytes())
     x = torch.from_numpy(np.random.default_rng(4).uniform(-0.5, 0.5, (1, 3, 64, 64)).astype(np.float32))
     with torch.inference_mode():
         ref = full_res_logits(start, x, "cablenet-s2d4")
@@ -342,3 +345,60 @@ def test_seg_train_widens_a_network_half_as_wide(dataset: Path, tmp_path: Path) 
     assert np.abs(after.logits(frame) - before).max() < 1e-3 * np.abs(before).max()
     with pytest.raises(ValueError, match=r"widths \(4, 8, 16\).*--widths 4,8,16, or 8,16,32 to widen"):
         train(dataset, tmp_path / "other", replace(config, widths=(8, 16, 16)), init=narrow, progress=False)
+
+
+@pytest.mark.parametrize("blocks", [0, 1])
+def test_a_deepened_network_computes_the_same_and_its_new_blocks_learn(blocks: int) -> None:
+    """``deepened`` adds residual blocks without changing the logits, also through an ONNX file (whose
+    exporter names the added blocks' equal zero tensors once, through Identity nodes); the new blocks get
+    gradients, or they would stay identities for ever. Fewer blocks than the network has are refused."""
+    import torch
+
+    arch, widths = "cablenet-s2d4", (4, 8, 16)
+    net = _random_eval_net(arch, 6, widths, blocks)
+    deep = deepened(net, arch, widths, blocks, 3, seed=2)
+    assert len(deep.ctx) == 3
+    x = torch.from_numpy(np.random.default_rng(5).uniform(-0.5, 0.5, (2, 3, 64, 96)).astype(np.float32))
+    with torch.no_grad():
+        ref = full_res_logits(net, x, arch)
+        out = full_res_logits(deep, x, arch)
+        back, _, _, got_blocks = net_from_onnx(export_onnx(deep))
+        again = full_res_logits(back, x, arch)
+    assert float(ref.abs().max()) > 0.1
+    assert float((out - ref).abs().max()) < 1e-5
+    assert got_blocks == 3 and float((again - ref).abs().max()) < 1e-4
+    deep.train()
+    full_res_logits(deep, x, arch).square().mean().backward()
+    assert float(deep.ctx[2].b[1].weight.grad.abs().max()) > 0  # the new block's zeroed scale moves
+    with pytest.raises(ValueError, match="to_blocks"):
+        deepened(deep, arch, widths, 3, 2)
+
+
+def test_seg_train_deepens_a_checkpoint_and_refuses_what_it_cannot_do(
+        dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--blocks`` above the ``--init`` network's deepens it (the JSON says so); fewer blocks, more blocks
+    at other widths, widening a network with blocks, and a negative count are refused before anything is
+    written."""
+    base = ["seg-train", "--data", str(dataset), "--quiet", "--steps", "1", "--batch", "2",
+            "--widths", "4,8,16"]
+    assert main([*base, "--out", str(tmp_path / "a")]) == 0
+    ckpt = str(tmp_path / "a" / "checkpoint.pt")
+    assert main([*base, "--out", str(tmp_path / "b"), "--init", ckpt, "--blocks", "2"]) == 0
+    meta = json.loads((tmp_path / "b" / "cable_segmenter.json").read_text())
+    assert meta["architecture"] == "cablenet-s2d4(c1=4, c2=8, c3=16, blocks=2)"
+    assert meta["train_config"]["blocks"] == 2
+    deeper = str(tmp_path / "b" / "checkpoint.pt")
+    refused = {
+        "fewer": [*base, "--init", deeper, "--blocks", "1"],
+        "other widths": ["seg-train", "--data", str(dataset), "--quiet", "--steps", "1", "--widths", "4,8,32",
+                         "--init", ckpt, "--blocks", "1"],
+        "widen with blocks": ["seg-train", "--data", str(dataset), "--quiet", "--steps", "1", "--widths",
+                              "8,16,32", "--init", deeper, "--blocks", "2"],
+        "negative": [*base, "--blocks", "-1"],
+    }
+    for case, argv in refused.items():
+        out = tmp_path / case.replace(" ", "-")
+        with pytest.raises(SystemExit) as exc:
+            main([*argv, "--out", str(out)])
+        assert exc.value.code == 2 and "blocks" in capsys.readouterr().err, case
+        assert not out.exists(), case
