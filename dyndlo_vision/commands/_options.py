@@ -208,15 +208,15 @@ def add_segmenter(p: _Parser, kinds: Sequence[str], default: str | None,
 
 def add_segmenter_model(p: _Parser, default: str) -> None:
     """``--segmenter-model``: the learned segmenter's network (None: the command's ``default``)."""
+    from dyndlo_vision.tracking.networks import SHIPPED_SUMMARIES
+
     p.add_argument(
         "--segmenter-model",
         default=None,
         metavar="FILE.onnx|NAME",
         help="with --segmenter learned: the network, an ONNX file from seg-train or a shipped one by name: "
-        "cable-segmenter-photo-wide (full resolution, the best on real photos), cable-segmenter-photo (half "
-        "as wide, 1.4x faster), cable-segmenter (half resolution, fastest), cable-segmenter-fine (full "
-        "resolution, for cables 1-3 px wide) or cable-segmenter-loop "
-        f"(cable-segmenter-fine tuned on the simulated loop's scenes); default: {default}",
+        + ", ".join(f"{name} ({summary})" for name, summary in SHIPPED_SUMMARIES.items())
+        + f"; default: {default}",
     )
 
 

@@ -15,6 +15,7 @@ from dyndlo_vision.tracking.networks import (
     PHOTO_NAME,
     SHIPPED_NAME,
     SHIPPED_NAMES,
+    SHIPPED_SUMMARIES,
     onnx_bytes,
     segmenter_metadata,
 )
@@ -59,6 +60,20 @@ def test_shipped_models_are_small_and_documented(name: str) -> None:
     assert meta["onnx_sha256"] == hashlib.sha256(onnx_bytes(name)).hexdigest()
     with pytest.raises(ValueError, match="no shipped segmenter"):
         segmenter_metadata("cable-segmenter-huge")
+
+
+def test_the_option_help_lists_every_shipped_network() -> None:
+    """``--segmenter-model``'s help is built from one table of the shipped networks, which names each."""
+    import argparse
+
+    from dyndlo_vision.commands._options import add_segmenter_model
+
+    assert set(SHIPPED_SUMMARIES) == set(SHIPPED_NAMES)
+    p = argparse.ArgumentParser()
+    add_segmenter_model(p, PHOTO_NAME)
+    text = next(a.help for a in p._actions if "--segmenter-model" in a.option_strings)
+    for name, summary in SHIPPED_SUMMARIES.items():
+        assert f"{name} ({summary})" in text
 
 
 def test_the_fine_network_keeps_the_frame_resolution(fine: LearnedSegmenter, seg: LearnedSegmenter) -> None:
