@@ -54,9 +54,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "narrower runs faster. With --init, twice the network's widths widen it: it starts out "
                    "computing what it did")
     p.add_argument("--blocks", type=int, default=0, metavar="N",
-                   help="residual blocks at the network's coarsest level (default 0); each adds depth where "
-                   "cable is told from cable-like texture. With --init, more blocks than the network has "
-                   "deepen it: it starts out computing what it did")
+                   help="residual blocks at the network's finest level (default 0), where a cable's edges "
+                   "are told from a shadow or a stroke beside it. With --init, more blocks than the network "
+                   "has deepen it: it starts out computing what it did")
     p.add_argument("--init", metavar="CHECKPOINT.pt|NET.onnx|NAME",
                    help="start from these weights (fine-tuning): a seg-train checkpoint, an exported ONNX "
                    f"network or a shipped one by name ({', '.join(SHIPPED_NAMES)}); an ONNX network, or a "

@@ -81,9 +81,10 @@ def build_net(arch: str = "cablenet", c1: int = 8, c2: int = 16, c3: int = 32, b
     (N x 48 x H/4 x W/4, channel ``c * 16 + 4 * i + j`` = colour ``c`` of pixel ``(i, j)`` of the block, as
     ``torch.nn.functional.pixel_unshuffle``), a 1x1 convolution mixes each block, two stride-2
     convolutions go to 1/16 of the frame, and the output is 16 logits per block (``pixel_shuffle`` order).
-    ``blocks``: residual blocks (two 3x3 convolutions of ``c3`` channels, the second's output added to the
-    block's input) after the dilated convolutions, at the coarsest level, where a stretch of the frame is
-    told apart as cable or not; each adds about ``18 c3**2`` parameters.
+    ``blocks``: residual blocks (two 3x3 convolutions, the second's output added to the block's input) at the
+    finest level, before the output: its only 3x3 convolutions, where a cable's edges and a cable-like
+    shadow or stroke beside it are told apart (``cablenet-s2d4``: 1/4 of the frame, ``2 c1`` channels; each
+    block adds ``72 c1**2`` parameters).
     """
     if arch not in ARCHITECTURES:
         raise ValueError(f"arch must be one of {ARCHITECTURES}, got {arch!r}")
@@ -125,19 +126,19 @@ def build_net(arch: str = "cablenet", c1: int = 8, c2: int = 16, c3: int = 32, b
                 self.e1 = cbr(3, w1, s=2)
             self.e2, self.e3 = cbr(w1, c2, s=2), cbr(c2, c3, s=2)
             self.e4, self.e5 = cbr(c3, c3, d=2), cbr(c3, c3, d=4)
-            # Registered between e5 and d2, the order they run in: net_from_onnx pairs modules and the ONNX
-            # file's convolutions by position.
-            self.ctx = nn.Sequential(*[Residual(c3) for _ in range(blocks)])
             self.d2, self.d2b = cbr(c3 + c2, c2, k=1), cbr(c2, c2)
             self.d1 = cbr(c2 + w1, w1, k=1)
+            # Registered between d1 and out, the order they run in: net_from_onnx pairs modules and the ONNX
+            # file's convolutions by position.
+            self.fine = nn.Sequential(*[Residual(w1) for _ in range(blocks)])
             self.out = nn.Conv2d(w1, S2D_BLOCK * S2D_BLOCK if s2d else 1, 1)
 
         def forward(self, x: Any) -> Any:
             e1 = self.e1(x)
             e2 = self.e2(e1)
-            e = self.ctx(self.e5(self.e4(self.e3(e2))))
+            e = self.e5(self.e4(self.e3(e2)))
             d = self.d2b(self.d2(torch.cat([up(e), e2], 1)))
-            return self.out(self.d1(torch.cat([up(d), e1], 1)))
+            return self.out(self.fine(self.d1(torch.cat([up(d), e1], 1))))
 
     return CableNet()
 
@@ -354,7 +355,7 @@ class TrainConfig:
     arch: str = "cablenet-s2d4"
     #: Channels (c1, c2, c3) of :func:`build_net`'s levels.
     widths: tuple[int, int, int] = DEFAULT_WIDTHS
-    #: Residual blocks at the coarsest level (:func:`build_net`).
+    #: Residual blocks at the finest level (:func:`build_net`).
     blocks: int = 0
     #: Share of each batch drawn from the external train split (0: synthetic only).
     external_share: float = 0.0
@@ -593,9 +594,9 @@ def deepened(net: Any, arch: str, widths: tuple[int, int, int], blocks: int, to_
         torch.manual_seed(int(seed))
         deep = build_net(arch, *widths, blocks=to_blocks).train(net.training)
     missing, unexpected = deep.load_state_dict(net.state_dict(), strict=False)
-    assert not unexpected and all(k.startswith("ctx.") for k in missing), (missing, unexpected)
+    assert not unexpected and all(k.startswith("fine.") for k in missing), (missing, unexpected)
     with torch.no_grad():
-        for block in list(deep.ctx)[blocks:]:
+        for block in list(deep.fine)[blocks:]:
             block.b[1].weight.zero_()
             block.b[1].bias.zero_()
     return deep

@@ -357,7 +357,7 @@ def test_a_deepened_network_computes_the_same_and_its_new_blocks_learn(blocks: i
     arch, widths = "cablenet-s2d4", (4, 8, 16)
     net = _random_eval_net(arch, 6, widths, blocks)
     deep = deepened(net, arch, widths, blocks, 3, seed=2)
-    assert len(deep.ctx) == 3
+    assert len(deep.fine) == 3
     x = torch.from_numpy(np.random.default_rng(5).uniform(-0.5, 0.5, (2, 3, 64, 96)).astype(np.float32))
     with torch.no_grad():
         ref = full_res_logits(net, x, arch)
@@ -369,7 +369,7 @@ def test_a_deepened_network_computes_the_same_and_its_new_blocks_learn(blocks: i
     assert got_blocks == 3 and float((again - ref).abs().max()) < 1e-4
     deep.train()
     full_res_logits(deep, x, arch).square().mean().backward()
-    assert float(deep.ctx[2].b[1].weight.grad.abs().max()) > 0  # the new block's zeroed scale moves
+    assert float(deep.fine[2].b[1].weight.grad.abs().max()) > 0  # the new block's zeroed scale moves
     with pytest.raises(ValueError, match="to_blocks"):
         deepened(deep, arch, widths, 3, 2)
 
