@@ -82,9 +82,9 @@ def build_net(arch: str = "cablenet", c1: int = 8, c2: int = 16, c3: int = 32, b
     ``torch.nn.functional.pixel_unshuffle``), a 1x1 convolution mixes each block, two stride-2
     convolutions go to 1/16 of the frame, and the output is 16 logits per block (``pixel_shuffle`` order).
     ``blocks``: residual blocks (two 3x3 convolutions, the second's output added to the block's input) at the
-    finest level, before the output: its only 3x3 convolutions, where a cable's edges and a cable-like
-    shadow or stroke beside it are told apart (``cablenet-s2d4``: 1/4 of the frame, ``2 c1`` channels; each
-    block adds ``72 c1**2`` parameters).
+    finest level, just before the output, where a cable's edges are told from a cable-like shadow or stroke
+    beside it (``cablenet-s2d4``: 1/4 of the frame, ``2 c1`` channels, the only 3x3 convolutions at that
+    level, each block ``72 c1**2`` parameters; ``cablenet``: 1/2 of its input, ``c1`` channels).
     """
     if arch not in ARCHITECTURES:
         raise ValueError(f"arch must be one of {ARCHITECTURES}, got {arch!r}")
