@@ -79,8 +79,6 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--external-share must be in [0, 1], got {args.external_share}")
     if not args.pos_weight > 0:
         raise ValueError(f"--pos-weight must be > 0, got {args.pos_weight}")
-    if args.blocks < 0:
-        raise ValueError(f"--blocks must be >= 0, got {args.blocks}")
     if args.threads < 1:
         raise ValueError(f"--threads must be >= 1, got {args.threads}")
     try:
