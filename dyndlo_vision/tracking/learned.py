@@ -12,7 +12,7 @@ of input channels when it is loaded:
 * **RGB** (3 channels, ``cablenet``, shipped as ``cable-segmenter``, the default): the frame is resized to
   ``short_side`` (240), the logits (half that size) are resized bilinearly to the frame.
 
-ONNX Runtime runs these networks 1.5-2.0x as fast as OpenCV's ``cv2.dnn`` (which was faster than torch) on
+ONNX Runtime runs these networks 1.4-2.1x as fast as OpenCV's ``cv2.dnn`` (which was faster than torch) on
 one thread and 1.2-1.9x on two, with the same logits to 2e-5 (``benchmarks/segmenter_engines.py``); torch is
 not needed at run time.
 """
@@ -35,7 +35,7 @@ BLOCK = 4
 _MULTIPLE = 16
 #: The logit given outside a computed region (no cable; far below any threshold, finite for resizing).
 OUTSIDE_LOGIT = -1.0e4
-#: Threads of a network's forward pass. Two: on two cores a 640x480 frame's forward pass takes 0.6-0.9x its
+#: Threads of a network's forward pass. Two: on two cores a 640x480 frame's forward pass takes 0.7-0.9x its
 #: time on one (``benchmarks/segmenter_engines.py``); each segmenter holds its own pool.
 ENGINE_THREADS = 2
 
