@@ -4,8 +4,14 @@ Every figure is per *kind*, never only pooled: a network that does well on avera
 
 * ``external``: the labelled real photos of ``../shared/data/external``, per source (mBEST, cables_dataset)
   and per half of :func:`dyndlo_vision.learning.segtrain.external_split` (``heldout``: odd positions, never
-  trained on; ``train``: what a fine-tuned network saw). Mean mask DICE and the share of images whose mask
+  trained on; ``train``: what a fine-tuned network saw). Mean mask DICE, mean DICE within 1 px
+  (:func:`~dyndlo_vision.tracking.segmentation.dice_within`: boundaries a pixel off forgiven; the
+  cables_dataset labels sit about a pixel beside the cables in its photos) and the share of images whose mask
   is empty or near-empty (fewer cable pixels than a tenth of the truth's).
+* ``labels`` (not a default part; no network): how well each external source's labels agree with the edges
+  in its photos, from profiles across the cables (:func:`label_profiles`): the photo's and the label's cable
+  widths, the offset of their centres, and the 1-D DICE of the two, the most a mask that follows the photo
+  exactly can score in DICE against those labels.
 * ``styles``: generated scenes of every ``seg-data`` style (:data:`dyndlo_vision.learning.segdata.STYLES`),
   drawn on the fly with a seed of their own (``--style-seed``: 1000 for development, 2000 for the sealed test
   range), or read from ``seg-data`` folders (``--sets``). Same figures per style; samples whose truth holds
@@ -25,6 +31,7 @@ Every figure is per *kind*, never only pooled: a network that does well on avera
 
     python benchmarks/segmentation_generalisation.py --out seg.json [--model NAME|FILE.onnx]
         [--short-side N] [--parts external,styles] [--style-seed 2000 --per-style 100] [--worst DIR]
+    python benchmarks/segmentation_generalisation.py --parts labels --out labels.json
 """
 
 from __future__ import annotations
@@ -44,7 +51,7 @@ import numpy as np
 from dyndlo_vision.learning.segdata import STYLES, SegDataConfig, make_sampler
 from dyndlo_vision.learning.segtrain import external_source, external_split
 from dyndlo_vision.sim.cable_look import CableLook
-from dyndlo_vision.tracking import BackgroundSegmenter, dice
+from dyndlo_vision.tracking import BackgroundSegmenter, dice, dice_within
 from dyndlo_vision.tracking.centerline import extract_centerline
 from dyndlo_vision.tracking.learned import LearnedSegmenter
 from dyndlo_vision.tracking.networks import onnx_bytes
@@ -68,7 +75,7 @@ def _read(path: Path) -> np.ndarray:
 
 
 def _score(mask: np.ndarray, truth: np.ndarray) -> dict:
-    return {"dice": dice(mask, truth),
+    return {"dice": dice(mask, truth), "dice_1px": dice_within(mask, truth, 1.0),
             "near_empty": bool(mask.sum() < NEAR_EMPTY * truth.sum()),
             "mask_share": float(mask.sum() / max(1, truth.sum()))}
 
@@ -76,6 +83,7 @@ def _score(mask: np.ndarray, truth: np.ndarray) -> dict:
 def _summary(rows: list[dict]) -> dict:
     d = [r["dice"] for r in rows]
     return {"n": len(rows), "dice_mean": float(np.mean(d)), "dice_median": float(np.median(d)),
+            "dice_1px_mean": float(np.mean([r["dice_1px"] for r in rows])),
             "dice_min": float(np.min(d)), "near_empty_share": float(np.mean([r["near_empty"] for r in rows]))}
 
 
@@ -189,6 +197,125 @@ def part_styles(seg, styles: list[str], seed: int, per_style: int, sets: list[Pa
         if worst is not None:
             entry["worst"] = _write_worst(worst, label, keep, k_worst)
         out[label] = entry
+    return out
+
+
+#: Labels-against-photo profiles: half-length (px) and step (px) of a profile across a cable, the part of it
+#: read as the surface on either side, and what a profile needs to be read: the surface that far from the
+#: label's centre differs from the cable's centre colour by this much (CIELAB, 0-255 scale) and is this
+#: uniform, and no other cable lies this close.
+PROFILE_HALF, PROFILE_STEP, SURFACE_FROM = 16.0, 0.25, 11.0
+MIN_CONTRAST, MAX_SURFACE_SPREAD, OTHER_CABLE_PX = 50.0, 10.0, 22.0
+
+
+def _cable_masks(lab_path: Path) -> list[np.ndarray]:
+    """One bool mask per labelled cable: mBEST's label values, or cables_dataset's ``_mask_K`` files."""
+    if lab_path.name.endswith("_labels.png"):
+        lab = cv2.imread(str(lab_path), cv2.IMREAD_GRAYSCALE)
+        return [lab == k for k in np.unique(lab) if k > 0]
+    stem = lab_path.name[: -len("_mask_all.png")]
+    files = sorted(lab_path.parent.glob(f"{stem}_mask_[0-9]*.png"),
+                   key=lambda q: int(q.stem.rsplit("_", 1)[1]))
+    return [cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) > 127 for f in files]
+
+
+def label_profiles(rgb: np.ndarray, cables: list[np.ndarray], every: int = 4) -> list[dict]:
+    """Where each labelled cable's edges lie in the photo, against its label, across the cable.
+
+    At every ``every``-th pixel of a cable's skeleton (away from its ends, crossings and other cables), a
+    profile across it (the normal of the skeleton's local direction): the label's extent, and the photo's
+    cable edges, where the colour, walking out from the label's centre, is first half-way from the cable's
+    centre colour to the surface on that side. Only profiles with a contrasting, uniform surface on both sides
+    are kept (:data:`MIN_CONTRAST`, :data:`MAX_SURFACE_SPREAD`). Each gives the photo's and the label's width,
+    the offset of their centres and the 1-D DICE of the two extents: what a mask that followed the photo's
+    edges exactly would score against the label there."""
+    from dyndlo_vision.tracking.centerline import thin
+
+    lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
+    h, w = rgb.shape[:2]
+    t = np.arange(-PROFILE_HALF, PROFILE_HALF + 1e-9, PROFILE_STEP)
+    out = []
+    for k, cable in enumerate(cables):
+        others = np.zeros((h, w), bool)
+        for j, other in enumerate(cables):
+            if j != k:
+                others |= other
+        far = cv2.distanceTransform((~others).astype(np.uint8), cv2.DIST_L2, 5) > OTHER_CABLE_PX
+        skeleton = thin(cable)
+        ys, xs = np.nonzero(skeleton)
+        label = cable.astype(np.float32)
+        for i in range(0, len(ys), every):
+            y, x = ys[i], xs[i]
+            near = (np.abs(ys - y) <= 6) & (np.abs(xs - x) <= 6)
+            pts = np.column_stack([xs[near], ys[near]]).astype(np.float64)
+            if len(pts) < 8 or not far[y, x]:
+                continue
+            evals, evecs = np.linalg.eigh(np.cov((pts - pts.mean(0)).T))
+            if evals[0] > 0.1 * evals[1]:  # not a straight piece: an end, a crossing or a sharp bend
+                continue
+            nx, ny = evecs[:, 0]
+            px, py = x + nx * t, y + ny * t
+            if px.min() < 0 or py.min() < 0 or px.max() > w - 1 or py.max() > h - 1:
+                continue
+            mx, my = px[None].astype(np.float32), py[None].astype(np.float32)
+            prof = np.stack([cv2.remap(lab[..., c], mx, my, cv2.INTER_LINEAR)[0] for c in range(3)], 1)
+            inside = np.flatnonzero(cv2.remap(label, mx, my, cv2.INTER_LINEAR)[0] > 0.5)
+            if len(inside) < 4:
+                continue
+            l0, l1 = t[inside[0]] - PROFILE_STEP / 2, t[inside[-1]] + PROFILE_STEP / 2
+            lc = (l0 + l1) / 2
+            centre = np.median(prof[np.abs(t - lc) < 1.0], 0)
+            sides = [prof[(t >= lc - PROFILE_HALF) & (t <= lc - SURFACE_FROM)],
+                     prof[(t >= lc + SURFACE_FROM) & (t <= lc + PROFILE_HALF)]]
+            if min(len(sd) for sd in sides) < 4:
+                continue
+            contrast = [float(np.linalg.norm(np.median(sd, 0) - centre)) for sd in sides]
+            spread = [float(np.linalg.norm(sd.std(0))) for sd in sides]
+            if min(contrast) < MIN_CONTRAST or max(spread) > MAX_SURFACE_SPREAD:
+                continue
+            away = np.linalg.norm(prof - centre, axis=1)
+            a = b = int(np.argmin(np.abs(t - lc)))
+            while a > 0 and away[a] < 0.5 * contrast[0]:
+                a -= 1
+            while b < len(t) - 1 and away[b] < 0.5 * contrast[1]:
+                b += 1
+            e0, e1 = t[a] + PROFILE_STEP / 2, t[b] - PROFILE_STEP / 2
+            overlap = max(0.0, min(e1, l1) - max(e0, l0))
+            out.append({"photo_width": float(e1 - e0), "label_width": float(l1 - l0),
+                        "centre_offset": float((e0 + e1) / 2 - lc),
+                        "dice_1d": float(2 * overlap / max(1e-9, (e1 - e0) + (l1 - l0)))})
+    return out
+
+
+def part_labels(root: Path, per_source: int | None = None) -> dict:
+    """How well each external source's labels agree with the edges in its photos (:func:`label_profiles`),
+    per source: the ceiling a mask that follows the photo exactly would reach in mask DICE against them."""
+    rows: dict[str, list[dict]] = {}
+    counts: dict[str, int] = {}
+    for pairs in external_split(root).values():
+        for img_path, lab_path in pairs:
+            source = external_source(img_path)
+            counts[source] = counts.get(source, 0) + 1
+            if per_source is not None and counts[source] > per_source:
+                continue
+            rows.setdefault(source, []).extend(label_profiles(_read(img_path), _cable_masks(lab_path)))
+    out = {}
+    for source, profiles in sorted(rows.items()):
+        if not profiles:
+            out[source] = {"profiles": 0}
+            continue
+        col = {k: np.array([p[k] for p in profiles]) for k in profiles[0]}
+
+        def pct(values: np.ndarray, qs: list[int]) -> list[float]:
+            return [round(float(v), 2) for v in np.percentile(values, qs)]
+
+        out[source] = {
+            "profiles": len(profiles),
+            "photo_width_px_p10_p50_p90": pct(col["photo_width"], [10, 50, 90]),
+            "label_width_px_p10_p50_p90": pct(col["label_width"], [10, 50, 90]),
+            "centre_offset_px_abs_p50_p90": pct(np.abs(col["centre_offset"]), [50, 90]),
+            "dice_1d_mean": float(col["dice_1d"].mean()),
+        }
     return out
 
 
@@ -489,6 +616,12 @@ def main() -> int:
             print(json.dumps(report["external"]["summary"], indent=1))
         else:
             print(f"skipping external: {args.external} not found")
+    if "labels" in parts:
+        if Path(args.external).is_dir():
+            report["labels"] = part_labels(Path(args.external), 2 if args.quick else None)
+            print(json.dumps(report["labels"], indent=1))
+        else:
+            print(f"skipping labels: {args.external} not found")
     if "styles" in parts:
         styles = [s for s in args.styles.split(",") if s]
         unknown = [s for s in styles if s not in STYLES]
@@ -496,7 +629,8 @@ def main() -> int:
             raise SystemExit(f"--styles: unknown {unknown}; styles: {list(STYLES)}")
         report["styles"] = part_styles(seg, styles, args.style_seed, 2 if args.quick else args.per_style,
                                        [Path(p) for p in args.sets] if args.sets else None, worst)
-        print(json.dumps({k: {x: v[x] for x in ("n", "dice_mean", "near_empty_share", "no_cable_samples")}
+        print(json.dumps({k: {x: v[x] for x in ("n", "dice_mean", "dice_1px_mean", "near_empty_share",
+                                                  "no_cable_samples")}
                           for k, v in report["styles"].items()}, indent=1))
     if "flat" in parts:
         report["flat"] = part_flat(seg)

@@ -53,6 +53,7 @@ _EXPORTS = {
     "BackgroundSegmenter": "segmentation",
     "clean_mask": "segmentation",
     "dice": "segmentation",
+    "dice_within": "segmentation",
     "segment_hsv": "segmentation",
     "StereoParams": "stereo",
     "essential_matrix": "stereo",
@@ -97,7 +98,7 @@ if TYPE_CHECKING:  # the same names for type checkers (tests/tracking/test_packa
     )
     from .filter import Estimate, MultiEstimate, MultiPointFilter, PointFilter
     from .params import LATENT_LOOP_FILTER, LOOP_FILTER, FilterParams
-    from .segmentation import BackgroundSegmenter, clean_mask, dice, segment_hsv
+    from .segmentation import BackgroundSegmenter, clean_mask, dice, dice_within, segment_hsv
     from .stereo import (
         StereoParams,
         essential_matrix,

@@ -307,3 +307,34 @@ def dice(mask_pred: ArrayLike, mask_true: ArrayLike) -> float:
     if total == 0:
         return 1.0
     return 2.0 * int(np.logical_and(a, b).sum()) / total
+
+
+def dice_within(mask_pred: ArrayLike, mask_true: ArrayLike, tolerance: float = 1.0) -> float:
+    """Dice coefficient that forgives boundaries off by up to ``tolerance`` pixels: ``2 P R / (P + R)`` with
+    P the share of predicted pixels within ``tolerance`` (Euclidean) of a true one and R the share of true
+    pixels within ``tolerance`` of a predicted one (the *relaxed* precision and recall of thin-structure
+    segmentation). ``tolerance`` 0 gives :func:`dice` exactly.
+
+    A mask that is right but drawn a pixel beside the cable, as hand or spline labels often are, scores near
+    1 here and far lower in :func:`dice` on a cable a few pixels wide. Returns 1.0 when both masks are
+    empty, 0.0 when only one is.
+    """
+    a = np.asarray(mask_pred).astype(bool)
+    b = np.asarray(mask_true).astype(bool)
+    if a.shape != b.shape or a.ndim != 2:
+        raise ValueError(f"masks must be 2-D and of one shape, got {a.shape} and {b.shape}")
+    if not (np.isfinite(tolerance) and tolerance >= 0):
+        raise ValueError(f"tolerance must be a finite number of pixels >= 0, got {tolerance!r}")
+    if not a.any() or not b.any():
+        return float(not a.any() and not b.any())
+
+    def near(mask: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        """Pixels within ``tolerance`` of ``mask``."""
+        distance = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        return distance <= tolerance + 1e-6
+
+    precision = float(np.mean(near(b)[a]))
+    recall = float(np.mean(near(a)[b]))
+    if precision + recall == 0:
+        return 0.0
+    return 2.0 * precision * recall / (precision + recall)

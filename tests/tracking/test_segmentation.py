@@ -6,7 +6,13 @@ import cv2
 import numpy as np
 import pytest
 
-from dyndlo_vision.tracking.segmentation import BackgroundSegmenter, clean_mask, dice, segment_hsv
+from dyndlo_vision.tracking.segmentation import (
+    BackgroundSegmenter,
+    clean_mask,
+    dice,
+    dice_within,
+    segment_hsv,
+)
 from dyndlo_vision.tracking.synthetic import loop_curve, render_cable, s_curve
 
 
@@ -45,6 +51,54 @@ def test_dice() -> None:
     b[:, :5] = False
     assert dice(a, b) == pytest.approx(2 * 25 / (50 + 25))
 
+
+
+def _band(rows: slice, shape: tuple[int, int] = (40, 60)) -> np.ndarray:
+    mask = np.zeros(shape, bool)
+    mask[rows, 10:50] = True
+    return mask
+
+
+def test_dice_within_forgives_boundaries_off_by_the_tolerance_and_no_more() -> None:
+    truth = _band(slice(10, 14))  # a 4 px cable
+    beside = _band(slice(11, 15))  # the same, one pixel lower
+    assert dice(beside, truth) == pytest.approx(0.75)
+    assert dice_within(beside, truth, 1.0) == 1.0
+    two_off = _band(slice(12, 16))
+    assert dice_within(two_off, truth, 1.0) < 1.0
+    assert dice_within(two_off, truth, 2.0) == 1.0
+    # Diagonal neighbours are sqrt(2) away: outside a tolerance of 1, inside 1.5.
+    diagonal = np.roll(np.roll(truth, 1, 0), 1, 1)
+    assert dice_within(diagonal, truth, 1.0) < 1.0
+    assert dice_within(diagonal, truth, 1.5) == 1.0
+
+
+def test_dice_within_is_dice_at_tolerance_zero_and_weighs_both_kinds_of_error() -> None:
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        a, b = rng.random((30, 30)) < 0.3, rng.random((30, 30)) < 0.3
+        assert dice_within(a, b, 0.0) == pytest.approx(dice(a, b), abs=1e-12)
+    truth = _band(slice(10, 14))
+    extra = truth.copy()
+    extra[30:36, 10:50] = True  # 240 extra pixels far from the cable (160 true ones)
+    # Precision 160 / 400, recall 1: 2 P R / (P + R) = 4 / 7, the same whichever mask is the prediction.
+    assert dice_within(extra, truth) == pytest.approx(4 / 7)
+    assert dice_within(truth, extra) == pytest.approx(4 / 7)
+    half = truth.copy()
+    half[:, 30:] = False  # precision 1, recall 1/2 (plus the one column within a pixel of the cut)
+    assert dice_within(half, truth) == pytest.approx(2 * (84 / 160) / (1 + 84 / 160))
+
+
+def test_dice_within_of_empty_masks_and_bad_input() -> None:
+    empty, truth = np.zeros((20, 20), bool), _band(slice(5, 8), (20, 20))
+    assert dice_within(empty, empty) == 1.0
+    assert dice_within(empty, truth) == 0.0
+    assert dice_within(truth, empty) == 0.0
+    with pytest.raises(ValueError, match=r"one shape, got \(20, 20\) and \(20, 21\)"):
+        dice_within(truth, np.zeros((20, 21), bool))
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="tolerance must be a finite number of pixels >= 0"):
+            dice_within(truth, truth, bad)
 
 def test_clean_mask_drops_small_blobs_and_fills_holes() -> None:
     m = np.zeros((100, 100), np.uint8)
