@@ -4,6 +4,7 @@ another benchmark or the tests, no sys.path edits), and is listed in benchmarks/
 from __future__ import annotations
 
 import ast
+import json
 import os
 import re
 import subprocess
@@ -84,3 +85,20 @@ def test_a_maintained_benchmark_runs_in_its_quick_mode(name: str, tmp_path: Path
     )
     assert done.returncode == 0, done.stderr[-3000:]
     assert re.search(expected, done.stdout), done.stdout[-3000:]
+
+
+@pytest.mark.slow
+def test_the_segment_mode_times_the_whole_call_on_one_and_two_threads(tmp_path: Path) -> None:
+    out = tmp_path / "segment.json"
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    done = subprocess.run(
+        [sys.executable, str(BENCHMARKS / "segmenter_engines.py"), "--quick", "--segment", "--out", str(out)],
+        capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    row = r"\| `cable-segmenter-loop` \| \d+\.\d\d ms \| \d+\.\d\d ms \|"
+    assert re.search(row, done.stdout), done.stdout
+    report = json.loads(out.read_text())
+    assert set(report["segment_ms"]) == {"cable-segmenter-loop"}
+    assert all(ms > 0 for ms in report["segment_ms"]["cable-segmenter-loop"].values())
+    assert set(report["segment_ms"]["cable-segmenter-loop"]) == {"1 thread", "2 threads"}

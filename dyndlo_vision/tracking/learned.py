@@ -100,6 +100,7 @@ class LearnedSegmenter:
             were measured at).
         threshold: Logit above which a pixel is cable (0: probability 0.5).
         min_area: Connected components of the mask smaller than this many pixels are dropped (0: off).
+        threads: ONNX Runtime's threads for the forward pass (``ENGINE_THREADS`` by default).
 
     Raises:
         ValueError: ONNX bytes ONNX Runtime cannot read, a network of neither layout, or bad settings.
@@ -112,6 +113,7 @@ class LearnedSegmenter:
         short_side: int | None | str = "auto",
         threshold: float = 0.0,
         min_area: int = 0,
+        threads: int = ENGINE_THREADS,
     ) -> None:
         if not isinstance(onnx, bytes | bytearray) or not onnx:
             raise ValueError(f"onnx must be non-empty bytes, got {type(onnx).__name__}")
@@ -121,7 +123,9 @@ class LearnedSegmenter:
             raise ValueError(f"short_side must be 'auto', None or an int >= 16, got {short_side!r}")
         if not np.isfinite(threshold):
             raise ValueError(f"threshold must be finite, got {threshold!r}")
-        self._session = onnx_session(onnx)
+        if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
+            raise ValueError(f"threads must be an int >= 1, got {threads!r}")
+        self._session = onnx_session(onnx, threads)
         inputs, outputs = self._session.get_inputs(), self._session.get_outputs()
         if len(inputs) != 1 or len(outputs) != 1:
             raise ValueError(

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from dyndlo_vision.tracking import dice
-from dyndlo_vision.tracking.learned import LearnedSegmenter
+from dyndlo_vision.tracking.learned import ENGINE_THREADS, LearnedSegmenter
 from dyndlo_vision.tracking.networks import (
     FINE_NAME,
     PHOTO_NAME,
@@ -204,6 +204,17 @@ def test_bad_input_is_refused(seg: LearnedSegmenter) -> None:
         LearnedSegmenter(b"x", short_side=4)
     with pytest.raises(FileNotFoundError, match="nowhere.onnx"):
         onnx_bytes("/nowhere.onnx")
+    for threads in (0, -1, 1.5, True, "2"):
+        with pytest.raises(ValueError, match=f"threads must be an int >= 1, got {threads!r}"):
+            LearnedSegmenter(onnx_bytes(), threads=threads)  # type: ignore[arg-type]
+
+
+def test_the_engine_runs_the_threads_asked_for(seg: LearnedSegmenter) -> None:
+    rgb = np.random.default_rng(0).integers(0, 255, (120, 160, 3), dtype=np.uint8)
+    one = LearnedSegmenter(onnx_bytes(), threads=1)
+    assert one._session.get_session_options().intra_op_num_threads == 1
+    assert seg._session.get_session_options().intra_op_num_threads == ENGINE_THREADS
+    np.testing.assert_array_equal(one(rgb), seg(rgb))
 
 
 def _identity_onnx(channels: int, outputs: int = 1) -> bytes:
@@ -277,3 +288,4 @@ def test_an_enlarged_region_is_computed_from_its_part_exactly(short_side: int) -
         np.testing.assert_array_equal(part, whole.astype(bool))
     assert seg.segment(rgb, region=(37, 21, 603, 459)).sum() > 300  # the cable is there to be compared
     assert LearnedSegmenter(onnx_bytes(FINE_NAME))._enlarged_part(rgb, regions[0]) is None  # not enlarged
+
