@@ -26,6 +26,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from .segmentation import clean_mask
+
 __all__ = ["OUTSIDE_LOGIT", "LearnedSegmenter", "from_blocks", "to_blocks"]
 
 #: Block size of the 48-channel layout (``segtrain.S2D_BLOCK``).
@@ -318,12 +320,7 @@ class LearnedSegmenter:
             _, m = cv2.threshold(self.logits_full(rgb, region), self.threshold, 1, cv2.THRESH_BINARY)
             mask = m.astype(np.uint8)
         if self.min_area > 1:
-            n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-            small = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] < self.min_area) + 1
-            for i in small:
-                x, y, bw, bh = stats[i, :4]
-                roi = mask[y : y + bh, x : x + bw]
-                roi[labels[y : y + bh, x : x + bw] == i] = 0
+            return clean_mask(mask, open_radius=0, close_radius=0, min_area=self.min_area)
         return mask.astype(bool)
 
     __call__ = segment

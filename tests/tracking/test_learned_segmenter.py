@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from dyndlo_vision.tracking import dice
-from dyndlo_vision.tracking.learned import ENGINE_THREADS, LearnedSegmenter
+from dyndlo_vision.tracking.learned import ENGINE_THREADS, OUTSIDE_LOGIT, LearnedSegmenter
 from dyndlo_vision.tracking.networks import (
     FINE_NAME,
     PHOTO_NAME,
@@ -204,6 +204,11 @@ def test_bad_input_is_refused(seg: LearnedSegmenter) -> None:
         LearnedSegmenter(b"x", short_side=4)
     with pytest.raises(FileNotFoundError, match="nowhere.onnx"):
         onnx_bytes("/nowhere.onnx")
+    for empty in (b"", "cable-segmenter"):
+        with pytest.raises(ValueError, match=f"onnx must be non-empty bytes, got {type(empty).__name__}"):
+            LearnedSegmenter(empty)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="threshold must be finite, got nan"):
+        LearnedSegmenter(onnx_bytes(), threshold=float("nan"))
     for threads in (0, -1, 1.5, True, "2"):
         with pytest.raises(ValueError, match=f"threads must be an int >= 1, got {threads!r}"):
             LearnedSegmenter(onnx_bytes(), threads=threads)  # type: ignore[arg-type]
@@ -250,6 +255,13 @@ def test_a_network_of_neither_layout_or_with_two_outputs_is_refused() -> None:
                               opset_imports=[helper.make_opsetid("", 13)])
     model.ir_version = 8
     assert LearnedSegmenter(bytes(model.SerializeToString())).blocks is False
+    # 48 channels in, one out: neither layout (not an RGB network because it has one output channel).
+    x48 = helper.make_tensor_value_info("rgb", TensorProto.FLOAT, [1, 48, "h", "w"])
+    model = helper.make_model(helper.make_graph([node], "mean48", [x48], [y]),
+                              opset_imports=[helper.make_opsetid("", 13)])
+    model.ir_version = 8
+    with pytest.raises(ValueError, match="neither 48-channel 4x4 blocks"):
+        LearnedSegmenter(bytes(model.SerializeToString()))
 
 
 def test_polylines_of_two_crossing_cables() -> None:
@@ -289,3 +301,156 @@ def test_an_enlarged_region_is_computed_from_its_part_exactly(short_side: int) -
     assert seg.segment(rgb, region=(37, 21, 603, 459)).sum() > 300  # the cable is there to be compared
     assert LearnedSegmenter(onnx_bytes(FINE_NAME))._enlarged_part(rgb, regions[0]) is None  # not enlarged
 
+
+def _smooth_frame(h: int, w: int, seed: int = 0) -> np.ndarray:
+    """Smooth random colours with a few dark curves: neither flat nor noise."""
+    rng = np.random.default_rng(seed)
+    rgb = cv2.resize(rng.integers(0, 256, (max(2, h // 24), max(2, w // 24), 3), dtype=np.uint8), (w, h),
+                     interpolation=cv2.INTER_CUBIC)
+    for k in range(3):
+        xs = np.linspace(0, w - 1, 20)
+        pts = np.column_stack([xs, h / 2 + h / 3 * np.sin(xs / w * 6 + k)]).astype(np.int32)
+        cv2.polylines(rgb, [pts], False, (25, 25, 25), 3)
+    return rgb
+
+
+def _reference_blocks(rgb: np.ndarray) -> np.ndarray:
+    """``RGB / 255 - 0.5`` as 4x4 blocks, channel ``c * 16 + 4 * i + j`` = colour c of pixel (i, j)."""
+    h, w = rgb.shape[:2]
+    x = rgb.astype(np.float64) / 255.0 - 0.5
+    x = x.reshape(h // 4, 4, w // 4, 4, 3).transpose(4, 1, 3, 0, 2).reshape(1, 48, h // 4, w // 4)
+    return x.astype(np.float32)
+
+
+def test_a_block_network_sees_the_frame_as_training_resized_and_padded_it(photo: LearnedSegmenter) -> None:
+    # Shrunk (960x720 -> 640x480) with area averaging, as segtrain.load_external resizes the photos.
+    big = _smooth_frame(720, 960)
+    small = cv2.resize(big, (640, 480), interpolation=cv2.INTER_AREA)
+    np.testing.assert_allclose(photo.network_input(big), _reference_blocks(small), atol=1e-6)
+    # At its own size, a frame is padded to a multiple of 16 by repeating its last row and column.
+    own = LearnedSegmenter(onnx_bytes(PHOTO_NAME), short_side=None)
+    odd = _smooth_frame(70, 100, seed=1)
+    padded = np.pad(odd, ((0, 10), (0, 12), (0, 0)), mode="edge")
+    np.testing.assert_allclose(own.network_input(odd), _reference_blocks(padded), atol=1e-6)
+
+
+def test_an_rgb_network_sees_the_resized_frame_in_rgb_order(seg: LearnedSegmenter) -> None:
+    rgb = _smooth_frame(480, 640)
+    small = cv2.resize(rgb, (320, 240), interpolation=cv2.INTER_AREA)
+    expected = (small.astype(np.float32) / 255.0 - 0.5).transpose(2, 0, 1)[None]
+    np.testing.assert_allclose(seg.network_input(rgb), expected, atol=1e-6)
+    # Enlarged (short side 720 from 480) bilinearly.
+    big = LearnedSegmenter(onnx_bytes(), short_side=720)
+    enlarged = cv2.resize(rgb, (960, 720), interpolation=cv2.INTER_LINEAR)
+    expected = (enlarged.astype(np.float32) / 255.0 - 0.5).transpose(2, 0, 1)[None]
+    np.testing.assert_allclose(big.network_input(rgb), expected, atol=1e-6)
+
+
+def test_the_input_size_without_a_short_side_is_the_frames_own() -> None:
+    blocks = LearnedSegmenter(onnx_bytes(PHOTO_NAME), short_side=None)
+    rgb_net = LearnedSegmenter(onnx_bytes(), short_side=None)
+    assert blocks.input_size(70, 100) == (100, 70)
+    assert rgb_net.input_size(70, 100) == (96, 72)  # RGB networks take multiples of 8
+    assert blocks.input_size(3, 2) == (4, 4) and rgb_net.input_size(3, 2) == (8, 8)  # the smallest inputs
+    assert LearnedSegmenter(onnx_bytes(), short_side=16).short_side == 16  # the least short side allowed
+    for bad in (15, 480.0, True):
+        with pytest.raises(ValueError, match=f"short_side must be 'auto', None or an int >= 16, got {bad!r}"):
+            LearnedSegmenter(onnx_bytes(), short_side=bad)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("name", [SHIPPED_NAME, PHOTO_NAME])
+def test_a_pixel_is_cable_where_its_logit_is_above_the_threshold(name: str) -> None:
+    rgb = _smooth_frame(240, 320, seed=2)
+    default = LearnedSegmenter(onnx_bytes(name))
+    logits = default.logits_full(rgb)
+    assert default.threshold == 0.0
+    np.testing.assert_array_equal(default(rgb), logits > 0)
+    assert 0 < (logits > 0).sum() and (logits > 1.0).sum() < (logits > 0).sum()
+    np.testing.assert_array_equal(LearnedSegmenter(onnx_bytes(name), threshold=1.0)(rgb), logits > 1.0)
+    probability = default.probability(rgb)
+    assert probability.dtype == np.float32
+    np.testing.assert_allclose(probability, 1.0 / (1.0 + np.exp(-logits)), atol=1e-6)
+
+
+def test_small_parts_of_the_mask_are_dropped_below_min_area(photo: LearnedSegmenter) -> None:
+    rgb = _smooth_frame(240, 320, seed=3)
+    for k in range(6):  # short pieces of cable: small parts of the mask
+        cv2.line(rgb, (30 + 45 * k, 200), (30 + 45 * k + 4 + 3 * k, 215), (20, 20, 20), 3)
+    whole = photo(rgb)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(whole.astype(np.uint8), connectivity=8)
+    areas = np.sort(stats[1:, cv2.CC_STAT_AREA])
+    assert len(areas) >= 3 and areas[0] < areas[-1]
+    cut = int(areas[len(areas) // 2])  # parts of exactly this area are kept
+    kept = LearnedSegmenter(onnx_bytes(PHOTO_NAME), min_area=cut)(rgb)
+    expected = np.isin(labels, 1 + np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= cut))
+    np.testing.assert_array_equal(kept, expected)
+    assert kept.sum() < whole.sum()
+    np.testing.assert_array_equal(LearnedSegmenter(onnx_bytes(PHOTO_NAME), min_area=1)(rgb), whole)
+
+
+def test_a_region_is_computed_on_the_networks_grid_and_outside_it_there_is_no_cable() -> None:
+    seg = LearnedSegmenter(onnx_bytes(PHOTO_NAME))  # 960x720 is shrunk to 640x480: 2/3
+    assert seg.grid_box((300, 150, 600, 450), 720, 960) == (192, 96, 400, 304)
+    assert seg.grid_box((0, 0, 30, 30), 720, 960) == (0, 0, 32, 32)
+    assert seg.grid_box((960, 100, 990, 200), 720, 960) == (0, 0, 0, 0)  # beyond the right edge
+    rgb = _smooth_frame(480, 640, seed=4)
+    logits = seg.logits(rgb, (100, 100, 300, 200))
+    outside = np.ones(logits.shape, bool)
+    outside[96:208, 96:304] = False
+    assert logits.dtype == np.float32 and np.all(logits[outside] == OUTSIDE_LOGIT)
+    # A frame whose size is no multiple of 16, with a region at its far corner: the part is padded and cut.
+    own = LearnedSegmenter(onnx_bytes(PHOTO_NAME), short_side=None)
+    odd = _smooth_frame(150, 200, seed=5)
+    part = own.segment(odd, (40, 40, 200, 150))
+    assert part.shape == (150, 200) and not part[:32].any() and not part[:, :32].any()
+    # Inside, the mask is the whole frame's but where the network's view (about 100 px) crosses the edge.
+    assert dice(part[32:, 32:], own.segment(odd)[32:, 32:]) > 0.8
+
+
+def _red_blocks_onnx() -> bytes:
+    """A block-layout network whose logits are the red channel, ``R / 255 - 0.5``, of every pixel: its mask
+    is exactly the pixels with R > 127, so the rules after the network can be checked pixel by pixel."""
+    pytest.importorskip("onnx")
+    from onnx import TensorProto, helper, numpy_helper
+
+    x = helper.make_tensor_value_info("rgb", TensorProto.FLOAT, [1, 48, "h", "w"])
+    y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 16, "h", "w"])
+    consts = [numpy_helper.from_array(np.array([v], np.int64), name) for v, name in
+              ((0, "starts"), (16, "ends"), (1, "axes"))]
+    node = helper.make_node("Slice", ["rgb", "starts", "ends", "axes"], ["y"])
+    model = helper.make_model(helper.make_graph([node], "red", [x], [y], initializer=consts),
+                              opset_imports=[helper.make_opsetid("", 13)])
+    model.ir_version = 8
+    return bytes(model.SerializeToString())
+
+
+def test_min_area_drops_parts_smaller_than_it_and_keeps_the_rest() -> None:
+    rgb = np.zeros((64, 96, 3), np.uint8)
+    rgb[5, 5, 0] = 255  # 1 pixel
+    rgb[5, 20:22, 0] = 255  # 2 pixels
+    rgb[20, 5:10, 0] = 255  # 5 pixels
+    rgb[40:43, 40:50, 0] = 255  # 30 pixels
+    rgb[60, 90:92, 0] = 200  # 2 pixels at the frame's corner
+    onnx = _red_blocks_onnx()
+    everything = LearnedSegmenter(onnx, short_side=None)(rgb)
+    np.testing.assert_array_equal(everything, rgb[..., 0] > 127)
+    for min_area, kept in ((0, 40), (1, 40), (2, 39), (3, 35), (6, 30), (30, 30), (31, 0)):
+        mask = LearnedSegmenter(onnx, short_side=None, min_area=min_area)(rgb)
+        assert mask.sum() == kept, min_area
+        assert not (mask & ~everything).any()
+
+
+def test_a_region_at_or_beyond_the_frames_edge_is_empty() -> None:
+    rgb = np.full((48, 64, 3), 255, np.uint8)  # cable everywhere for the red network
+    own = LearnedSegmenter(_red_blocks_onnx(), short_side=None)
+    assert own.grid_box((10, 48, 30, 60), 48, 64) == (0, 0, 0, 0)  # starts at the bottom edge
+    assert own.grid_box((64, 10, 80, 20), 48, 64) == (0, 0, 0, 0)  # starts at the right edge
+    for region in ((10, 48, 30, 60), (64, 10, 80, 20), (-30, -30, -1, -1)):
+        assert not own.segment(rgb, region).any()
+    # Enlarged 3/2 (a part of the frame enlarged on its own): the same.
+    big = LearnedSegmenter(_red_blocks_onnx(), short_side=72)
+    assert big.input_size(48, 64) == (96, 72)
+    for region in ((10, 48, 30, 60), (64, 10, 80, 20)):
+        assert not big.segment(rgb, region).any()
+    part = big.segment(rgb, (16, 16, 40, 32))
+    assert part[16:32, 16:40].all() and part.sum() < part.size
