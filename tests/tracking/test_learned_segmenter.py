@@ -95,8 +95,8 @@ def test_the_default_stays_the_fast_network(photo: LearnedSegmenter) -> None:
 def test_the_photo_network_finds_flat_cables_on_plain_walls(
     photo: LearnedSegmenter, background: tuple[int, int, int]
 ) -> None:
-    # Measured 0.32-0.96 (median 0.91; the lowest: flat black 11 px cables on the light walls, which look
-    # like the generator's shadows; cable-segmenter-photo 0.38-0.93, median 0.81; the first network min 0.78,
+    # Measured 0.32-0.96 (median 0.91; the lowest: flat black 11 px cables on the light walls, cause not
+    # established; cable-segmenter-photo 0.38-0.93, median 0.81; the first network min 0.78,
     # median 0.90) on these flat-coloured drawings, which no photo looks like; a floor against regressions.
     scores = []
     for colour in COLOURS:
