@@ -8,10 +8,11 @@ Every figure is per *kind*, never only pooled: a network that does well on avera
   (:func:`~dyndlo_vision.tracking.segmentation.dice_within`: boundaries a pixel off forgiven; the
   cables_dataset labels sit about a pixel beside the cables in its photos) and the share of images whose mask
   is empty or near-empty (fewer cable pixels than a tenth of the truth's).
-* ``labels`` (not a default part; no network): how well each external source's labels agree with the edges
-  in its photos, from profiles across the cables (:func:`label_profiles`): the photo's and the label's cable
-  widths, the offset of their centres, and the 1-D DICE of the two, the most a mask that follows the photo
-  exactly can score in DICE against those labels.
+* ``labels`` (not a default part): how well each external source's labels agree with the edges in its
+  photos, from profiles across the cables (:func:`label_profiles`): the photo's and the label's cable widths,
+  the offset of their centres, and the 1-D DICE of the two, the most a mask that follows the photo exactly
+  can score in DICE against those labels; and, per half, the 1-D DICE of the segmenter's mask against the
+  same photo edges, a figure the labels' errors do not enter.
 * ``styles``: generated scenes of every ``seg-data`` style (:data:`dyndlo_vision.learning.segdata.STYLES`),
   drawn on the fly with a seed of their own (``--style-seed``: 1000 for development, 2000 for the sealed test
   range), or read from ``seg-data`` folders (``--sets``). Same figures per style; samples whose truth holds
@@ -219,7 +220,32 @@ def _cable_masks(lab_path: Path) -> list[np.ndarray]:
     return [cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) > 127 for f in files]
 
 
-def label_profiles(rgb: np.ndarray, cables: list[np.ndarray], every: int = 4) -> list[dict]:
+def _extent(inside: np.ndarray, t: np.ndarray, centre: float) -> tuple[float, float] | None:
+    """The run of True samples of a profile that holds ``centre`` (or the nearest run within 2 px), as
+    (start, end) in the profile's pixels; None for none."""
+    idx = np.flatnonzero(inside)
+    if len(idx) == 0:
+        return None
+    j = int(idx[np.argmin(np.abs(t[idx] - centre))])
+    if abs(t[j] - centre) > 2.0:
+        return None
+    a = b = j
+    while a > 0 and inside[a - 1]:
+        a -= 1
+    while b < len(t) - 1 and inside[b + 1]:
+        b += 1
+    return t[a] - PROFILE_STEP / 2, t[b] + PROFILE_STEP / 2
+
+
+def _dice_1d(a: tuple[float, float] | None, b: tuple[float, float]) -> float:
+    if a is None:
+        return 0.0
+    overlap = max(0.0, min(a[1], b[1]) - max(a[0], b[0]))
+    return float(2 * overlap / max(1e-9, (a[1] - a[0]) + (b[1] - b[0])))
+
+
+def label_profiles(rgb: np.ndarray, cables: list[np.ndarray], every: int = 4,
+                   mask: np.ndarray | None = None) -> list[dict]:
     """Where each labelled cable's edges lie in the photo, against its label, across the cable.
 
     At every ``every``-th pixel of a cable's skeleton (away from its ends, crossings and other cables), a
@@ -228,10 +254,12 @@ def label_profiles(rgb: np.ndarray, cables: list[np.ndarray], every: int = 4) ->
     centre colour to the surface on that side. Only profiles with a contrasting, uniform surface on both sides
     are kept (:data:`MIN_CONTRAST`, :data:`MAX_SURFACE_SPREAD`). Each gives the photo's and the label's width,
     the offset of their centres and the 1-D DICE of the two extents: what a mask that followed the photo's
-    edges exactly would score against the label there."""
+    edges exactly would score against the label there. With a segmenter's ``mask``, also the 1-D DICE of its
+    extent on the same profile against the photo's edges and against the label's."""
     from dyndlo_vision.tracking.centerline import thin
 
     lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
+    mask_f = None if mask is None else mask.astype(np.float32)
     h, w = rgb.shape[:2]
     t = np.arange(-PROFILE_HALF, PROFILE_HALF + 1e-9, PROFILE_STEP)
     out = []
@@ -280,25 +308,36 @@ def label_profiles(rgb: np.ndarray, cables: list[np.ndarray], every: int = 4) ->
             while b < len(t) - 1 and away[b] < 0.5 * contrast[1]:
                 b += 1
             e0, e1 = t[a] + PROFILE_STEP / 2, t[b] - PROFILE_STEP / 2
-            overlap = max(0.0, min(e1, l1) - max(e0, l0))
-            out.append({"photo_width": float(e1 - e0), "label_width": float(l1 - l0),
-                        "centre_offset": float((e0 + e1) / 2 - lc),
-                        "dice_1d": float(2 * overlap / max(1e-9, (e1 - e0) + (l1 - l0)))})
+            row = {"photo_width": float(e1 - e0), "label_width": float(l1 - l0),
+                   "centre_offset": float((e0 + e1) / 2 - lc), "dice_1d": _dice_1d((l0, l1), (e0, e1))}
+            if mask is not None:
+                along = cv2.remap(mask_f, mx, my, cv2.INTER_LINEAR)[0] > 0.5
+                found = _extent(along, t, lc)
+                row["mask_dice_1d"] = _dice_1d(found, (e0, e1))
+                row["mask_label_dice_1d"] = _dice_1d(found, (l0, l1))
+            out.append(row)
     return out
 
 
-def part_labels(root: Path, per_source: int | None = None) -> dict:
+def part_labels(root: Path, per_source: int | None = None, seg=None) -> dict:
     """How well each external source's labels agree with the edges in its photos (:func:`label_profiles`),
-    per source: the ceiling a mask that follows the photo exactly would reach in mask DICE against them."""
+    per source: the ceiling a mask that follows the photo exactly would reach in mask DICE against them. With
+    a segmenter, how well its masks agree with the same edges, per source and half (``mask_vs_photo``): a
+    figure the labels' own errors do not enter."""
     rows: dict[str, list[dict]] = {}
-    counts: dict[str, int] = {}
-    for pairs in external_split(root).values():
+    halves: dict[str, dict[str, list[dict]]] = {}
+    for part, pairs in external_split(root).items():
+        counts: dict[str, int] = {}
         for img_path, lab_path in pairs:
             source = external_source(img_path)
             counts[source] = counts.get(source, 0) + 1
             if per_source is not None and counts[source] > per_source:
                 continue
-            rows.setdefault(source, []).extend(label_profiles(_read(img_path), _cable_masks(lab_path)))
+            rgb = _read(img_path)
+            mask = np.asarray(seg(rgb), bool) if seg is not None else None
+            profiles = label_profiles(rgb, _cable_masks(lab_path), mask=mask)
+            rows.setdefault(source, []).extend(profiles)
+            halves.setdefault(source, {}).setdefault(part, []).extend(profiles)
     out = {}
     for source, profiles in sorted(rows.items()):
         if not profiles:
@@ -316,6 +355,12 @@ def part_labels(root: Path, per_source: int | None = None) -> dict:
             "centre_offset_px_abs_p50_p90": pct(np.abs(col["centre_offset"]), [50, 90]),
             "dice_1d_mean": float(col["dice_1d"].mean()),
         }
+        if seg is not None:
+            out[source]["mask_vs_photo"] = {
+                part: {"profiles": len(sel),
+                       "mask_dice_1d_mean": float(np.mean([p["mask_dice_1d"] for p in sel])),
+                       "mask_vs_label_dice_1d_mean": float(np.mean([p["mask_label_dice_1d"] for p in sel]))}
+                for part, sel in sorted(halves[source].items()) if sel}
     return out
 
 
@@ -618,7 +663,7 @@ def main() -> int:
             print(f"skipping external: {args.external} not found")
     if "labels" in parts:
         if Path(args.external).is_dir():
-            report["labels"] = part_labels(Path(args.external), 2 if args.quick else None)
+            report["labels"] = part_labels(Path(args.external), 2 if args.quick else None, seg)
             print(json.dumps(report["labels"], indent=1))
         else:
             print(f"skipping labels: {args.external} not found")

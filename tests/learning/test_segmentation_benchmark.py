@@ -45,3 +45,7 @@ def test_the_quick_benchmark_reports_every_kind(tmp_path: Path) -> None:
             assert labels["profiles"] > 0, source
             assert 0.0 < labels["dice_1d_mean"] <= 1.0
             assert labels["photo_width_px_p10_p50_p90"] == sorted(labels["photo_width_px_p10_p50_p90"])
+            for half in ("heldout", "train"):
+                against_photo = labels["mask_vs_photo"][half]
+                assert against_photo["profiles"] > 0
+                assert 0.0 <= against_photo["mask_dice_1d_mean"] <= 1.0
