@@ -32,7 +32,8 @@ Every figure is per *kind*, never only pooled: a network that does well on avera
 
     python benchmarks/segmentation_generalisation.py --out seg.json [--model NAME|FILE.onnx]
         [--short-side N] [--parts external,styles] [--style-seed 2000 --per-style 100] [--worst DIR]
-    python benchmarks/segmentation_generalisation.py --parts labels --out labels.json
+    python benchmarks/segmentation_generalisation.py --model cable-segmenter-photo-wide --parts labels \
+        --out labels.json
 """
 
 from __future__ import annotations
