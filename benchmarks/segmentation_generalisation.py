@@ -117,25 +117,31 @@ def _write_worst(folder: Path, kind: str, items: list[tuple[float, np.ndarray, n
     return [name for _, _, _, _, name in worst]
 
 
+def _external_photos(root: Path, per_source: int | None = None):
+    """(half, source, image path, label path) of the external photos, half by half
+    (:func:`~dyndlo_vision.learning.segtrain.external_split`); at most ``per_source`` per source and half."""
+    for part, pairs in external_split(root).items():
+        counts: dict[str, int] = {}
+        for img_path, lab_path in pairs:
+            source = external_source(img_path)
+            counts[source] = counts.get(source, 0) + 1
+            if per_source is None or counts[source] <= per_source:
+                yield part, source, img_path, lab_path
+
+
 def part_external(seg, root: Path, per_source: int | None = None, worst: Path | None = None,
                   k_worst: int = 4) -> dict:
     """Mean DICE and near-empty share per source and half of the external photos."""
     rows, keep = [], {}
-    for part, pairs in external_split(root).items():
-        counts: dict = {}
-        for img_path, lab_path in pairs:
-            source = external_source(img_path)
-            counts[source] = counts.get(source, 0) + 1
-            if per_source is not None and counts[source] > per_source:
-                continue
-            rgb = _read(img_path)
-            truth = cv2.imread(str(lab_path), cv2.IMREAD_GRAYSCALE) > 0
-            mask = np.asarray(seg(rgb), bool)
-            row = {"image": str(img_path.relative_to(root)), "source": source, "split": part,
-                   **_score(mask, truth)}
-            rows.append(row)
-            if worst is not None:
-                keep.setdefault(f"{source}-{part}", []).append((row["dice"], rgb, truth, mask, row["image"]))
+    for part, source, img_path, lab_path in _external_photos(root, per_source):
+        rgb = _read(img_path)
+        truth = cv2.imread(str(lab_path), cv2.IMREAD_GRAYSCALE) > 0
+        mask = np.asarray(seg(rgb), bool)
+        row = {"image": str(img_path.relative_to(root)), "source": source, "split": part,
+               **_score(mask, truth)}
+        rows.append(row)
+        if worst is not None:
+            keep.setdefault(f"{source}-{part}", []).append((row["dice"], rgb, truth, mask, row["image"]))
     summary = {}
     for source in sorted({r["source"] for r in rows}):
         for part in ("heldout", "train", "all"):
@@ -325,22 +331,15 @@ def part_labels(root: Path, per_source: int | None = None, seg=None) -> dict:
     per source: the ceiling a mask that follows the photo exactly would reach in mask DICE against them. With
     a segmenter, how well its masks agree with the same edges, per source and half (``mask_vs_photo``): a
     figure the labels' own errors do not enter."""
-    rows: dict[str, list[dict]] = {}
     halves: dict[str, dict[str, list[dict]]] = {}
-    for part, pairs in external_split(root).items():
-        counts: dict[str, int] = {}
-        for img_path, lab_path in pairs:
-            source = external_source(img_path)
-            counts[source] = counts.get(source, 0) + 1
-            if per_source is not None and counts[source] > per_source:
-                continue
-            rgb = _read(img_path)
-            mask = np.asarray(seg(rgb), bool) if seg is not None else None
-            profiles = label_profiles(rgb, _cable_masks(lab_path), mask=mask)
-            rows.setdefault(source, []).extend(profiles)
-            halves.setdefault(source, {}).setdefault(part, []).extend(profiles)
+    for part, source, img_path, lab_path in _external_photos(root, per_source):
+        rgb = _read(img_path)
+        mask = np.asarray(seg(rgb), bool) if seg is not None else None
+        profiles = label_profiles(rgb, _cable_masks(lab_path), mask=mask)
+        halves.setdefault(source, {}).setdefault(part, []).extend(profiles)
     out = {}
-    for source, profiles in sorted(rows.items()):
+    for source, by_half in sorted(halves.items()):
+        profiles = [p for sel in by_half.values() for p in sel]
         if not profiles:
             out[source] = {"profiles": 0}
             continue
@@ -361,7 +360,7 @@ def part_labels(root: Path, per_source: int | None = None, seg=None) -> dict:
                 part: {"profiles": len(sel),
                        "mask_dice_1d_mean": float(np.mean([p["mask_dice_1d"] for p in sel])),
                        "mask_vs_label_dice_1d_mean": float(np.mean([p["mask_label_dice_1d"] for p in sel]))}
-                for part, sel in sorted(halves[source].items()) if sel}
+                for part, sel in sorted(by_half.items()) if sel}
     return out
 
 
