@@ -90,7 +90,7 @@ def time_segment(names: list[str], calls: int, rgb: np.ndarray) -> dict[str, dic
             for name in names}
 
 
-def test_frame() -> np.ndarray:
+def sample_frame() -> np.ndarray:
     """A 640x480 frame of smooth colour blobs with a few dark curves (neither engine's time depends on it)."""
     rng = np.random.default_rng(0)
     blobs = rng.integers(0, 255, (12, 16, 3), dtype=np.uint8)
@@ -115,7 +115,7 @@ def main() -> int:
         raise SystemExit(f"--calls must be >= 1, got {args.calls}")
     names = ["cable-segmenter-loop"] if args.quick else list(SHIPPED_NAMES)
     calls = 3 if args.quick else args.calls
-    rgb = test_frame()
+    rgb = sample_frame()
     report: dict[str, Any] = {
         "machine": f"{platform.machine()}, {os.cpu_count()} cpus",
         "onnxruntime": __import__("onnxruntime").__version__,
@@ -132,22 +132,19 @@ def main() -> int:
         print("|---|---|---|")
         for name, ms in segment_ms.items():
             print(f"| `{name}` | {ms['1 thread']:.2f} ms | {ms['2 threads']:.2f} ms |")
-        if args.out:
-            with open(args.out, "w") as f:
-                json.dump(report, f, indent=1)
-        return 0
-    results = {name: compare(name, calls, rgb) for name in names}
-    report["networks"] = results
-    print(f"# {report['machine']}; onnxruntime {report['onnxruntime']}, OpenCV {report['opencv']}; "
-          f"medians of {calls} interleaved calls on a {WIDTH}x{HEIGHT} frame's input")
-    keys = list(next(iter(results.values()))["ms"])
-    print("| network | input | " + " | ".join(keys) + " | max logit difference | sign differs |")
-    print("|---|---|" + "---|" * (len(keys) + 2))
-    for name, r in results.items():
-        cells = " | ".join(f"{r['ms'][k]:.2f} ms ({r['vs_cv2_one_thread'][k]:.2f}x)" for k in keys)
-        shape = "x".join(map(str, r["input"][1:]))
-        print(f"| `{name}` | {shape} | {cells} | {r['max_logit_difference']:.1e} | "
-              f"{100 * r['sign_differs_share']:.4f} % |")
+    else:
+        results = {name: compare(name, calls, rgb) for name in names}
+        report["networks"] = results
+        print(f"# {report['machine']}; onnxruntime {report['onnxruntime']}, OpenCV {report['opencv']}; "
+              f"medians of {calls} interleaved calls on a {WIDTH}x{HEIGHT} frame's input")
+        keys = list(next(iter(results.values()))["ms"])
+        print("| network | input | " + " | ".join(keys) + " | max logit difference | sign differs |")
+        print("|---|---|" + "---|" * (len(keys) + 2))
+        for name, r in results.items():
+            cells = " | ".join(f"{r['ms'][k]:.2f} ms ({r['vs_cv2_one_thread'][k]:.2f}x)" for k in keys)
+            shape = "x".join(map(str, r["input"][1:]))
+            print(f"| `{name}` | {shape} | {cells} | {r['max_logit_difference']:.1e} | "
+                  f"{100 * r['sign_differs_share']:.4f} % |")
     if args.out:
         with open(args.out, "w") as f:
             json.dump(report, f, indent=1)
