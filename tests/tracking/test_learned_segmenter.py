@@ -83,7 +83,7 @@ def test_the_fine_network_keeps_the_frame_resolution(fine: LearnedSegmenter, seg
 
 def test_the_default_stays_the_fast_network(photo: LearnedSegmenter) -> None:
     # The real robot's camera and ``track`` run onnx_bytes(): the network with the loop's time budget; the
-    # photo network (2.6x slower at 640x480 on two threads, docs/segmentation.md) is ``segment``'s default
+    # photo network (2.9-3.7x slower at 640x480, docs/segmentation.md) is ``segment``'s default
     # only.
     assert SHIPPED_NAME == "cable-segmenter" and onnx_bytes() == onnx_bytes("cable-segmenter")
     assert photo.blocks and photo.short_side == 480 and photo.input_size(480, 640) == (640, 480)
