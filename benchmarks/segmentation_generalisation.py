@@ -53,10 +53,11 @@ import numpy as np
 from dyndlo_vision.learning.segdata import STYLES, SegDataConfig, make_sampler
 from dyndlo_vision.learning.segtrain import external_source, external_split
 from dyndlo_vision.sim.cable_look import CableLook
-from dyndlo_vision.tracking import BackgroundSegmenter, dice, dice_within
+from dyndlo_vision.tracking import BackgroundSegmenter, cable_widths, dice, dice_losses, dice_within
 from dyndlo_vision.tracking.centerline import extract_centerline
 from dyndlo_vision.tracking.learned import LearnedSegmenter
 from dyndlo_vision.tracking.networks import onnx_bytes
+from dyndlo_vision.tracking.segmentation import WIDTH_BANDS
 from dyndlo_vision.tracking.tracker import Measurement, Plane, lift_with_plane, tip_from_polyline
 
 EXTERNAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "external"
@@ -76,17 +77,34 @@ def _read(path: Path) -> np.ndarray:
     return np.ascontiguousarray(bgr[..., ::-1])
 
 
+#: Per-image shares of ``|mask| + |truth|`` lost (:func:`~dyndlo_vision.tracking.segmentation.dice_losses`).
+LOSSES = tuple(f"missed_{name}" for _, _, name in WIDTH_BANDS) + ("extra_near", "extra_away")
+
+
 def _score(mask: np.ndarray, truth: np.ndarray) -> dict:
-    return {"dice": dice(mask, truth), "dice_1px": dice_within(mask, truth, 1.0),
+    widths = cable_widths(truth)
+    losses = dice_losses(mask, truth, widths=widths)
+    band = {name: truth & (widths >= lo) & (widths < hi) for lo, hi, name in WIDTH_BANDS}
+    return {"dice": losses["dice"], "dice_1px": dice_within(mask, truth, 1.0),
             "near_empty": bool(mask.sum() < NEAR_EMPTY * truth.sum()),
-            "mask_share": float(mask.sum() / max(1, truth.sum()))}
+            "mask_share": float(mask.sum() / max(1, truth.sum())),
+            "losses": {k: losses[k] for k in LOSSES},
+            "true_px": {name: int(m.sum()) for name, m in band.items()},
+            "found_px": {name: int((m & mask).sum()) for name, m in band.items()}}
 
 
 def _summary(rows: list[dict]) -> dict:
+    """Means over the kind's images (``loss_mean`` adds up with ``dice_mean`` to 1); ``found_share``: the
+    share of the kind's true pixels found, pooled, per cable width (``None`` where it has none that wide)."""
     d = [r["dice"] for r in rows]
+    true = {name: sum(r["true_px"][name] for r in rows) for _, _, name in WIDTH_BANDS}
+    found = {name: sum(r["found_px"][name] for r in rows) for _, _, name in WIDTH_BANDS}
     return {"n": len(rows), "dice_mean": float(np.mean(d)), "dice_median": float(np.median(d)),
             "dice_1px_mean": float(np.mean([r["dice_1px"] for r in rows])),
-            "dice_min": float(np.min(d)), "near_empty_share": float(np.mean([r["near_empty"] for r in rows]))}
+            "dice_min": float(np.min(d)), "near_empty_share": float(np.mean([r["near_empty"] for r in rows])),
+            "loss_mean": {k: float(np.mean([r["losses"][k] for r in rows])) for k in LOSSES},
+            "true_px_share": {k: v / max(1, sum(true.values())) for k, v in true.items()},
+            "found_share": {k: (found[k] / true[k] if true[k] else None) for k in true}}
 
 
 def _panel(rgb: np.ndarray, truth: np.ndarray, mask: np.ndarray, title: str) -> np.ndarray:

@@ -53,6 +53,8 @@ _EXPORTS = {
     "BackgroundSegmenter": "segmentation",
     "clean_mask": "segmentation",
     "dice": "segmentation",
+    "cable_widths": "segmentation",
+    "dice_losses": "segmentation",
     "dice_within": "segmentation",
     "segment_hsv": "segmentation",
     "StereoParams": "stereo",
@@ -98,7 +100,15 @@ if TYPE_CHECKING:  # the same names for type checkers (tests/tracking/test_packa
     )
     from .filter import Estimate, MultiEstimate, MultiPointFilter, PointFilter
     from .params import LATENT_LOOP_FILTER, LOOP_FILTER, FilterParams
-    from .segmentation import BackgroundSegmenter, clean_mask, dice, dice_within, segment_hsv
+    from .segmentation import (
+        BackgroundSegmenter,
+        cable_widths,
+        clean_mask,
+        dice,
+        dice_losses,
+        dice_within,
+        segment_hsv,
+    )
     from .stereo import (
         StereoParams,
         essential_matrix,

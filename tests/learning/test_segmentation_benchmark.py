@@ -30,6 +30,13 @@ def test_the_quick_benchmark_reports_every_kind(tmp_path: Path) -> None:
         assert 0.0 <= entry["dice_mean"] <= 1.0 and 0.0 <= entry["near_empty_share"] <= 1.0
         # Forgiving boundaries a pixel off can only raise each image's figure.
         assert all(r["dice"] <= r["dice_1px"] <= 1.0 for r in entry["rows"]), style
+        # Where the figure is lost: the loss shares add up with DICE to 1, per image and per kind.
+        for r in entry["rows"]:
+            assert abs(r["dice"] + sum(r["losses"].values()) - 1.0) < 1e-9, style
+            assert all(r["found_px"][b] <= r["true_px"][b] for b in r["true_px"]), style
+        if entry["n"]:
+            assert abs(entry["dice_mean"] + sum(entry["loss_mean"].values()) - 1.0) < 1e-9, style
+            assert abs(sum(entry["true_px_share"].values()) - 1.0) < 1e-9, style
         assert (worst / f"worst_{style}.png").is_file()
     assert report["speed"]["learned_ms"] > 0
     if EXTERNAL.is_dir():  # both sources, both halves, each on its own

@@ -8,8 +8,10 @@ import pytest
 
 from dyndlo_vision.tracking.segmentation import (
     BackgroundSegmenter,
+    cable_widths,
     clean_mask,
     dice,
+    dice_losses,
     dice_within,
     segment_hsv,
 )
@@ -99,6 +101,96 @@ def test_dice_within_of_empty_masks_and_bad_input() -> None:
     for bad in (-1.0, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="tolerance must be a finite number of pixels >= 0"):
             dice_within(truth, truth, bad)
+
+def _bands(widths: tuple[int, ...], shape: tuple[int, int] = (80, 120)) -> tuple[np.ndarray, list[slice]]:
+    """Horizontal cables of the given widths, 8 px apart, from column 10 to 109; and their rows."""
+    mask, rows, top = np.zeros(shape, bool), [], 4
+    for w in widths:
+        rows.append(slice(top, top + w))
+        mask[top : top + w, 10:110] = True
+        top += w + 8
+    return mask, rows
+
+
+def test_cable_widths_reads_each_cable_s_width_odd_exactly_even_one_short() -> None:
+    mask, rows = _bands((1, 2, 3, 4, 7, 12))
+    widths = cable_widths(mask)
+    assert not widths[~mask].any()
+    for w, r in zip((1, 2, 3, 4, 7, 12), rows, strict=True):
+        middle = widths[r, 30:90]  # away from the ends, where the skeleton forks
+        assert np.all(middle == (w if w % 2 else max(1, w - 1))), (w, np.unique(middle))
+    # A diagonal cable reads its width across it, not along a row (which is sqrt(2) times as long).
+    diagonal = np.zeros((120, 120), np.uint8)
+    cv2.line(diagonal, (10, 10), (110, 110), 1, thickness=5)
+    across = diagonal[60].sum() / np.sqrt(2.0)  # 6.4 px: OpenCV draws it wider than 5
+    assert abs(np.median(cable_widths(diagonal)[diagonal > 0]) - across) < 1.0
+    # A cable along the image's edge reads what is in view (the frame is off the mask), not twice that.
+    edge = np.zeros((40, 120), bool)
+    edge[:5, :] = True
+    assert np.median(cable_widths(edge)[:5, 20:100]) == 5.0
+    assert not cable_widths(np.zeros((9, 9), bool)).any()
+    with pytest.raises(ValueError, match="2-D"):
+        cable_widths(np.zeros((4, 4, 3), bool))
+
+
+def test_dice_losses_add_up_with_dice_to_one() -> None:
+    rng = np.random.default_rng(5)
+    truth, _ = _bands((1, 3, 6, 11))
+    for _ in range(6):
+        pred = (truth & (rng.random(truth.shape) < 0.8)) | (rng.random(truth.shape) < 0.05)
+        losses = dice_losses(pred, truth)
+        assert losses["dice"] == pytest.approx(dice(pred, truth), abs=1e-12)
+        lost = sum(v for k, v in losses.items() if k != "dice")
+        assert losses["dice"] + lost == pytest.approx(1.0, abs=1e-12)
+
+
+def test_dice_losses_put_missed_pixels_in_their_cable_s_width_band() -> None:
+    truth, rows = _bands((2, 3, 8, 9))
+    total_of = lambda pred: int(pred.sum()) + int(truth.sum())  # noqa: E731
+    for missing, band in ((0, "thin"), (1, "mid"), (2, "mid"), (3, "wide")):
+        pred = truth.copy()
+        pred[rows[missing]] = False
+        losses = dice_losses(pred, truth)
+        share = int(truth[rows[missing]].sum()) / total_of(pred)
+        assert losses[f"missed_{band}"] == pytest.approx(share), band
+        others = [k for k in losses if k.startswith("missed_") and k != f"missed_{band}"]
+        assert all(losses[k] == 0.0 for k in others), (missing, losses)
+        assert losses["extra_near"] == losses["extra_away"] == 0.0
+    # The caller's widths are used as given.
+    pred = truth.copy()
+    pred[rows[3]] = False
+    as_thin = dice_losses(pred, truth, widths=np.where(truth, 1.0, 0.0))
+    assert as_thin["missed_thin"] > 0.0 and as_thin["missed_wide"] == 0.0
+
+
+def test_dice_losses_tell_a_fringe_from_things_away_from_the_cable() -> None:
+    truth, rows = _bands((4,))
+    r = rows[0]
+    for gap, kind in ((1, "extra_near"), (2, "extra_near"), (3, "extra_away")):
+        pred = truth.copy()
+        pred[r.stop - 1 + gap, 10:110] = True  # a row of extra pixels, ``gap`` px below the cable's edge
+        losses = dice_losses(pred, truth)
+        assert losses[kind] == pytest.approx(100 / (500 + 400)), (gap, losses)
+        other = "extra_away" if kind == "extra_near" else "extra_near"
+        assert losses[other] == 0.0
+    # The extra row 3 px off counts as near once ``near`` reaches 3.
+    assert dice_losses(pred, truth, near=3.0)["extra_near"] == pytest.approx(100 / 900)
+
+
+def test_dice_losses_of_empty_masks_and_bad_input() -> None:
+    empty, (truth, _) = np.zeros((80, 120), bool), _bands((3,))
+    nothing_lost = {k: 0.0 for k in ("missed_thin", "missed_mid", "missed_wide", "extra_near", "extra_away")}
+    assert dice_losses(empty, empty) == {"dice": 1.0, **nothing_lost}
+    assert dice_losses(empty, truth)["missed_mid"] == 1.0
+    assert dice_losses(truth, empty)["extra_away"] == 1.0
+    with pytest.raises(ValueError, match=r"one shape, got \(80, 120\) and \(80, 121\)"):
+        dice_losses(truth, np.zeros((80, 121), bool))
+    with pytest.raises(ValueError, match=r"widths must have the masks' shape \(80, 120\), got \(3, 3\)"):
+        dice_losses(truth, truth, widths=np.zeros((3, 3)))
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(ValueError, match="near must be a finite number of pixels >= 0"):
+            dice_losses(truth, truth, near=bad)
+
 
 def test_clean_mask_drops_small_blobs_and_fills_holes() -> None:
     m = np.zeros((100, 100), np.uint8)
