@@ -7,7 +7,10 @@ Every figure is per *kind*, never only pooled: a network that does well on avera
   trained on; ``train``: what a fine-tuned network saw). Mean mask DICE, mean DICE within 1 px
   (:func:`~dyndlo_vision.tracking.segmentation.dice_within`: boundaries a pixel off forgiven; the
   cables_dataset labels sit about a pixel beside the cables in its photos) and the share of images whose mask
-  is empty or near-empty (fewer cable pixels than a tenth of the truth's).
+  is empty or near-empty (fewer cable pixels than a tenth of the truth's). Every kind also says where its
+  DICE is lost (:func:`~dyndlo_vision.tracking.segmentation.dice_losses`, ``loss_mean``, adding up with the
+  mean DICE to 1): cable missed, by the cable's width (1-2, 3-8, 9+ px), and mask beside a cable (within
+  2 px) or away from any (other things taken for cable); and the share of cable pixels found per width.
 * ``labels`` (not a default part): how well each external source's labels agree with the edges in its
   photos, from profiles across the cables (:func:`label_profiles`): the photo's and the label's cable widths,
   the offset of their centres, and the 1-D DICE of the two, the most a mask that follows the photo exactly

@@ -83,7 +83,7 @@ def test_the_fine_network_keeps_the_frame_resolution(fine: LearnedSegmenter, seg
 
 def test_the_default_stays_the_fast_network(photo: LearnedSegmenter) -> None:
     # The real robot's camera and ``track`` run onnx_bytes(): the network with the loop's time budget; the
-    # photo network (2.9-3.7x slower at 640x480, docs/segmentation.md) is ``segment``'s default
+    # photo network (3.0-4.8x slower at 640x480, docs/segmentation.md) is ``segment``'s default
     # only.
     assert SHIPPED_NAME == "cable-segmenter" and onnx_bytes() == onnx_bytes("cable-segmenter")
     assert photo.blocks and photo.short_side == 480 and photo.input_size(480, 640) == (640, 480)
@@ -95,9 +95,10 @@ def test_the_default_stays_the_fast_network(photo: LearnedSegmenter) -> None:
 def test_the_photo_network_finds_flat_cables_on_plain_walls(
     photo: LearnedSegmenter, background: tuple[int, int, int]
 ) -> None:
-    # Measured 0.32-0.96 (median 0.91; the lowest: flat black 11 px cables on the light walls, cause not
-    # established; cable-segmenter-photo 0.38-0.93, median 0.81; the first network min 0.78,
-    # median 0.90) on these flat-coloured drawings, which no photo looks like; a floor against regressions.
+    # Measured 0.57-0.97 (median 0.94; the lowest: flat black cables on the dark wall; the previous weights
+    # 0.32-0.96, lowest flat black 11 px cables on the light walls, cause not established;
+    # cable-segmenter-photo 0.38-0.93, median 0.81; the first network min 0.78, median 0.90) on these
+    # flat-coloured drawings, which no photo looks like; a floor against regressions.
     scores = []
     for colour in COLOURS:
         for thickness in (3, 7, 11):
@@ -111,7 +112,7 @@ def test_the_photo_network_finds_flat_cables_on_plain_walls(
 @pytest.mark.xfail(
     strict=True,
     reason="known weakness of the photo networks (docs/segmentation.md): a flat dark or white 7 px cable on "
-    "a blotchy grey texture is missed (DICE 0.13-0.21; cable-segmenter 0.41-0.53)",
+    "a blotchy grey texture is missed (DICE 0.10-0.15; cable-segmenter 0.41-0.53)",
 )
 def test_the_photo_network_finds_dark_and_white_cables_on_texture(photo: LearnedSegmenter) -> None:
     scores = []
@@ -380,7 +381,8 @@ def test_small_parts_of_the_mask_are_dropped_below_min_area(photo: LearnedSegmen
     n, labels, stats, _ = cv2.connectedComponentsWithStats(whole.astype(np.uint8), connectivity=8)
     areas = np.sort(stats[1:, cv2.CC_STAT_AREA])
     assert len(areas) >= 3 and areas[0] < areas[-1]
-    cut = int(areas[len(areas) // 2])  # parts of exactly this area are kept
+    sizes = np.unique(areas)  # most parts may be single pixels: cut at the middle size, not the middle part
+    cut = int(sizes[len(sizes) // 2])  # parts of exactly this area are kept
     kept = LearnedSegmenter(onnx_bytes(PHOTO_NAME), min_area=cut)(rgb)
     expected = np.isin(labels, 1 + np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= cut))
     np.testing.assert_array_equal(kept, expected)

@@ -5,8 +5,8 @@ Five networks, for different pictures (docs/segmentation.md):
 * ``cable-segmenter`` (the default of ``track --segmenter learned`` and the real robot's camera): RGB at a
   short side of 240 px, mask at half that. The fastest of the five on a 640x480 frame.
 * ``cable-segmenter-photo-wide`` (the default of ``segment``): ``cable-segmenter-photo`` widened to twice
-  its channels, deepened by a residual block at its finest level (137 k parameters) and trained on further on
-  the same data. The best of the five on held-out real photos and on every composited style; about 2x
+  its channels, deepened by two residual blocks at its finest level (156 k parameters) and trained on further
+  on the same data. The best of the five on held-out real photos and on every composited style; about 3x
   slower than ``cable-segmenter-photo``.
 * ``cable-segmenter-photo``: ``cable-segmenter-fine`` fine-tuned on composited scenes of many cables on
   real-looking surfaces, MuJoCo renders, and the train half of both sources of the shared labelled photos
@@ -46,7 +46,7 @@ LOOP_NAME = "cable-segmenter-loop"
 #: Each shipped network and what it is for, in a few words (the commands' option help lists them from here).
 SHIPPED_SUMMARIES = {
     PHOTO_NAME: "full resolution, the best on real photos",
-    "cable-segmenter-photo": "half as wide, 2.5x faster",
+    "cable-segmenter-photo": "half as wide, 3x faster",
     SHIPPED_NAME: "half resolution, fastest",
     FINE_NAME: "full resolution, for cables 1-3 px wide",
     LOOP_NAME: "cable-segmenter-fine tuned on the simulated loop's scenes",
