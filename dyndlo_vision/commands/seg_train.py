@@ -39,6 +39,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--external-short-side", type=int, default=240, metavar="PX",
                    help="the external photos' short side before augmentation: the scale the network will "
                    "run them at (default 240; 480 for the block networks)")
+    p.add_argument("--max-scale", type=float, default=1.5, metavar="S",
+                   help="each training image is resized by a random scale from 0.6 to this before its crop "
+                   "(default 1.5); segment enlarges photos smaller than the network's short side (2.2: "
+                   "cable-segmenter-photo-wide, for the 1.67x of a 384x288 photo)")
     p.add_argument("--external-balanced", action="store_true",
                    help="draw each external source equally often, then a photo within it (default: every "
                    "photo equally often)")
@@ -99,6 +103,7 @@ def run(args: argparse.Namespace) -> int:
         arch=args.arch,
         external_short_side=args.external_short_side,
         external_balanced=args.external_balanced,
+        max_scale=args.max_scale,
         frozen_batch_norm=bool(args.init) and needs_frozen_batch_norm(args.init),
     )
     try:
@@ -121,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
             f"interrupted; resume with: dyndlo-vision seg-train --resume --data {' '.join(args.data)} "
             f"--out {args.out} --steps {args.steps} --batch {args.batch} --lr {args.lr} --seed {args.seed} "
             f"--pos-weight {args.pos_weight} --arch {args.arch}"
-            f" --widths {args.widths} --blocks {args.blocks}{ext}",
+            f" --widths {args.widths} --blocks {args.blocks} --max-scale {args.max_scale}{ext}",
             file=sys.stderr,
         )
         return 130

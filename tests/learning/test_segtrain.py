@@ -13,7 +13,10 @@ from dyndlo_vision.cli import main
 from dyndlo_vision.learning.segdata import SegDataConfig, write_dataset
 from dyndlo_vision.learning.segtrain import (
     ARCHITECTURES,
+    MIN_SCALE,
     TrainConfig,
+    _augment,
+    _batch,
     build_net,
     deepened,
     export_onnx,
@@ -48,6 +51,21 @@ def test_train_resume_export(dataset: Path, tmp_path: Path) -> None:
         train(dataset, out, longer, resume=True, progress=False)
     with pytest.raises(FileNotFoundError, match="no checkpoint"):
         train(dataset, tmp_path / "none", cfg, resume=True, progress=False)
+
+
+def test_a_checkpoint_from_before_an_option_resumes_with_its_default(dataset: Path, tmp_path: Path) -> None:
+    import torch
+
+    out = tmp_path / "run"
+    cfg = TrainConfig(steps=4, batch=2, crop_h=64, crop_w=64, checkpoint_every=2)
+    train(dataset, out, cfg, progress=False)
+    checkpoint = torch.load(out / "checkpoint.pt", weights_only=False)
+    for option in ("max_scale", "blocks", "external_balanced"):  # options added after the first runs
+        del checkpoint["config"][option]
+    torch.save(checkpoint, out / "checkpoint.pt")
+    assert train(dataset, out, cfg, resume=True, progress=False)["train_config"]["steps"] == 4
+    with pytest.raises(ValueError, match="other settings"):  # a default is not any value
+        train(dataset, out, replace(cfg, max_scale=2.0), resume=True, progress=False)
 
 
 def test_several_datasets_are_pooled(dataset: Path, tmp_path: Path) -> None:
@@ -133,7 +151,8 @@ def test_command_rejects_bad_options(
     dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     for extra, word in ((["--steps", "0"], "--steps"), (["--external-share", "0.5"], "--external"),
-                        (["--pos-weight", "0"], "--pos-weight")):
+                        (["--pos-weight", "0"], "--pos-weight"), (["--max-scale", "0.5"], "max_scale"),
+                        (["--max-scale", "nan"], "max_scale"), (["--max-scale", "5"], "got 5.0")):
         with pytest.raises(SystemExit) as exc:
             main(["seg-train", "--data", str(dataset), "--out", str(tmp_path / "r"), "--quiet", *extra])
         assert exc.value.code == 2
@@ -288,11 +307,63 @@ def test_external_photos_at_their_scale_and_sources_balanced(dataset: Path, tmp_
     assert meta["external_train_images"] == 3  # mBEST's img0, img2 and cables_dataset's 00000
     assert meta["train_config"]["external_short_side"] == 96
     assert meta["train_config"]["external_balanced"] is True
+    assert meta["train_config"]["max_scale"] == 1.5
+    again = tmp_path / "run2"
+    assert main(["seg-train", "--data", str(dataset), "--out", str(again), "--quiet", "--steps", "1",
+                 "--batch", "2", "--max-scale", "2.2"]) == 0
+    assert json.loads((again / "cable_segmenter.json").read_text())["train_config"]["max_scale"] == 2.2
     with pytest.raises(SystemExit) as exc:
         main(["seg-train", "--data", str(dataset), "--out", str(tmp_path / "bad"), "--quiet",
               "--external", str(root), "--external-share", "0.5", "--external-short-side", "32"])
     assert exc.value.code == 2 and "external_short_side" in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()
+
+
+def _stripes() -> tuple[np.ndarray, np.ndarray]:
+    """A 576x768 image of vertical 10 px stripes (period 20 px), large enough that no scale of the
+    augmentation is raised to hold the 160x224 crop, and its mask."""
+    image = np.zeros((576, 768, 3), np.uint8)
+    mask = np.zeros((576, 768), np.uint8)
+    for x in range(0, 768, 20):
+        image[:, x : x + 10] = 255
+        mask[:, x : x + 10] = 1
+    return image, mask
+
+
+def _run_widths(y: np.ndarray) -> float:
+    """Median width of the whole stripes (not those the crop's sides cut) along a crop's middle row."""
+    row = np.concatenate([[0.0], y[80], [0.0]])
+    edges = np.flatnonzero(np.diff(row))
+    return float(np.median((edges[1::2] - edges[::2])[1:-1]))
+
+
+def _stripe_widths(max_scale: float | None, draws: int = 300) -> np.ndarray:
+    """The stripes' widths in ``draws`` augmented crops: 10 times the scale each was resized by."""
+    image, mask = _stripes()
+    rng = np.random.default_rng(0)
+    args = () if max_scale is None else (max_scale,)
+    return np.array([_run_widths(_augment(rng, image, mask, (160, 224), *args)[1]) for _ in range(draws)])
+
+
+def test_the_scale_augmentation_spans_its_range() -> None:
+    """Images are resized by a scale from 0.6 to ``max_scale`` (1.5 unless asked for more) before the crop."""
+    default = _stripe_widths(None)
+    assert 10.0 * MIN_SCALE - 0.6 <= default.min() <= 10.0 * MIN_SCALE + 0.6
+    assert 14.0 <= default.max() <= 15.0 + 0.6
+    wider = _stripe_widths(2.2)
+    assert 20.0 <= wider.max() <= 22.0 + 0.6 and wider.min() <= 10.0 * MIN_SCALE + 0.6
+    assert np.mean(wider > 16.0) > 0.2
+    np.testing.assert_array_equal(_stripe_widths(1.5), default)  # the default stream, unchanged
+
+
+@pytest.mark.parametrize("external_share", [0.0, 1.0])
+def test_a_batch_takes_the_configured_scale_for_generated_and_external_images(external_share: float) -> None:
+    image, mask = _stripes()
+    config = TrainConfig(batch=40, external_share=external_share, max_scale=2.2)
+    rng = np.random.default_rng(1)
+    _, yb = _batch(rng, config, [image], [mask], [image], [mask], [[0]])
+    widths = np.array([_run_widths(y[0].numpy()) for y in yb])
+    assert widths.max() > 16.0, widths  # beyond 1.5's 15 px
 
 
 def test_balanced_external_sampling_draws_each_source_equally_often() -> None:

@@ -6,8 +6,9 @@ Five networks, for different pictures (docs/segmentation.md):
   short side of 240 px, mask at half that. The fastest of the five on a 640x480 frame.
 * ``cable-segmenter-photo-wide`` (the default of ``segment``): ``cable-segmenter-photo`` widened to twice
   its channels, deepened by two residual blocks at its finest level (156 k parameters) and trained on further
-  on the same data. The best of the five on held-out real photos and on every composited style; about 3x
-  slower than ``cable-segmenter-photo``.
+  on the same data, last with the images enlarged up to 2.2x (as ``segment`` enlarges small photos). The best
+  of the five on held-out real photos and on every composited style; about 3x slower than
+  ``cable-segmenter-photo``.
 * ``cable-segmenter-photo``: ``cable-segmenter-fine`` fine-tuned on composited scenes of many cables on
   real-looking surfaces, MuJoCo renders, and the train half of both sources of the shared labelled photos
   drawn equally often; weaker than ``cable-segmenter`` on MuJoCo renders.
