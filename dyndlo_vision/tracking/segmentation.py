@@ -324,25 +324,30 @@ def dice_within(mask_pred: ArrayLike, mask_true: ArrayLike, tolerance: float = 1
     1 here and far lower in :func:`dice` on a cable a few pixels wide. Returns 1.0 when both masks are
     empty, 0.0 when only one is.
     """
-    a = np.asarray(mask_pred).astype(bool)
-    b = np.asarray(mask_true).astype(bool)
-    if a.shape != b.shape or a.ndim != 2:
-        raise ValueError(f"masks must be 2-D and of one shape, got {a.shape} and {b.shape}")
+    a, b = _mask_pair(mask_pred, mask_true)
     if not (np.isfinite(tolerance) and tolerance >= 0):
         raise ValueError(f"tolerance must be a finite number of pixels >= 0, got {tolerance!r}")
     if not a.any() or not b.any():
         return float(not a.any() and not b.any())
-
-    def near(mask: NDArray[np.bool_]) -> NDArray[np.bool_]:
-        """Pixels within ``tolerance`` of ``mask``."""
-        distance = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-        return distance <= tolerance + 1e-6
-
-    precision = float(np.mean(near(b)[a]))
-    recall = float(np.mean(near(a)[b]))
+    precision = float(np.mean(_distance_to(b)[a] <= tolerance + 1e-6))
+    recall = float(np.mean(_distance_to(a)[b] <= tolerance + 1e-6))
     if precision + recall == 0:
         return 0.0
     return 2.0 * precision * recall / (precision + recall)
+
+
+def _mask_pair(mask_pred: ArrayLike, mask_true: ArrayLike) -> tuple[BoolMask, BoolMask]:
+    """Two masks as bool arrays, refused unless 2-D and of one shape."""
+    a = np.asarray(mask_pred).astype(bool)
+    b = np.asarray(mask_true).astype(bool)
+    if a.shape != b.shape or a.ndim != 2:
+        raise ValueError(f"masks must be 2-D and of one shape, got {a.shape} and {b.shape}")
+    return a, b
+
+
+def _distance_to(mask: BoolMask) -> NDArray[np.float32]:
+    """Euclidean distance from every pixel to the nearest pixel of ``mask`` (0 on it)."""
+    return cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
 
 
 def cable_widths(mask_true: ArrayLike) -> NDArray[np.float64]:
@@ -353,6 +358,8 @@ def cable_widths(mask_true: ArrayLike) -> NDArray[np.float64]:
     for straight cables of an odd width, one pixel short for even ones. Where cables touch, the skeleton runs
     through the union, and the width read is the union's.
     """
+    from scipy.ndimage import distance_transform_edt  # here, not at import: the loop never needs it
+
     m = np.asarray(mask_true).astype(bool)
     if m.ndim != 2:
         raise ValueError(f"mask must be 2-D, got shape {m.shape}")
@@ -364,18 +371,10 @@ def cable_widths(mask_true: ArrayLike) -> NDArray[np.float64]:
         skeleton = m
     framed = np.pad(m, 1).astype(np.uint8)  # the frame's border counts as off the mask
     inside = cv2.distanceTransform(framed, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
-    _, (rows, cols) = _nearest(skeleton)
-    width = 2.0 * inside[rows, cols] - 1.0
+    rows, cols = distance_transform_edt(~skeleton, return_distances=False, return_indices=True)
+    width = 2.0 * inside[rows, cols] - 1.0  # each pixel: the width at its nearest skeleton pixel
     out[m] = width[m]
     return out
-
-
-def _nearest(target: NDArray[np.bool_]) -> tuple[NDArray[np.float64], tuple[NDArray[np.intp], ...]]:
-    """Euclidean distance to the nearest ``target`` pixel, and that pixel's row and column, at every pixel."""
-    from scipy.ndimage import distance_transform_edt
-
-    distance, index = distance_transform_edt(~target, return_indices=True)
-    return distance, (index[0], index[1])
 
 
 #: Width bands of :func:`dice_losses`, as :func:`cable_widths` reads them (pixels): wires 1-2 px wide,
@@ -397,10 +396,7 @@ def dice_losses(mask_pred: ArrayLike, mask_true: ArrayLike, near: float = 2.0,
     ``widths``: :func:`cable_widths` of ``mask_true`` where the caller has it already. Both masks empty:
     every share 0 and ``dice`` 1.
     """
-    a = np.asarray(mask_pred).astype(bool)
-    b = np.asarray(mask_true).astype(bool)
-    if a.shape != b.shape or a.ndim != 2:
-        raise ValueError(f"masks must be 2-D and of one shape, got {a.shape} and {b.shape}")
+    a, b = _mask_pair(mask_pred, mask_true)
     if not (np.isfinite(near) and near >= 0):
         raise ValueError(f"near must be a finite number of pixels >= 0, got {near!r}")
     if widths is not None and np.shape(widths) != b.shape:
@@ -418,8 +414,7 @@ def dice_losses(mask_pred: ArrayLike, mask_true: ArrayLike, near: float = 2.0,
     extra = a & ~b
     if extra.any():
         if b.any():
-            distance, _ = _nearest(b)
-            close = distance[extra] <= near + 1e-6
+            close = _distance_to(b)[extra] <= near + 1e-6
         else:
             close = np.zeros(int(extra.sum()), bool)
         out["extra_near"] = int(close.sum()) / total

@@ -175,6 +175,11 @@ def test_dice_losses_tell_a_fringe_from_things_away_from_the_cable() -> None:
         assert losses[other] == 0.0
     # The extra row 3 px off counts as near once ``near`` reaches 3.
     assert dice_losses(pred, truth, near=3.0)["extra_near"] == pytest.approx(100 / 900)
+    # Distances are Euclidean to the pixel: a pixel 2 down and 1 across the cable's end is sqrt(5) = 2.24 off.
+    corner = truth.copy()
+    corner[r.stop + 1, 110] = True
+    assert dice_losses(corner, truth, near=2.25)["extra_near"] > 0.0
+    assert dice_losses(corner, truth, near=2.2)["extra_away"] > 0.0
 
 
 def test_dice_losses_of_empty_masks_and_bad_input() -> None:
@@ -185,6 +190,8 @@ def test_dice_losses_of_empty_masks_and_bad_input() -> None:
     assert dice_losses(truth, empty)["extra_away"] == 1.0
     with pytest.raises(ValueError, match=r"one shape, got \(80, 120\) and \(80, 121\)"):
         dice_losses(truth, np.zeros((80, 121), bool))
+    with pytest.raises(ValueError, match="2-D"):
+        dice_losses(np.zeros((4, 4, 3), bool), np.zeros((4, 4, 3), bool))
     with pytest.raises(ValueError, match=r"widths must have the masks' shape \(80, 120\), got \(3, 3\)"):
         dice_losses(truth, truth, widths=np.zeros((3, 3)))
     for bad in (-1.0, float("nan")):
