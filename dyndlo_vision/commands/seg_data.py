@@ -48,10 +48,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--upscale", type=float, default=defaults.upscale, metavar="S",
                    help="enlarge every image and label S times (bilinear) after rendering at --width x "
                    "--height, as the loop enlarges its frames for its network (1-4; default 1: as rendered)")
-    p.add_argument("--decoy-share", type=float, default=defaults.decoy_share, metavar="P",
-                   help="share of composited samples that also show 1-8 cable look-alikes labelled "
-                   "background: painted strokes, shadows of cables out of view, seams, glints (0-1; "
-                   "default 0; the same seed gives the same cables at any share)")
     options.add_quiet(p)
 
 
@@ -64,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     lo, hi = DEFAULT_WIDTHS_PX["mujoco" if args.style in MUJOCO_STYLES else "composite"]
     config = SegDataConfig(width=args.width, height=args.height, texture_share=args.texture_share,
                            lum_match_share=args.lum_match_share, grey_floor_share=args.grey_floor_share,
-                           style=args.style, upscale=args.upscale, decoy_share=args.decoy_share,
+                           style=args.style, upscale=args.upscale,
                            min_width_px=lo if args.min_width is None else args.min_width,
                            max_width_px=hi if args.max_width is None else args.max_width)
     config.check()

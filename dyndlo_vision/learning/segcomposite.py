@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["COMPOSITE_STYLES", "DECOYS", "CompositeSampler", "draw_decoys", "surface"]
+__all__ = ["COMPOSITE_STYLES", "CompositeSampler", "surface"]
 
 #: The composited scene kinds (see the module docstring).
 COMPOSITE_STYLES = ("wires", "bundles", "harness", "busy", "own-colour")
@@ -667,132 +667,17 @@ def _tie(canvas: NDArray[np.float32], label: NDArray[np.float32], centre: NDArra
     np.maximum(label[y0:y1, x0:x1], cov, out=label[y0:y1, x0:x1])
 
 
-# ----------------------------------------------------------------------------- decoys
-#: Things shaped like cables that are not cable, drawn on the surface by :func:`draw_decoys`.
-DECOYS = ("ink", "shadow", "groove", "glint")
-
-
-def _surface_shade(canvas: NDArray[np.float32], box: tuple[int, int, int, int]) -> NDArray[np.float32]:
-    """The surface's brightness in ``box`` relative to its mean there (its texture, as a gain near 1)."""
-    x0, y0, x1, y1 = box
-    lum = canvas[y0:y1, x0:x1].mean(axis=2)
-    return (lum / max(float(lum.mean()), 1.0)).astype(np.float32)
-
-
-def _stroke_coverage(path: NDArray[np.float64], widths: NDArray[np.float64], shape: tuple[int, int],
-                     origin: tuple[float, float]) -> NDArray[np.float32]:
-    """Coverage (2x canvas) of a stroke whose width changes along ``path`` (1x pixels), as the union of
-    short pieces."""
-    layer = np.zeros(shape, np.uint8)
-    step = 4
-    for i in range(0, len(path) - 1, step):
-        piece = path[i:i + step + 1]
-        th = max(1, int(round(2 * float(widths[i]))) - 2)
-        pts = np.round((piece * 2 - origin) * 16).astype(np.int32).reshape(-1, 1, 2)
-        cv2.polylines(layer, [pts], False, 255, th, cv2.LINE_AA, 4)
-    return layer.astype(np.float32) / 255.0
-
-
-def draw_decoys(rng: np.random.Generator, canvas: NDArray[np.float32], count: int,
-                widths: tuple[float, float]) -> list[str]:
-    """Draws ``count`` cable look-alikes that are not cable on the 2x ``canvas`` (a surface, before any
-    cable): long thin things in cable widths (``widths``: least and most, 1x pixels) that a photo's
-    surface shows. Returns their kinds (:data:`DECOYS`):
-
-    * ``ink``: a painted or printed stroke, its width swelling and tapering along it, its ends in the
-      picture, the surface's texture showing through;
-    * ``shadow``: the soft shadow of a cable out of view, with no cable;
-    * ``groove``: seams, gaps and grout lines: a dark line beside a light one, straight or gently bent,
-      often a few in parallel;
-    * ``glint``: a bright streak of light on a glossy surface, blurred.
-
-    The label is not touched: none of them is cable."""
-    h2, w2 = canvas.shape[:2]
-    h, w = h2 // 2, w2 // 2
-    lo, hi = widths
-    kinds = []
-    for _ in range(count):
-        kind = str(rng.choice(DECOYS, p=[0.35, 0.25, 0.25, 0.15]))
-        kinds.append(kind)
-        top = max(lo, min(hi, 24.0))
-        if kind == "ink":  # a flat stroke thinner than 3 px would be a thin wire's very look
-            lo_k = min(max(lo, 3.0), top)
-            width = float(np.exp(rng.uniform(math.log(lo_k), math.log(top))))
-        else:
-            width = float(np.exp(rng.uniform(math.log(lo), math.log(top))))
-        if kind == "groove":
-            a = _border_point(rng, h, w, 5.0)
-            b = _border_point(rng, h, w, 5.0)
-            base = _spline(np.vstack([a, (a + b) / 2 + rng.normal(0, 0.03, 2) * (w, h), b]), 1.0)
-            normal = _normals(base)
-            gap = float(rng.uniform(8, 0.4 * min(h, w)))
-            dark = float(rng.uniform(0.2, 0.7))
-            light = float(rng.uniform(0.0, 0.5))
-            line_w = min(width, 4.0)
-            side = float(rng.choice([-1.0, 1.0]))
-            for k in range(int(rng.integers(1, 5))):
-                p = base + normal * k * gap
-                cov = _coverage([p], line_w, (h2, w2))
-                canvas *= (1 - dark * cov)[..., None]
-                edge = p + normal * side * (line_w * 0.5 + 0.75)
-                cov = _coverage([edge], max(0.75, line_w * 0.5), (h2, w2))
-                canvas += (light * cov * (255 - canvas.mean(axis=2)))[..., None]
-            continue
-        path = _path(rng, h, w, margin=width * 2 + 5, leave_share=0.3 if kind == "ink" else 0.7)
-        if kind == "ink" and len(path) > 20:  # a stroke starts and ends in the picture
-            n = len(path)
-            i0 = int(rng.integers(0, n // 3))
-            i1 = int(rng.integers(i0 + max(10, n // 5), n + 1))
-            path = path[i0:i1]
-        box = _box([path], 2 * width + 8, h2, w2)
-        if box is None:
-            continue
-        x0, y0, x1, y1 = box
-        shape = (y1 - y0, x1 - x0)
-        if kind == "ink":
-            s = _arc_length(path) / max(float(_arc_length(path)[-1]), 1.0)
-            swell = 1 + float(rng.uniform(0.4, 0.9)) * np.sin(2 * math.pi * s * float(rng.uniform(0.5, 3))
-                                                             + float(rng.uniform(0, 6)))
-            taper = np.clip(np.minimum(s, 1 - s) / float(rng.uniform(0.05, 0.3)), 0.15, 1)
-            cov = _stroke_coverage(path, np.maximum(width * swell * taper, 0.5), shape, (x0, y0))
-            colour = _hsv_colour(rng)
-            opacity = float(rng.uniform(0.5, 0.95))
-            shade = _surface_shade(canvas, box)
-            region = canvas[y0:y1, x0:x1]
-            a = (opacity * cov)[..., None]
-            region *= 1 - a
-            region += a * colour[None, None, :] * shade[..., None]
-        elif kind == "shadow":
-            cov = _coverage([path], width, shape, (x0, y0))
-            cov = cv2.GaussianBlur(cov, (0, 0), max(1.0, 2 * width * float(rng.uniform(0.3, 0.9))))
-            cov /= max(float(cov.max()), 1e-6)
-            canvas[y0:y1, x0:x1] *= (1 - float(rng.uniform(0.25, 0.7)) * cov)[..., None]
-        else:  # glint
-            cov = _coverage([path], max(1.0, width * 0.5), shape, (x0, y0))
-            cov = cv2.GaussianBlur(cov, (0, 0), max(1.0, width * float(rng.uniform(0.3, 1.0))))
-            cov /= max(float(cov.max()), 1e-6)
-            region = canvas[y0:y1, x0:x1]
-            region += (float(rng.uniform(0.3, 0.9)) * cov)[..., None] * (255 - region)
-    return kinds
-
-
 class CompositeSampler:
     """Draws samples of one composited scene kind (:data:`COMPOSITE_STYLES`); every draw comes from
     ``numpy.random.default_rng((seed, group))``, so a group's samples are reproducible."""
 
     def __init__(self, kind: str, width: int, height: int, min_width_px: float, max_width_px: float,
-                 seed: int, group: int, decoy_share: float = 0.0) -> None:
+                 seed: int, group: int) -> None:
         if kind not in COMPOSITE_STYLES:
             raise ValueError(f"kind must be one of {COMPOSITE_STYLES}, got {kind!r}")
-        if not 0.0 <= decoy_share <= 1.0:
-            raise ValueError(f"decoy_share must be in [0, 1], got {decoy_share!r}")
         self.kind, self.w, self.h = kind, int(width), int(height)
         self.min_w, self.max_w = float(min_width_px), float(max_width_px)
         self.rng = np.random.default_rng((int(seed), int(group)))
-        # Decoys draw from a stream of their own (one per kind): the same seed gives the same cables and
-        # surfaces with or without them.
-        self.decoy_share = float(decoy_share)
-        self.decoy_rng = np.random.default_rng((int(seed), int(group), 1 + COMPOSITE_STYLES.index(kind)))
 
     def close(self) -> None:  # the samplers' common interface (nothing to free here)
         pass
@@ -924,10 +809,6 @@ class CompositeSampler:
         bg, surface_name = self._surface(first)
         canvas = cv2.resize(bg, (2 * w, 2 * h), interpolation=cv2.INTER_LINEAR)
         label = np.zeros((2 * h, 2 * w), np.float32)
-        decoys: list[str] = []
-        if self.decoy_share > 0 and self.decoy_rng.random() < self.decoy_share:
-            drng = self.decoy_rng
-            decoys = draw_decoys(drng, canvas, int(drng.integers(1, 9)), (self.min_w, self.max_w))
         elev = float(rng.uniform(0.35, 0.95))
         az = float(rng.uniform(0, 2 * math.pi))
         light = np.array([math.cos(az) * math.sqrt(1 - elev**2), math.sin(az) * math.sqrt(1 - elev**2), elev])
@@ -978,6 +859,4 @@ class CompositeSampler:
         widths = [wire.width for g in groups for wire in g]
         meta = {"style": self.kind, "surface": surface_name, "wires": len(widths),
                 "width_px": [round(min(widths), 2), round(max(widths), 2)]}
-        if decoys:
-            meta["decoys"] = decoys
         return rgb, mask, meta

@@ -82,11 +82,6 @@ class SegDataConfig:
     #: (``control.sim_perception.LOOP_NETWORK_SCALE``): the network then trains on what it is given. 1: as
     #: rendered (datasets made before this option).
     upscale: float = 1.0
-    #: Share of composited samples (not the MuJoCo styles) that also show 1-8 cable look-alikes that are not
-    #: cable (:func:`~dyndlo_vision.learning.segcomposite.draw_decoys`: painted strokes, shadows of cables
-    #: out of view, seams, glints), labelled background. They draw from a stream of their own, so a seed
-    #: gives the same cables and surfaces at any share; 0 draws none (datasets made before this option).
-    decoy_share: float = 0.0
 
     def check(self) -> None:
         for name in ("width", "height", "samples_per_scene"):
@@ -95,7 +90,7 @@ class SegDataConfig:
                 raise ValueError(f"{name} must be a positive int, got {v!r}")
         if self.width < 32 or self.height < 32:
             raise ValueError(f"image size must be at least 32x32, got {self.width}x{self.height}")
-        for name in ("texture_share", "lum_match_share", "grey_floor_share", "decoy_share"):
+        for name in ("texture_share", "lum_match_share", "grey_floor_share"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)!r}")
         if isinstance(self.upscale, bool) or not isinstance(self.upscale, int | float) or not (
@@ -103,9 +98,6 @@ class SegDataConfig:
             raise ValueError(f"upscale must be a number in [1, 4], got {self.upscale!r}")
         if self.style not in STYLES:
             raise ValueError(f"style must be one of {list(STYLES)}, got {self.style!r}")
-        if self.decoy_share > 0 and self.style in MUJOCO_STYLES:
-            raise ValueError(f"decoy_share applies to the composited styles {list(COMPOSITE_STYLES)}, got "
-                             f"decoy_share {self.decoy_share!r} with style {self.style!r}")
         if not 0.5 <= self.min_width_px <= self.max_width_px:
             raise ValueError(
                 f"cable widths must satisfy 0.5 <= min_width_px <= max_width_px, got "
@@ -697,7 +689,7 @@ def make_sampler(config: SegDataConfig, seed: int,
         return SceneSampler(config, seed, group)
     config.check()
     return CompositeSampler(config.style, config.width, config.height, config.min_width_px,
-                            config.max_width_px, seed, group, config.decoy_share)
+                            config.max_width_px, seed, group)
 
 
 def enlarged(rgb: NDArray[np.uint8], mask: NDArray[np.uint8],

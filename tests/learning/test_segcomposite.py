@@ -10,14 +10,7 @@ import numpy as np
 import pytest
 
 from dyndlo_vision.cli import main
-from dyndlo_vision.learning.segcomposite import (
-    COMPOSITE_STYLES,
-    DECOYS,
-    SURFACES,
-    CompositeSampler,
-    draw_decoys,
-    surface,
-)
+from dyndlo_vision.learning.segcomposite import COMPOSITE_STYLES, SURFACES, CompositeSampler, surface
 from dyndlo_vision.learning.segdata import STYLES, SegDataConfig, make_sampler, write_dataset
 
 
@@ -130,82 +123,4 @@ def test_a_composited_dataset_resumes_and_the_command_sets_its_widths(
         main(["seg-data", "--out", str(tmp_path / "bad"), "--count", "1", "--style", "wires",
               "--min-width", "8", "--max-width", "4"])
     assert exc.value.code == 2 and "min_width_px" in capsys.readouterr().err
-    assert not (tmp_path / "bad").exists()
-
-
-def test_decoys_change_the_picture_and_leave_the_label_and_the_cables_as_they_were() -> None:
-    """A seed gives the same cables and labels at any decoy share: the decoys draw from their own stream
-    and are background. At share 1 every sample lists its decoys and shows them."""
-    shown = 0
-    for kind in COMPOSITE_STYLES:
-        for group in range(2):
-            plain = CompositeSampler(kind, 160, 120, 1.0, 40.0, seed=4, group=group)
-            decoyed = CompositeSampler(kind, 160, 120, 1.0, 40.0, seed=4, group=group, decoy_share=1.0)
-            for _ in range(2):  # the group's first two samples
-                rgb0, mask0, meta0 = plain.sample()
-                rgb1, mask1, meta1 = decoyed.sample()
-                assert np.array_equal(mask0, mask1), "decoys are not cable"
-                assert "decoys" not in meta0 and 1 <= len(meta1["decoys"]) <= 8
-                assert set(meta1["decoys"]) <= set(DECOYS)
-                shown += int(not np.array_equal(rgb0, rgb1))
-    assert shown >= 18, "decoys show in the picture"
-    assert all(CompositeSampler("wires", 96, 64, 1.0, 40.0, 0, g, decoy_share=0.0).sample()[2].get("decoys")
-               is None for g in range(3))
-    with pytest.raises(ValueError, match=r"decoy_share must be in \[0, 1\], got 1.5"):
-        CompositeSampler("wires", 96, 64, 1.0, 40.0, 0, 0, decoy_share=1.5)
-
-
-def test_a_decoy_share_draws_decoys_in_about_that_share_of_samples() -> None:
-    sampler = CompositeSampler("wires", 64, 48, 1.0, 40.0, seed=2, group=0, decoy_share=0.3)
-    got = np.mean(["decoys" in sampler.sample()[2] for _ in range(200)])
-    assert 0.2 <= got <= 0.4, got
-
-
-def _changed(before: np.ndarray, after: np.ndarray) -> np.ndarray:
-    return (np.abs(after - before).max(axis=2) > 8).astype(np.uint8)
-
-
-@pytest.mark.parametrize("kind", DECOYS)
-def test_each_decoy_kind_is_drawn_long_and_in_cable_widths(kind: str) -> None:
-    """Every kind changes a long, thin stretch of the surface; an ink stroke is at least 3 px wide at its
-    widest (a flat stroke thinner than that would look like a thin wire); a seam's dark line is at most
-    4 px, 8 with its light edge."""
-    seen = 0
-    for seed in range(60):
-        rng = np.random.default_rng(seed)
-        canvas = np.full((240, 320, 3), 128.0, np.float32)  # a 160x120 picture at twice its size
-        before = canvas.copy()
-        kinds = draw_decoys(rng, canvas, 1, (1.0, 40.0))
-        if kinds != [kind]:
-            continue
-        changed = _changed(before, canvas)
-        if changed.sum() < 20:
-            continue  # the path ran outside the picture
-        seen += 1
-        _, _, stats, _ = cv2.connectedComponentsWithStats(changed)
-        x, y, w, h = stats[1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA])), :4]
-        runs_out = x == 0 or y == 0 or x + w == 320 or y + h == 240
-        assert max(w, h) >= 30 or runs_out, (seed, w, h)  # a corner cut short by the picture's edge
-        widest = float(cv2.distanceTransform(changed, cv2.DIST_L2, 5).max())  # half the width, 2x pixels
-        if kind == "ink":
-            assert widest >= 2.5, (seed, widest)  # >= 3 px at 1x, less the anti-aliased rim
-        if kind == "groove":
-            assert widest <= 8.0, (seed, widest)
-    assert seen >= 3, f"{kind} drawn in only {seen} of 60 draws"
-
-
-def test_the_decoy_share_is_checked_and_recorded(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    with pytest.raises(ValueError, match="decoy_share must be in"):
-        SegDataConfig(style="wires", decoy_share=-0.1).check()
-    with pytest.raises(ValueError, match="decoy_share applies to the composited styles.*random-scenes"):
-        SegDataConfig(style="random-scenes", decoy_share=0.5).check()
-    out = tmp_path / "d"
-    assert main(["seg-data", "--out", str(out), "--count", "2", "--width", "64", "--height", "48",
-                 "--style", "busy", "--decoy-share", "1", "--quiet"]) == 0
-    assert json.loads((out / "dataset.json").read_text())["config"]["decoy_share"] == 1.0
-    metas = [json.loads(line) for line in (out / "meta.jsonl").read_text().splitlines()]
-    assert len(metas) == 2 and all(m["decoys"] for m in metas)
-    with pytest.raises(SystemExit) as exc:
-        main(["seg-data", "--out", str(tmp_path / "bad"), "--count", "1", "--decoy-share", "0.5"])
-    assert exc.value.code == 2 and "decoy_share applies" in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()
