@@ -30,11 +30,17 @@ Every figure is per *kind*, never only pooled: a network that does well on avera
 * ``loopcam``: the control loop's own camera (tip control, 640x480, a 1.6 px red cable): DICE and time at
   three network scales.
 
+Every kind's mean DICE comes with its standard error (``dice_se``): over 50 generated scenes it is about
+0.03, so one network's figures for a kind are known to about +-0.06. Two networks are compared on the same
+images with ``--against OTHER.json`` (the other's report): ``paired`` holds, per kind, the mean per-image
+difference and its standard error, usually a tenth of that spread.
+
 ``--worst DIR`` writes, per kind, the worst images as PNG panels (photo, truth, mask) to look at.
 ``--quick`` runs a few images of every kind and no videos (what the test runs)::
 
     python benchmarks/segmentation_generalisation.py --out seg.json [--model NAME|FILE.onnx]
         [--short-side N] [--parts external,styles] [--style-seed 2000 --per-style 100] [--worst DIR]
+        [--against OTHER.json]
     python benchmarks/segmentation_generalisation.py --model cable-segmenter-photo-wide --parts labels \
         --out labels.json
 """
@@ -96,13 +102,48 @@ def _score(mask: np.ndarray, truth: np.ndarray) -> dict:
             "found_px": {name: int((m & mask).sum()) for name, m in band.items()}}
 
 
+def _standard_error(values: list[float]) -> float | None:
+    """The standard error of the values' mean (sample standard deviation over sqrt(n)); None under 2."""
+    return float(np.std(values, ddof=1) / np.sqrt(len(values))) if len(values) >= 2 else None
+
+
+def _rows_by_kind(report: dict) -> dict[str, dict[str, float]]:
+    """Per-image DICE of a report, by kind (``source/split`` for the photos, the style for the rest)."""
+    kinds: dict[str, dict[str, float]] = {}
+    for row in report.get("external", {}).get("rows", []):
+        kinds.setdefault(f"{row['source']}/{row['split']}", {})[row["image"]] = row["dice"]
+    for style, entry in report.get("styles", {}).items():
+        kinds[style] = {row["image"]: row["dice"] for row in entry["rows"]}
+    return kinds
+
+
+def paired(report: dict, other: dict) -> dict:
+    """This report's per-image DICE minus ``other``'s (the same benchmark, another network), per kind, over
+    the images both scored: the mean difference, its standard error and n. Two networks scored on the same
+    images differ far less from image to image than the images do among themselves, so this tells a real
+    difference from the spread of a kind's scenes. Kinds with no image in common are left out; none at all
+    is an error."""
+    mine, theirs = _rows_by_kind(report), _rows_by_kind(other)
+    out = {}
+    for kind, rows in mine.items():
+        common = sorted(set(rows) & set(theirs.get(kind, {})))
+        if common:
+            diff = [rows[i] - theirs[kind][i] for i in common]
+            out[kind] = {"n": len(common), "dice_diff_mean": float(np.mean(diff)),
+                         "dice_diff_se": _standard_error(diff)}
+    if not out:
+        raise ValueError(f"no image scored in both reports: kinds {sorted(mine)} against {sorted(theirs)}")
+    return out
+
+
 def _summary(rows: list[dict]) -> dict:
     """Means over the kind's images (``loss_mean`` adds up with ``dice_mean`` to 1); ``found_share``: the
     share of the kind's true pixels found, pooled, per cable width (``None`` where it has none that wide)."""
     d = [r["dice"] for r in rows]
     true = {name: sum(r["true_px"][name] for r in rows) for _, _, name in WIDTH_BANDS}
     found = {name: sum(r["found_px"][name] for r in rows) for _, _, name in WIDTH_BANDS}
-    return {"n": len(rows), "dice_mean": float(np.mean(d)), "dice_median": float(np.median(d)),
+    return {"n": len(rows), "dice_mean": float(np.mean(d)), "dice_se": _standard_error(d),
+            "dice_median": float(np.median(d)),
             "dice_1px_mean": float(np.mean([r["dice_1px"] for r in rows])),
             "dice_min": float(np.min(d)), "near_empty_share": float(np.mean([r["near_empty"] for r in rows])),
             "loss_mean": {k: float(np.mean([r["losses"][k] for r in rows])) for k in LOSSES},
@@ -661,8 +702,20 @@ def main() -> int:
     ap.add_argument("--worst", metavar="DIR", help="write the worst images per kind as PNG panels here")
     ap.add_argument("--quick", action="store_true",
                     help="a few images of every kind, no videos: checks that the benchmark runs")
+    ap.add_argument("--against", metavar="REPORT.json",
+                    help="another network's report of this benchmark on the same images: adds 'paired', the "
+                    "per-image DICE difference per kind with its standard error")
     ap.add_argument("--out", required=True)
     args = ap.parse_args()
+    against = None
+    if args.against:  # read before scoring: a bad file fails at once
+        try:
+            against = json.loads(Path(args.against).read_text())
+        except (OSError, ValueError) as e:
+            raise SystemExit(f"--against {args.against}: not a readable JSON report ({e})") from e
+        if not isinstance(against, dict) or not ({"external", "styles"} & set(against)):
+            raise SystemExit(f"--against {args.against}: expected a report of this benchmark with 'external' "
+                             f"or 'styles', got keys {sorted(against) if isinstance(against, dict) else []}")
     cv2.setNumThreads(1)
     ss = args.short_side.lower()
     short = "auto" if ss == "auto" else None if ss == "none" else int(ss)
@@ -714,6 +767,10 @@ def main() -> int:
     if "loopcam" in parts and not args.quick:
         report["loopcam"] = part_loopcam(args.model)
         print(json.dumps(report["loopcam"], indent=1))
+    if against is not None:
+        report["against"] = {"report": args.against, "model": against.get("model")}
+        report["paired"] = paired(report, against)
+        print(json.dumps(report["paired"], indent=1))
     report["wall_s"] = time.perf_counter() - t0
     Path(args.out).write_text(json.dumps(report, indent=1))
     return 0

@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from dyndlo_vision.learning.segdata import STYLES
@@ -28,6 +29,9 @@ def test_the_quick_benchmark_reports_every_kind(tmp_path: Path) -> None:
     for style, entry in report["styles"].items():
         assert entry["n"] + entry["no_cable_samples"] == 2, style
         assert 0.0 <= entry["dice_mean"] <= 1.0 and 0.0 <= entry["near_empty_share"] <= 1.0
+        if entry["n"] == 2:  # the standard error of a mean of two: half their difference
+            d = [r["dice"] for r in entry["rows"]]
+            assert abs(entry["dice_se"] - abs(d[0] - d[1]) / 2) < 1e-12, style
         # Forgiving boundaries a pixel off can only raise each image's figure.
         assert all(r["dice"] <= r["dice_1px"] <= 1.0 for r in entry["rows"]), style
         # Where the figure is lost: the loss shares add up with DICE to 1, per image and per kind.
@@ -56,3 +60,55 @@ def test_the_quick_benchmark_reports_every_kind(tmp_path: Path) -> None:
                 against_photo = labels["mask_vs_photo"][half]
                 assert against_photo["profiles"] > 0
                 assert 0.0 <= against_photo["mask_dice_1d_mean"] <= 1.0
+
+
+def _benchmark():  # type: ignore[no-untyped-def]
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import segmentation_generalisation
+
+    return segmentation_generalisation
+
+
+def _report(external: dict[str, float], styles: dict[str, dict[str, float]]) -> dict:
+    rows = [{"source": k.split("/")[0], "image": k.split("/", 1)[1], "split": "heldout", "dice": v}
+            for k, v in external.items()]
+    by_style = {s: {"rows": [{"image": i, "dice": v} for i, v in r.items()]} for s, r in styles.items()}
+    return {"external": {"rows": rows}, "styles": by_style}
+
+
+def test_paired_differences_match_images_by_name_within_each_kind() -> None:
+    sg = _benchmark()
+    a = _report({"mbest/a.jpg": 0.9, "mbest/b.jpg": 0.8, "cables_dataset/c.png": 0.7},
+                {"busy": {"000000": 0.5, "000001": 0.6, "000002": 0.9}, "wires": {"000000": 0.4}})
+    b = _report({"mbest/b.jpg": 0.7, "mbest/a.jpg": 0.6},
+                {"busy": {"000001": 0.5, "000000": 0.2, "000003": 0.1}, "harness": {"000000": 0.4}})
+    out = sg.paired(a, b)
+    assert set(out) == {"mbest/heldout", "busy"}, "kinds with no image in common are left out"
+    assert out["mbest/heldout"]["n"] == 2
+    assert out["mbest/heldout"]["dice_diff_mean"] == pytest.approx(0.2)  # 0.3 and 0.1
+    assert out["mbest/heldout"]["dice_diff_se"] == pytest.approx(0.1)
+    assert out["busy"]["n"] == 2 and out["busy"]["dice_diff_mean"] == pytest.approx(0.2)  # 0.3 and 0.1
+    # The same image names in another kind are other images.
+    c = _report({}, {"wires": {"000000": 0.5, "000001": 0.6}})
+    with pytest.raises(ValueError, match="no image scored in both reports"):
+        sg.paired(c, _report({}, {"busy": {"000000": 0.5, "000001": 0.6}}))
+    assert sg.paired(c, c)["wires"] == {"n": 2, "dice_diff_mean": 0.0, "dice_diff_se": 0.0}
+    assert sg.paired(_report({}, {"wires": {"000000": 0.5}}), c)["wires"]["dice_diff_se"] is None
+
+
+def test_standard_error_of_the_mean() -> None:
+    sg = _benchmark()
+    assert sg._standard_error([1.0, 2.0, 3.0, 4.0]) == pytest.approx(np.std([1, 2, 3, 4], ddof=1) / 2)
+    assert sg._standard_error([0.5]) is None
+
+
+@pytest.mark.parametrize("content", ["not json", "[1, 2]", '{"model": "x"}'])
+def test_a_bad_against_report_is_refused_before_scoring(tmp_path: Path, content: str) -> None:
+    bad = tmp_path / "other.json"
+    bad.write_text(content)
+    out = tmp_path / "seg.json"
+    res = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "segmentation_generalisation.py"),
+                          "--parts", "styles", "--against", str(bad), "--out", str(out)],
+                         cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert res.returncode != 0 and f"--against {bad}" in res.stderr
+    assert not out.exists()
