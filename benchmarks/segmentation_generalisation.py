@@ -33,7 +33,7 @@ Every figure is per *kind*, never only pooled: a network that does well on avera
 Every kind's mean DICE comes with its standard error (``dice_se``): over 50 generated scenes it is about
 0.03, so one network's figures for a kind are known to about +-0.06. Two networks are compared on the same
 images with ``--against OTHER.json`` (the other's report): ``paired`` holds, per kind, the mean per-image
-difference and its standard error, usually a tenth of that spread.
+difference and its standard error, a third to a tenth of that spread.
 
 ``--worst DIR`` writes, per kind, the worst images as PNG panels (photo, truth, mask) to look at.
 ``--quick`` runs a few images of every kind and no videos (what the test runs)::
@@ -107,13 +107,17 @@ def _standard_error(values: list[float]) -> float | None:
     return float(np.std(values, ddof=1) / np.sqrt(len(values))) if len(values) >= 2 else None
 
 
-def _rows_by_kind(report: dict) -> dict[str, dict[str, float]]:
-    """Per-image DICE of a report, by kind (``source/split`` for the photos, the style for the rest)."""
-    kinds: dict[str, dict[str, float]] = {}
+def _rows_by_kind(report: dict) -> dict[str, dict[str, tuple[float, int | None]]]:
+    """Per-image DICE and count of true cable pixels of a report, by kind (``source/split`` for the photos,
+    the style or ``--sets`` folder's name for the rest)."""
+    def entry(row: dict) -> tuple[float, int | None]:
+        return row["dice"], (sum(row["true_px"].values()) if "true_px" in row else None)
+
+    kinds: dict[str, dict[str, tuple[float, int | None]]] = {}
     for row in report.get("external", {}).get("rows", []):
-        kinds.setdefault(f"{row['source']}/{row['split']}", {})[row["image"]] = row["dice"]
-    for style, entry in report.get("styles", {}).items():
-        kinds[style] = {row["image"]: row["dice"] for row in entry["rows"]}
+        kinds.setdefault(f"{row['source']}/{row['split']}", {})[row["image"]] = entry(row)
+    for style, value in report.get("styles", {}).items():
+        kinds[style] = {row["image"]: entry(row) for row in value["rows"]}
     return kinds
 
 
@@ -121,14 +125,21 @@ def paired(report: dict, other: dict) -> dict:
     """This report's per-image DICE minus ``other``'s (the same benchmark, another network), per kind, over
     the images both scored: the mean difference, its standard error and n. Two networks scored on the same
     images differ far less from image to image than the images do among themselves, so this tells a real
-    difference from the spread of a kind's scenes. Kinds with no image in common are left out; none at all
-    is an error."""
+    difference from the spread of a kind's scenes. Images are matched by kind and name, and must hold the same
+    number of true cable pixels in both (a development and a test folder both named ``wires`` hold other
+    scenes under the same names: an error, not a pairing). Kinds with no image in common are left out; none
+    at all is an error."""
     mine, theirs = _rows_by_kind(report), _rows_by_kind(other)
     out = {}
     for kind, rows in mine.items():
         common = sorted(set(rows) & set(theirs.get(kind, {})))
+        for name in common:
+            a, b = rows[name][1], theirs[kind][name][1]
+            if a is not None and b is not None and a != b:
+                raise ValueError(f"{kind} {name}: {a} true cable pixels here and {b} in the other report; "
+                                 f"not the same scenes")
         if common:
-            diff = [rows[i] - theirs[kind][i] for i in common]
+            diff = [rows[i][0] - theirs[kind][i][0] for i in common]
             out[kind] = {"n": len(common), "dice_diff_mean": float(np.mean(diff)),
                          "dice_diff_se": _standard_error(diff)}
     if not out:
@@ -767,12 +778,18 @@ def main() -> int:
     if "loopcam" in parts and not args.quick:
         report["loopcam"] = part_loopcam(args.model)
         print(json.dumps(report["loopcam"], indent=1))
+    pairing_error = None
     if against is not None:
         report["against"] = {"report": args.against, "model": against.get("model")}
-        report["paired"] = paired(report, against)
-        print(json.dumps(report["paired"], indent=1))
+        try:
+            report["paired"] = paired(report, against)
+            print(json.dumps(report["paired"], indent=1))
+        except ValueError as e:  # the scores are written all the same
+            pairing_error = f"--against {args.against}: {e}; the scores are in {args.out}, with no 'paired'"
     report["wall_s"] = time.perf_counter() - t0
     Path(args.out).write_text(json.dumps(report, indent=1))
+    if pairing_error:
+        raise SystemExit(pairing_error)
     return 0
 
 

@@ -69,10 +69,12 @@ def _benchmark():  # type: ignore[no-untyped-def]
     return segmentation_generalisation
 
 
-def _report(external: dict[str, float], styles: dict[str, dict[str, float]]) -> dict:
-    rows = [{"source": k.split("/")[0], "image": k.split("/", 1)[1], "split": "heldout", "dice": v}
-            for k, v in external.items()]
-    by_style = {s: {"rows": [{"image": i, "dice": v} for i, v in r.items()]} for s, r in styles.items()}
+def _report(external: dict[str, float], styles: dict[str, dict[str, float]], true_px: int = 100) -> dict:
+    px = {"thin": 10, "mid": 20, "wide": true_px - 30}
+    rows = [{"source": k.split("/")[0], "image": k.split("/", 1)[1], "split": "heldout", "dice": v,
+             "true_px": px} for k, v in external.items()]
+    by_style = {s: {"rows": [{"image": i, "dice": v, "true_px": px} for i, v in r.items()]}
+                for s, r in styles.items()}
     return {"external": {"rows": rows}, "styles": by_style}
 
 
@@ -94,6 +96,9 @@ def test_paired_differences_match_images_by_name_within_each_kind() -> None:
         sg.paired(c, _report({}, {"busy": {"000000": 0.5, "000001": 0.6}}))
     assert sg.paired(c, c)["wires"] == {"n": 2, "dice_diff_mean": 0.0, "dice_diff_se": 0.0}
     assert sg.paired(_report({}, {"wires": {"000000": 0.5}}), c)["wires"]["dice_diff_se"] is None
+    # Other scenes under the same names (a development and a test folder both called wires).
+    with pytest.raises(ValueError, match="wires 000000: 100 true cable pixels here and 90 in the other"):
+        sg.paired(c, _report({}, {"wires": {"000000": 0.5, "000001": 0.6}}, true_px=90))
 
 
 def test_standard_error_of_the_mean() -> None:
@@ -112,3 +117,15 @@ def test_a_bad_against_report_is_refused_before_scoring(tmp_path: Path, content:
                          cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert res.returncode != 0 and f"--against {bad}" in res.stderr
     assert not out.exists()
+
+
+def test_scores_are_written_when_the_against_report_pairs_nothing(tmp_path: Path) -> None:
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps(_report({}, {"harness": {"000000": 0.5}})))
+    out = tmp_path / "seg.json"
+    res = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "segmentation_generalisation.py"),
+                          "--quick", "--parts", "styles", "--styles", "wires", "--against", str(other),
+                          "--out", str(out)], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert res.returncode != 0 and "no image scored in both reports" in res.stderr
+    report = json.loads(out.read_text())
+    assert set(report["styles"]) == {"wires"} and "paired" not in report
