@@ -310,13 +310,14 @@ def load_external(pairs: list[tuple[Path, Path]], short_side: int = 240) -> tupl
     return images, masks
 
 
-#: Least scale of :func:`_augment` (the image is resized by a log-uniform draw from here to ``max_scale``).
-MIN_SCALE = 0.6
+#: Least scale of :func:`_augment` (the image is resized by a log-uniform draw from here to ``max_scale``),
+#: and the largest one unless a run asks for another (``TrainConfig.max_scale``).
+MIN_SCALE, DEFAULT_MAX_SCALE = 0.6, 1.5
 
 
 def _augment(
     rng: np.random.Generator, rgb: NDArray[np.uint8], mask: NDArray[np.uint8], crop: tuple[int, int],
-    max_scale: float = 1.5,
+    max_scale: float = DEFAULT_MAX_SCALE,
 ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
     ch, cw = crop
     s = float(np.exp(rng.uniform(math.log(MIN_SCALE), math.log(max_scale))))
@@ -376,13 +377,13 @@ class TrainConfig:
     frozen_batch_norm: bool = False
     #: Largest scale an image is resized by before its crop (:func:`_augment`; least: :data:`MIN_SCALE`).
     #: ``segment`` enlarges a 384x288 photo 1.67x to its 480 px short side, 2x a 320x240 one.
-    max_scale: float = 1.5
+    max_scale: float = DEFAULT_MAX_SCALE
 
 
 def _with_widths(config: dict[str, Any]) -> dict[str, Any]:
     """A stored training config with ``widths`` as a tuple; options it predates at their defaults."""
     return {"frozen_batch_norm": False, "external_short_side": 240, "external_balanced": False, "blocks": 0,
-            "max_scale": 1.5, **config,
+            "max_scale": DEFAULT_MAX_SCALE, **config,
             "widths": tuple(config.get("widths", DEFAULT_WIDTHS))}
 
 
